@@ -1,0 +1,105 @@
+"""Mean value coordinates of a closed triangle cage (Ju, Schaefer and Warren 2005), in float64.
+
+They reproduce constants and linear functions exactly at every point off the cage (inside and outside) and
+equal the piecewise linear hat functions on it: the boundary data of Stokes cage coordinates.
+"""
+
+import warp as wp
+
+PI = wp.constant(wp.float64(3.141592653589793))
+
+
+@wp.func
+def half_angle(u: wp.vec3d, v: wp.vec3d):
+    """Angle between unit vectors u and v, as 2 asin(|u - v| / 2) (accurate for small angles)."""
+    s = wp.min(wp.length(u - v) * wp.float64(0.5), wp.float64(1.0))
+    return wp.float64(2.0) * wp.asin(s)
+
+
+@wp.func
+def triangle_weights(
+    u0: wp.vec3d,
+    u1: wp.vec3d,
+    u2: wp.vec3d,
+    d0: wp.float64,
+    d1: wp.float64,
+    d2: wp.float64,
+    eps: wp.float64,
+):
+    """Unnormalised MVC weights of one triangle's corners; the 4th entry says how to use them:
+    0 = regular, 1 = skip (point in the triangle's plane, outside it), 2 = point lies on the triangle
+    (the three weights are then its barycentric coordinates, up to scale)."""
+    one = wp.float64(1.0)
+    two = wp.float64(2.0)
+    zero = wp.float64(0.0)
+    t0 = half_angle(u1, u2)
+    t1 = half_angle(u2, u0)
+    t2 = half_angle(u0, u1)
+    h = (t0 + t1 + t2) * wp.float64(0.5)
+    if PI - h < eps:
+        return wp.vec4d(wp.sin(t0) * d1 * d2, wp.sin(t1) * d2 * d0, wp.sin(t2) * d0 * d1, two)
+    sh = wp.sin(h)
+    s_t0 = wp.sin(t0)
+    s_t1 = wp.sin(t1)
+    s_t2 = wp.sin(t2)
+    c0 = two * sh * wp.sin(h - t0) / (s_t1 * s_t2) - one
+    c1 = two * sh * wp.sin(h - t1) / (s_t2 * s_t0) - one
+    c2 = two * sh * wp.sin(h - t2) / (s_t0 * s_t1) - one
+    sign = wp.sign(wp.dot(u0, wp.cross(u1, u2)))
+    s0 = sign * wp.sqrt(wp.max(one - c0 * c0, zero))
+    s1 = sign * wp.sqrt(wp.max(one - c1 * c1, zero))
+    s2 = sign * wp.sqrt(wp.max(one - c2 * c2, zero))
+    if wp.abs(s0) <= eps or wp.abs(s1) <= eps or wp.abs(s2) <= eps:
+        return wp.vec4d(zero, zero, zero, one)
+    w0 = (t0 - c1 * t2 - c2 * t1) / (d0 * s_t1 * s2)
+    w1 = (t1 - c2 * t0 - c0 * t2) / (d1 * s_t2 * s0)
+    w2 = (t2 - c0 * t1 - c1 * t0) / (d2 * s_t0 * s1)
+    return wp.vec4d(w0, w1, w2, zero)
+
+
+@wp.kernel
+def mean_value_coordinates(
+    points: wp.array(dtype=wp.vec3d),
+    cage: wp.array(dtype=wp.vec3d),
+    triangles: wp.array(dtype=wp.vec3i),
+    eps_distance: wp.float64,
+    eps_angle: wp.float64,
+    weights: wp.array2d(dtype=wp.float64),
+):
+    """weights[n, l] = MVC of handle l at points[n]; one thread per point, rows sum to one."""
+    n = wp.tid()
+    x = points[n]
+    n_handles = cage.shape[0]
+    zero = wp.float64(0.0)
+    for l in range(n_handles):
+        weights[n, l] = zero
+    for l in range(n_handles):
+        if wp.length(cage[l] - x) < eps_distance:
+            weights[n, l] = wp.float64(1.0)
+            return
+    total = zero
+    for t in range(triangles.shape[0]):
+        tri = triangles[t]
+        e0 = cage[tri[0]] - x
+        e1 = cage[tri[1]] - x
+        e2 = cage[tri[2]] - x
+        d0 = wp.length(e0)
+        d1 = wp.length(e1)
+        d2 = wp.length(e2)
+        w = triangle_weights(e0 / d0, e1 / d1, e2 / d2, d0, d1, d2, eps_angle)
+        if w[3] == wp.float64(2.0):
+            # x lies on this triangle: the coordinates are its barycentric coordinates there
+            for l in range(n_handles):
+                weights[n, l] = zero
+            s = w[0] + w[1] + w[2]
+            weights[n, tri[0]] = w[0] / s
+            weights[n, tri[1]] = w[1] / s
+            weights[n, tri[2]] = w[2] / s
+            return
+        if w[3] == zero:
+            weights[n, tri[0]] = weights[n, tri[0]] + w[0]
+            weights[n, tri[1]] = weights[n, tri[1]] + w[1]
+            weights[n, tri[2]] = weights[n, tri[2]] + w[2]
+            total = total + w[0] + w[1] + w[2]
+    for l in range(n_handles):
+        weights[n, l] = weights[n, l] / total

@@ -1,0 +1,35 @@
+"""warp-stokes: Stokes cage coordinates on a voxel grid, solved for all handles at once with NVIDIA Warp.
+
+>>> import warp_stokes as ws
+>>> b = ws.bind("arm.obj", "arm_cage.obj", resolution=64)   # doctest: +SKIP
+>>> deformed = b.deform(new_cage_vertices)                    # doctest: +SKIP
+"""
+
+import warp as wp
+
+# Warp prints a banner on initialisation; a library should stay quiet unless asked.
+wp.config.log_level = wp.LOG_WARNING
+
+__version__ = "0.1.0"
+
+from .errors import BindingError, CageError, MeshError, ResolutionError, WarpStokesError  # noqa: E402
+from .load import Surface, load_surface  # noqa: E402
+from .cage import Cage, check_cage, signed_volume  # noqa: E402
+from .grid import Grid, voxelize, grid_from_mask, classify_points  # noqa: E402
+from .boundary import mean_value_coordinates, boundary_field  # noqa: E402
+from .solve import SolveReport, solve_biharmonic, apply_operator  # noqa: E402
+from .sample import sample_weights  # noqa: E402
+from .deform import deform_vertices  # noqa: E402
+from .binding import Binding, bind, load_binding  # noqa: E402
+from .device import resolve_device, device_name  # noqa: E402
+
+__all__ = [
+    "bind", "load_binding", "Binding",
+    "load_surface", "Surface", "check_cage", "Cage", "signed_volume",
+    "voxelize", "grid_from_mask", "Grid", "classify_points",
+    "mean_value_coordinates", "boundary_field",
+    "solve_biharmonic", "apply_operator", "SolveReport",
+    "sample_weights", "deform_vertices",
+    "resolve_device", "device_name",
+    "WarpStokesError", "MeshError", "CageError", "BindingError", "ResolutionError",
+]

@@ -1,0 +1,340 @@
+"""Binding a mesh to a cage (load -> grid -> solve -> sample), and the Binding that deforms it afterwards."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import tempfile
+import time
+import warnings
+
+import numpy as np
+import warp as wp
+
+from . import __version__
+from .boundary import boundary_field, mean_value_coordinates
+from .cage import Cage, check_cage
+from .deform import deform_vertices
+from .device import device_name, resolve_device
+from .errors import BindingError, MeshError, WarpStokesError
+from .grid import classify_points, voxelize
+from .load import Surface, load_surface
+from .sample import sample_weights
+from .solve import solve_biharmonic
+
+__all__ = ["Binding", "bind", "load_binding", "FORMAT"]
+
+#: identifies files written by Binding.save; bump the number when the layout changes
+FORMAT = "warp-stokes-binding/1"
+
+
+def fingerprint(vertices: np.ndarray, faces: np.ndarray) -> str:
+    """SHA-256 of a mesh's vertex positions (float64) and faces (int64), as hex."""
+    h = hashlib.sha256()
+    h.update(np.ascontiguousarray(vertices, dtype=np.float64).tobytes())
+    h.update(np.ascontiguousarray(faces, dtype=np.int64).tobytes())
+    return h.hexdigest()
+
+
+class Binding:
+    """Weights of a mesh with respect to a cage, and what is needed to deform the mesh with it.
+
+    Attributes
+    ----------
+    weights : (V, L) float32 numpy array; row j holds vertex j's weight for each handle, rows sum to one
+    cage_vertices, cage_faces : the rest cage (faces outward oriented)
+    mesh_vertices, mesh_faces : the rest mesh
+    settings : dict of the grid and solver settings used
+    stats : dict of what binding measured (grid shape, node counts, iterations, residual, errors, timings)
+    device : the Warp device ``deform`` runs on
+    """
+
+    def __init__(self, weights, cage_vertices, cage_faces, mesh_vertices, mesh_faces, settings, stats,
+                 device=None):
+        self.weights = np.ascontiguousarray(weights, dtype=np.float32)
+        self.cage_vertices = np.asarray(cage_vertices, dtype=np.float64)
+        self.cage_faces = np.asarray(cage_faces, dtype=np.int64)
+        self.mesh_vertices = np.asarray(mesh_vertices, dtype=np.float64)
+        self.mesh_faces = np.asarray(mesh_faces, dtype=np.int64)
+        self.settings = dict(settings)
+        self.stats = dict(stats)
+        self.device = resolve_device(device)
+        self._weights_t = None
+
+    @property
+    def n_vertices(self) -> int:
+        return self.weights.shape[0]
+
+    @property
+    def n_handles(self) -> int:
+        return self.weights.shape[1]
+
+    def __repr__(self) -> str:
+        return f"Binding({self.n_vertices} vertices, {self.n_handles} handles, resolution {self.settings.get('resolution')})"
+
+    def _check_topology(self, surface: Surface) -> np.ndarray:
+        if len(surface.vertices) != self.n_handles:
+            raise BindingError(
+                f"{surface.name}: the cage pose has {len(surface.vertices)} vertices, the bound cage has {self.n_handles}"
+            )
+        same = surface.faces.shape == self.cage_faces.shape and (
+            np.array_equal(surface.faces, self.cage_faces) or np.array_equal(surface.faces[:, ::-1], self.cage_faces)
+        )
+        if not same:
+            raise BindingError(f"{surface.name}: the cage pose's faces differ from the bound cage's (different topology)")
+        return surface.vertices
+
+    def deform(self, poses):
+        """Deformed mesh vertices ``p' = W c'`` for one cage pose or a batch.
+
+        Parameters
+        ----------
+        poses : (L, 3) or (F, L, 3) array, a Warp vec3 array (L,) or (F, L), or a deformed cage with the bound
+            cage's topology (a path, a trimesh.Trimesh or a ``(vertices, faces)`` tuple)
+
+        Returns
+        -------
+        (V, 3) or (F, V, 3) float32 numpy array (a Warp vec3 array on ``self.device`` for Warp input)
+
+        Raises
+        ------
+        BindingError
+            When a deformed cage's vertex count or faces differ from the bound cage's.
+        WarpStokesError
+            When an array has the wrong shape or non-finite values.
+
+        Examples
+        --------
+        >>> rest = b.deform(b.cage_vertices)                       # doctest: +SKIP
+        >>> frames = b.deform(np.stack([cage0, cage1, cage2]))       # doctest: +SKIP
+        """
+        is_cage = isinstance(poses, (str, os.PathLike)) or type(poses).__name__ == "Trimesh" or (
+            isinstance(poses, tuple) and len(poses) == 2 and np.issubdtype(np.asarray(poses[1]).dtype, np.integer)
+        )
+        if is_cage:
+            poses = self._check_topology(load_surface(poses))
+        if self._weights_t is None:
+            self._weights_t = wp.array(np.ascontiguousarray(self.weights.T), dtype=wp.float32, device=self.device)
+        return deform_vertices(self._weights_t, poses, device=self.device)
+
+    def save(self, path) -> None:
+        """Write the binding to ``path`` (a .npz file), atomically: a temporary file renamed when complete.
+
+        Parameters
+        ----------
+        path : str | os.PathLike
+        """
+        path = os.fspath(path)
+        folder = os.path.dirname(os.path.abspath(path))
+        if not os.path.isdir(folder):
+            raise BindingError(f"{path}: the folder {folder} does not exist")
+        meta = {
+            "format": FORMAT,
+            "version": __version__,
+            "settings": self.settings,
+            "stats": self.stats,
+            "cage_fingerprint": fingerprint(self.cage_vertices, self.cage_faces),
+            "mesh_fingerprint": fingerprint(self.mesh_vertices, self.mesh_faces),
+        }
+        fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".npz", dir=folder)
+        try:
+            with os.fdopen(fd, "wb") as fh:
+                np.savez(
+                    fh,
+                    weights=self.weights,
+                    cage_vertices=self.cage_vertices,
+                    cage_faces=self.cage_faces,
+                    mesh_vertices=self.mesh_vertices,
+                    mesh_faces=self.mesh_faces,
+                    meta=np.array(json.dumps(meta)),
+                )
+            os.replace(tmp, path)
+        except BaseException:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+            raise
+
+
+def load_binding(path, device=None) -> Binding:
+    """Read a binding written by :meth:`Binding.save`.
+
+    Parameters
+    ----------
+    path : str | os.PathLike
+    device : None | str, where ``deform`` will run (default: CUDA when present)
+
+    Returns
+    -------
+    Binding
+
+    Raises
+    ------
+    BindingError
+        Missing or unreadable file, not a warp-stokes binding, or inconsistent contents.
+
+    Examples
+    --------
+    >>> b = load_binding("arm.npz")   # doctest: +SKIP
+    """
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        raise BindingError(f"{path}: no such file")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            arrays = {k: data[k] for k in data.files}
+    except Exception as exc:
+        raise BindingError(f"{path}: not a readable binding file ({type(exc).__name__}: {exc})") from None
+    needed = {"weights", "cage_vertices", "cage_faces", "mesh_vertices", "mesh_faces", "meta"}
+    if not needed <= set(arrays):
+        raise BindingError(f"{path}: not a warp-stokes binding (missing {sorted(needed - set(arrays))})")
+    try:
+        meta = json.loads(str(arrays["meta"]))
+    except json.JSONDecodeError:
+        raise BindingError(f"{path}: the binding's metadata is corrupt") from None
+    if meta.get("format") != FORMAT:
+        raise BindingError(f"{path}: unsupported binding format {meta.get('format')!r} (this version reads {FORMAT})")
+    w = arrays["weights"]
+    if w.ndim != 2 or w.shape != (len(arrays["mesh_vertices"]), len(arrays["cage_vertices"])):
+        raise BindingError(f"{path}: weights of shape {w.shape} do not match the stored mesh and cage")
+    if fingerprint(arrays["cage_vertices"], arrays["cage_faces"]) != meta.get("cage_fingerprint") or fingerprint(
+        arrays["mesh_vertices"], arrays["mesh_faces"]
+    ) != meta.get("mesh_fingerprint"):
+        raise BindingError(f"{path}: the stored cage or mesh does not match its fingerprint (file modified?)")
+    return Binding(
+        w, arrays["cage_vertices"], arrays["cage_faces"], arrays["mesh_vertices"], arrays["mesh_faces"],
+        meta["settings"], meta["stats"], device=device,
+    )
+
+
+def _suggest_resolution(resolution: int, spacing: float, distances: np.ndarray) -> int:
+    """Resolution at which a feature whose points lie within `distances` of the surface spans ~3 cells."""
+    thickness = max(2.0 * float(np.max(distances)), 1e-12)
+    return int(min(2048, max(2 * resolution, math.ceil(resolution * 3.0 * spacing / thickness))))
+
+
+def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_iterations: int | None = None,
+         ) -> Binding:
+    """Compute Stokes cage coordinates of a mesh's vertices with respect to a cage.
+
+    Load -> voxelise (winding number) -> boundary data (mean value coordinates) -> batched solve of the
+    compact biharmonic scheme for all handles -> trilinear sampling at the vertices. Vertices outside the cage
+    but within the grid's band are sampled too; vertices beyond it get their mean value coordinates (warning).
+
+    Parameters
+    ----------
+    mesh : path | trimesh.Trimesh | (vertices, faces)
+        The mesh to deform; its vertex order is kept.
+    cage : path | trimesh.Trimesh | (vertices, faces)
+        A closed, consistently oriented cage (quads and polygons are triangulated).
+    resolution : int
+        Grid cells along the cage's longest axis.
+    device : None | str
+        ``"cpu"``, ``"cuda"`` or ``"cuda:N"``; default CUDA when present, else CPU.
+    tol : float
+        Relative residual per handle at which the solver stops.
+    max_iterations : int, optional
+        Solver iteration limit.
+
+    Returns
+    -------
+    Binding
+
+    Raises
+    ------
+    MeshError, CageError, ResolutionError (all ValueError)
+
+    Examples
+    --------
+    >>> import warp_stokes as ws
+    >>> b = ws.bind("examples/arm/arm.obj", "examples/arm/arm_cage.obj", resolution=32)  # doctest: +SKIP
+    >>> b.weights.shape  # doctest: +SKIP
+    (2089, 58)
+    """
+    if not (isinstance(tol, (int, float)) and 0 < tol < 1):
+        raise WarpStokesError(f"tol must be a number between 0 and 1, got {tol!r}")
+    device = resolve_device(device)
+    seconds = {}
+    t = time.perf_counter()
+    surface = load_surface(mesh)
+    if len(surface.vertices) == 0:
+        raise MeshError(f"{surface.name}: the mesh has no vertices")
+    checked: Cage = check_cage(cage)
+    seconds["load"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    grid = voxelize(checked, resolution, device=device)
+    seconds["voxelize"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    field = boundary_field(grid, checked, device=device)
+    wp.synchronize_device(device)
+    seconds["boundary"] = time.perf_counter() - t
+
+    report = solve_biharmonic(
+        grid, field, tol=tol, max_iterations=max_iterations, handles=checked.vertices, device=device
+    )
+    seconds["solve"] = report.seconds
+
+    t = time.perf_counter()
+    points = surface.vertices
+    inside, distance = classify_points(checked, points, device=device)
+    weights, corners = sample_weights(grid, field, points, device=device)
+    sampled = (corners >= 0).all(axis=1)
+    beyond = ~sampled
+    if beyond.any():
+        weights[beyond] = mean_value_coordinates(checked, points[beyond], device=device).astype(np.float32)
+        warnings.warn(
+            f"{surface.name}: {int(beyond.sum())} vertices lie outside {checked.name} beyond the grid's band "
+            f"(up to {distance[beyond].max():.3g} from the cage); they get mean value coordinates",
+            stacklevel=2,
+        )
+    # a vertex inside the cage whose cell has no interior node sits in a feature the grid does not resolve
+    thin = inside & sampled & ~((corners >= 0) & (corners < grid.n_interior)).any(axis=1)
+    if thin.any():
+        suggestion = _suggest_resolution(resolution, grid.spacing, distance[thin])
+        warnings.warn(
+            f"{checked.name}: {int(thin.sum())} mesh vertices lie in parts of the cage thinner than about two grid "
+            f"cells at resolution {resolution}; their weights come from the boundary data alone. "
+            f"resolution={suggestion} would resolve them",
+            stacklevel=2,
+        )
+    seconds["sample"] = time.perf_counter() - t
+    seconds["total"] = sum(seconds.values())
+
+    diag = checked.diagonal
+    w64 = weights.astype(np.float64)
+    stats = {
+        "device": device_name(device),
+        "grid_shape": list(grid.shape),
+        "spacing": grid.spacing,
+        "interior_nodes": grid.n_interior,
+        "ring_nodes": grid.n_ring,
+        "band_nodes": grid.n_band,
+        "handles": checked.n_handles,
+        "vertices": len(points),
+        "vertices_outside_cage": int((~inside).sum()),
+        "vertices_beyond_band": int(beyond.sum()),
+        "vertices_in_thin_features": int(thin.sum()),
+        "iterations": report.iterations,
+        "residual": report.residual,
+        "identity_error": report.identity_error,
+        "converged": report.converged,
+        "partition_of_unity_error": float(np.abs(w64.sum(axis=1) - 1.0).max()),
+        "linear_precision_error": float(np.linalg.norm(w64 @ checked.vertices - points, axis=1).max() / diag),
+        "seconds": seconds,
+    }
+    settings = {
+        "resolution": int(resolution),
+        "tol": float(tol),
+        "max_iterations": max_iterations,
+        "solver": "cg-jacobi",
+        "boundary": "mvc-central-difference",
+        "sampling": "trilinear",
+        "mesh": surface.name,
+        "cage": checked.name,
+        "cage_flipped": checked.flipped,
+        "warp_version": wp.config.version,
+    }
+    return Binding(weights, checked.vertices, checked.faces, points, surface.faces, settings, stats, device=device)

@@ -1,0 +1,63 @@
+"""Deforming vertices from cage poses: p'_j = sum_l w_j(l) c'_l, batched over frames on the device."""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from .device import resolve_device
+from .errors import WarpStokesError
+from .kernels import deform
+
+__all__ = ["deform_vertices"]
+
+
+def deform_vertices(weights_t: wp.array, poses, device=None):
+    """Deformed vertex positions for one cage pose or a batch of poses.
+
+    Parameters
+    ----------
+    weights_t : wp.array2d(float32), (L, V): the transposed weights, on ``device``
+    poses : (L, 3) or (F, L, 3) numpy array, or a Warp array of vec3 with shape (L,) or (F, L)
+    device : None | str
+
+    Returns
+    -------
+    (V, 3) or (F, V, 3) numpy float32 array for numpy input; a Warp vec3 array of shape (V,) or (F, V) on
+    ``device`` for Warp input.
+
+    Raises
+    ------
+    WarpStokesError
+        When the poses do not have one position per handle.
+    """
+    device = resolve_device(device)
+    n_handles, n_vertices = weights_t.shape
+    as_warp = isinstance(poses, wp.array)
+    # poses are small (frames x handles): centring them in float64 on the host keeps float32 sums exact
+    poses_np = np.asarray(poses.numpy() if as_warp else poses, dtype=np.float64)
+    single = poses_np.ndim == 2
+    batch = poses_np[None] if single else poses_np
+    if batch.ndim != 3 or batch.shape[1:] != (n_handles, 3):
+        raise WarpStokesError(
+            f"poses must have shape ({n_handles}, 3) or (frames, {n_handles}, 3) for this cage, got {poses_np.shape}"
+        )
+    if not np.all(np.isfinite(batch)):
+        raise WarpStokesError("poses contain non-finite coordinates")
+    centres = batch.mean(axis=1)
+    with wp.ScopedDevice(device):
+        out = wp.empty((len(batch), n_vertices), dtype=wp.vec3)
+        wp.launch(
+            deform.deform_vertices,
+            dim=(len(batch), n_vertices),
+            inputs=[
+                weights_t,
+                wp.array((batch - centres[:, None]).astype(np.float32), dtype=wp.vec3),
+                wp.array(centres.astype(np.float32), dtype=wp.vec3),
+            ],
+            outputs=[out],
+        )
+    if as_warp:
+        return out[0] if single else out
+    result = out.numpy()
+    return result[0] if single else result

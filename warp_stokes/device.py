@@ -1,0 +1,48 @@
+"""Choosing the Warp device: CUDA when present, else the CPU."""
+
+from __future__ import annotations
+
+import warp as wp
+
+from .errors import WarpStokesError
+
+__all__ = ["resolve_device", "device_name"]
+
+
+def resolve_device(device=None) -> wp.context.Device:
+    """The Warp device to run on.
+
+    Parameters
+    ----------
+    device : None | str | warp Device
+        ``None`` picks ``"cuda:0"`` when a CUDA device is present, else ``"cpu"``; ``"cuda"`` means the
+        current CUDA device.
+
+    Returns
+    -------
+    warp Device
+
+    Raises
+    ------
+    WarpStokesError
+        When the device does not exist (e.g. ``"cuda"`` on a machine without a GPU).
+
+    Examples
+    --------
+    >>> resolve_device("cpu").alias
+    'cpu'
+    """
+    wp.init()
+    if device is None:
+        device = "cuda:0" if wp.is_cuda_available() else "cpu"
+    try:
+        return wp.get_device(device)
+    except Exception as exc:
+        available = ", ".join(d.alias for d in wp.get_devices())
+        raise WarpStokesError(f"device {device!r} is not available ({exc}); available: {available}") from None
+
+
+def device_name(device) -> str:
+    """A readable name such as ``"cuda:0 (NVIDIA H100 80GB HBM3)"`` or ``"cpu"``."""
+    d = resolve_device(device)
+    return f"{d.alias} ({d.name})" if d.is_cuda else d.alias

@@ -1,0 +1,21 @@
+"""Exceptions raised for bad input. All derive from ValueError so callers can catch either."""
+
+
+class WarpStokesError(ValueError):
+    """Base class: input that warp-stokes cannot work with."""
+
+
+class MeshError(WarpStokesError):
+    """A mesh (or point set) could not be read or is unusable."""
+
+
+class CageError(WarpStokesError):
+    """A cage is unusable: not closed, badly oriented, degenerate, too small, ..."""
+
+
+class BindingError(WarpStokesError):
+    """A saved binding is unreadable, or does not match the cage or poses given with it."""
+
+
+class ResolutionError(WarpStokesError):
+    """The requested grid is too coarse for the cage or too large for the device."""

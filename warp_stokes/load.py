@@ -1,0 +1,176 @@
+"""Loading meshes and cages from what users have: paths, trimesh objects, or (vertices, faces) arrays.
+
+Vertex order is preserved exactly (no merging, no reordering): users map weights back to their own vertex ids.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import MeshError
+
+__all__ = ["Surface", "load_surface"]
+
+
+@dataclass(frozen=True)
+class Surface:
+    """Vertices and triangles of a loaded mesh or cage.
+
+    Attributes
+    ----------
+    vertices : (V, 3) float64 array
+    faces : (F, 3) int64 array of triangles (polygons are fan-triangulated); may be empty for point sets
+    name : str
+        Where it came from (a path, or a description such as ``"<array>"``), used in error messages.
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    name: str
+
+
+def _triangulate(polygons, name: str, n_vertices: int) -> np.ndarray:
+    """Fan-triangulate a list of polygons (or an (F, k) array) into (T, 3) int64 triangles."""
+    if isinstance(polygons, np.ndarray) and polygons.ndim == 2:
+        rows = polygons
+        if rows.shape[1] < 3:
+            raise MeshError(f"{name}: faces must have at least 3 vertices, got an array of shape {rows.shape}")
+        if not np.issubdtype(rows.dtype, np.integer):
+            if not np.all(np.isfinite(rows)) or np.any(rows != np.round(rows)):
+                raise MeshError(f"{name}: face indices must be integers")
+            rows = rows.astype(np.int64)
+        tris = [np.stack([rows[:, 0], rows[:, k], rows[:, k + 1]], axis=1) for k in range(1, rows.shape[1] - 1)]
+        # interleave so that each polygon's triangles stay together
+        out = np.stack(tris, axis=1).reshape(-1, 3)
+    else:
+        out_list = []
+        for i, poly in enumerate(polygons):
+            poly = np.asarray(poly)
+            if poly.ndim != 1 or len(poly) < 3:
+                raise MeshError(f"{name}: face {i} has {poly.size} vertices; a face needs at least 3")
+            for k in range(1, len(poly) - 1):
+                out_list.append((poly[0], poly[k], poly[k + 1]))
+        out = np.asarray(out_list, dtype=np.int64).reshape(-1, 3)
+    out = out.astype(np.int64)
+    if out.size and (out.min() < 0 or out.max() >= n_vertices):
+        bad = int(np.flatnonzero((out < 0).any(axis=1) | (out >= n_vertices).any(axis=1))[0])
+        raise MeshError(
+            f"{name}: face {bad} refers to vertex {out[bad].tolist()}, but there are only {n_vertices} vertices"
+        )
+    return out
+
+
+def _from_arrays(vertices, faces, name: str) -> Surface:
+    try:
+        v = np.asarray(vertices, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise MeshError(f"{name}: vertices are not a numeric array ({exc})") from None
+    if v.ndim != 2 or v.shape[1] != 3:
+        raise MeshError(f"{name}: vertices must have shape (V, 3), got {v.shape}")
+    if len(v) == 0:
+        raise MeshError(f"{name}: the mesh has no vertices")
+    if not np.all(np.isfinite(v)):
+        bad = int(np.flatnonzero(~np.isfinite(v).all(axis=1))[0])
+        raise MeshError(f"{name}: vertex {bad} has a non-finite coordinate {v[bad].tolist()}")
+    if faces is None:
+        f = np.zeros((0, 3), dtype=np.int64)
+    else:
+        if isinstance(faces, np.ndarray) or (
+            hasattr(faces, "__len__") and len(faces) and np.ndim(faces[0]) == 1 and len({len(x) for x in faces}) == 1
+        ):
+            faces = np.asarray(faces)
+        f = _triangulate(faces, name, len(v)) if len(faces) else np.zeros((0, 3), dtype=np.int64)
+    return Surface(vertices=np.ascontiguousarray(v), faces=np.ascontiguousarray(f), name=name)
+
+
+def _read_obj_polygons(path: str) -> tuple[np.ndarray, list] | None:
+    """Read an OBJ's `v` and `f` records directly, keeping file order and the polygons as written.
+
+    trimesh re-orders or splits vertices in some OBJ files (texture seams); users need file order.
+    """
+    verts, polys = [], []
+    with open(path, encoding="utf-8", errors="replace") as fh:
+        for line_no, line in enumerate(fh, 1):
+            if line.startswith("v "):
+                parts = line.split()
+                if len(parts) < 4:
+                    raise MeshError(f"{path}: line {line_no}: a vertex needs 3 coordinates: {line.strip()!r}")
+                try:
+                    verts.append([float(x) for x in parts[1:4]])
+                except ValueError:
+                    raise MeshError(f"{path}: line {line_no}: unreadable vertex {line.strip()!r}") from None
+            elif line.startswith("f "):
+                idx = []
+                for tok in line.split()[1:]:
+                    try:
+                        k = int(tok.split("/")[0])
+                    except ValueError:
+                        raise MeshError(f"{path}: line {line_no}: unreadable face {line.strip()!r}") from None
+                    # OBJ indices are 1-based; negative ones count back from the last vertex read so far
+                    idx.append(k - 1 if k > 0 else len(verts) + k)
+                polys.append(idx)
+    return np.asarray(verts, dtype=np.float64).reshape(-1, 3), polys
+
+
+def load_surface(source, name: str | None = None) -> Surface:
+    """Load a triangle surface (polygons are fan-triangulated) from a path, a trimesh object or arrays.
+
+    Parameters
+    ----------
+    source : str | os.PathLike | trimesh.Trimesh | tuple(vertices, faces) | Surface
+        A file trimesh can read (OBJ, PLY, OFF, STL, glTF/GLB, ...), a ``trimesh.Trimesh``, or a pair
+        ``(vertices (V, 3), faces)`` where faces is an (F, k) integer array or a list of polygons
+        (``faces`` may be ``None`` for a point set).
+    name : str, optional
+        Name used in error messages; defaults to the path or a description of the object.
+
+    Returns
+    -------
+    Surface
+        Vertices in the source's order (no merging) and triangles.
+
+    Raises
+    ------
+    MeshError
+        Unreadable or missing file, empty mesh, non-finite coordinates, out-of-range face indices.
+
+    Examples
+    --------
+    >>> s = load_surface((np.eye(3), [[0, 1, 2]]))
+    >>> s.vertices.shape, s.faces.tolist()
+    ((3, 3), [[0, 1, 2]])
+    """
+    import trimesh
+
+    if isinstance(source, Surface):
+        return source
+    if isinstance(source, (str, os.PathLike)):
+        path = os.fspath(source)
+        name = name or path
+        if not os.path.exists(path):
+            raise MeshError(f"{path}: no such file")
+        if os.path.isdir(path):
+            raise MeshError(f"{path}: is a folder, not a mesh file")
+        if path.lower().endswith(".obj"):
+            verts, polys = _read_obj_polygons(path)
+            if len(verts) == 0:
+                raise MeshError(f"{path}: the file has no vertices")
+            return _from_arrays(verts, polys, name)
+        try:
+            loaded = trimesh.load(path, force="mesh", process=False, maintain_order=True)
+        except Exception as exc:  # trimesh raises many different types for unreadable files
+            raise MeshError(f"{path}: cannot read it as a mesh ({type(exc).__name__}: {exc})") from None
+        if not isinstance(loaded, trimesh.Trimesh) or len(loaded.vertices) == 0:
+            raise MeshError(f"{path}: the file has no mesh vertices")
+        return _from_arrays(loaded.vertices, loaded.faces, name)
+    if isinstance(source, trimesh.Trimesh):
+        return _from_arrays(source.vertices, source.faces, name or "<trimesh.Trimesh>")
+    if isinstance(source, (tuple, list)) and len(source) == 2:
+        return _from_arrays(source[0], source[1], name or "<arrays>")
+    raise MeshError(
+        f"{name or '<input>'}: expected a path, a trimesh.Trimesh or a (vertices, faces) pair, "
+        f"got {type(source).__name__}"
+    )
