@@ -16,14 +16,19 @@ def classify_nodes(
     origin: wp.vec3,
     spacing: float,
     accuracy: float,
+    surface_tolerance: float,
     labels: wp.array3d(dtype=wp.int8),
 ):
+    """INTERIOR where the winding number exceeds 1/2, OUTSIDE elsewhere. Nodes on the cage surface
+    (closer than `surface_tolerance`), where the winding number is 1/2 and its sign is noise, are outside:
+    the domain is the open interior, so boxes and other grid-aligned cages voxelise deterministically."""
     i, j, k = wp.tid()
     p = node_position(origin, spacing, i, j, k)
     query = wp.mesh_query_point_sign_winding_number(cage, p, 1.0e30, accuracy, 0.5)
     label = OUTSIDE
     if query.result and query.sign < 0.0:
-        label = INTERIOR
+        if wp.length(wp.mesh_eval_position(cage, query.face, query.u, query.v) - p) > surface_tolerance:
+            label = INTERIOR
     labels[i, j, k] = wp.int8(label)
 
 

@@ -156,6 +156,31 @@ def assemble(interior: np.ndarray) -> tuple[sp.csr_matrix, Callable]:
     return A, rhs
 
 
+def _nested_dissection(coords: np.ndarray, leaf: int = 32) -> np.ndarray:
+    """Node permutation (new position -> node id) by recursive bisection with single-plane separators.
+
+    coords: (N, 3) integer grid coordinates of the interior nodes. Sub-domains are ordered before their separator.
+    """
+    parts = []
+
+    def rec(ids):
+        c = coords[ids]
+        ext = c.max(axis=0) - c.min(axis=0)
+        a = int(np.argmax(ext))
+        if len(ids) <= leaf or ext[a] < 2:
+            parts.append(ids)
+            return
+        ca = c[:, a]
+        mid = (int(ca.min()) + int(ca.max())) // 2
+        rec(ids[ca < mid])
+        rec(ids[ca > mid])
+        parts.append(ids[ca == mid])
+
+    if len(coords):
+        rec(np.arange(len(coords)))
+    return np.concatenate(parts) if parts else np.zeros(0, dtype=np.int64)
+
+
 def reference_solve(interior, known, f=None, h=1.0) -> np.ndarray:
     """Solve the scheme with one sparse direct factorisation for all H columns.
 
@@ -175,9 +200,18 @@ def reference_solve(interior, known, f=None, h=1.0) -> np.ndarray:
     if n == 0:
         return out
     b = rhs(known, f, h)
-    # the matrix is symmetric: a symmetric fill-reducing ordering is much cheaper than COLAMD on 3-D stencils
-    lu = spla.splu(A.tocsc(), permc_spec="MMD_AT_PLUS_A", options={"SymmetricMode": True})
-    x = lu.solve(b)
+    # Geometric nested dissection (the 19-point stencil couples only nodes at most one step apart per axis, so one
+    # grid plane separates the two sides), applied symmetrically; the matrix is SPD, so diagonal pivots are stable
+    # and SuperLU is told to keep them. This fills far less than SuperLU's own orderings on 3-D grids.
+    perm = (4 * _nested_dissection(np.argwhere(interior))[:, None] + np.arange(4)).ravel()
+    lu = spla.splu(
+        A[perm][:, perm].tocsc(),
+        permc_spec="NATURAL",
+        diag_pivot_thresh=0.0,
+        options={"SymmetricMode": True},
+    )
+    x = np.empty_like(b)
+    x[perm] = lu.solve(b[perm])
     H = known.shape[3]
     out[interior] = x.reshape(n, 4, H).transpose(0, 2, 1)
     return out

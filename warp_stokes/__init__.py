@@ -5,7 +5,17 @@
 >>> deformed = b.deform(new_cage_vertices)                    # doctest: +SKIP
 """
 
+import os as _os
+
 import warp as wp
+
+# Installed, the kernels are the subpackage warp_stokes.kernels. In a source checkout they sit in the top-level
+# kernels/ folder beside this package: let `python -m pytest` or scripts run from the checkout find them there.
+_here = _os.path.dirname(_os.path.abspath(__file__))
+if not _os.path.isdir(_os.path.join(_here, "kernels")) and _os.path.isfile(
+    _os.path.join(_here, _os.pardir, "kernels", "__init__.py")
+):
+    __path__.append(_os.path.dirname(_here))  # noqa: F821 (the package's own __path__)
 
 # Warp prints a banner on initialisation; a library should stay quiet unless asked.
 wp.config.log_level = wp.LOG_WARNING

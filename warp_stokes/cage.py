@@ -73,7 +73,7 @@ def check_cage(source, name: str | None = None) -> Cage:
 
     Parameters
     ----------
-    source : path, trimesh.Trimesh, (vertices, faces) or Surface
+    source : path, trimesh.Trimesh, (vertices, faces), Surface or Cage (returned as it is)
         Quads and polygons are fan-triangulated.
     name : str, optional
         Name used in messages.
@@ -94,6 +94,8 @@ def check_cage(source, name: str | None = None) -> Cage:
     >>> cage.n_handles, cage.flipped
     (4, False)
     """
+    if isinstance(source, Cage):
+        return source
     try:
         surface = load_surface(source, name)
     except CageError:

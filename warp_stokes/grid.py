@@ -139,7 +139,7 @@ def voxelize(cage: Cage, resolution: int = 64, device=None) -> Grid:
         wp.launch(
             voxel.classify_nodes,
             dim=shape,
-            inputs=[mesh.id, wp.vec3(*origin.astype(np.float32)), float(spacing), WINDING_ACCURACY],
+            inputs=[mesh.id, wp.vec3(*origin.astype(np.float32)), float(spacing), WINDING_ACCURACY, 1e-5 * spacing],
             outputs=[inside],
         )
     grid = _number_nodes(inside, centre, origin, spacing, resolution, device)

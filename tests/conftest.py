@@ -1,0 +1,67 @@
+"""Shared fixtures: the real mesh/cage pairs of ../shared/data and the bundled example."""
+
+import os
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+import warp as wp
+
+import warp_stokes as ws
+
+REPO = Path(__file__).resolve().parents[1]
+EXAMPLE = REPO / "examples" / "arm"
+DATA = Path(os.environ.get("WARP_STOKES_DATA", REPO.parent / "shared" / "data"))
+
+# (mesh, cage) pairs used by the acceptance tests
+PAIRS = {
+    "arm": (DATA / "arm_supercages" / "arm.obj", DATA / "arm_supercages" / "arm_cage.obj"),
+    "smpl": (DATA / "smpl_humanoid_neuralcages" / "model_rpose.obj",
+             DATA / "smpl_humanoid_neuralcages" / "cage_rpose.obj"),
+    "ogre": (DATA / "ogre_qmvc" / "Ogre.obj", DATA / "ogre_qmvc" / "cage_tri.obj"),
+}
+
+
+def pair(name):
+    mesh, cage = PAIRS[name]
+    if not mesh.exists():
+        pytest.skip(f"test data not found: {mesh} (set WARP_STOKES_DATA)")
+    return mesh, cage
+
+
+def cuda_available() -> bool:
+    wp.init()
+    return wp.is_cuda_available()
+
+
+@pytest.fixture(scope="session")
+def arm_cage():
+    return ws.check_cage(EXAMPLE / "arm_cage.obj")
+
+
+@pytest.fixture(scope="session")
+def bindings():
+    """Bindings of the real pairs on the CPU, computed once per session (name -> Binding)."""
+    cache = {}
+    resolutions = {"arm": 24, "smpl": 24, "ogre": 24}
+
+    def get(name):
+        if name not in cache:
+            mesh, cage = pair(name)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                cache[name] = ws.bind(mesh, cage, resolution=resolutions[name], device="cpu")
+        return cache[name]
+
+    return get
+
+
+def box_cage(lo=(-1.0, -1.0, -1.0), hi=(1.0, 1.0, 1.0)):
+    """An axis-aligned box as (vertices, outward triangles)."""
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    v = np.array([[x, y, z] for z in (0, 1) for y in (0, 1) for x in (0, 1)], float)
+    v = lo + v * (hi - lo)
+    quads = [(0, 2, 3, 1), (4, 5, 7, 6), (0, 1, 5, 4), (2, 6, 7, 3), (0, 4, 6, 2), (1, 3, 7, 5)]
+    tris = [t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))]
+    return v, np.array(tris)

@@ -1,0 +1,158 @@
+import json
+import warnings
+
+import numpy as np
+import pytest
+
+import warp_stokes as ws
+from conftest import EXAMPLE, PAIRS, pair
+
+
+@pytest.mark.parametrize("name", sorted(PAIRS))
+def test_partition_of_unity_and_linear_precision_on_real_pairs(name, bindings):
+    b = bindings(name)
+    mesh_path, cage_path = pair(name)
+    mesh = ws.load_surface(mesh_path)
+    cage = ws.check_cage(cage_path)
+    w = b.weights.astype(np.float64)
+    assert w.shape == (len(mesh.vertices), len(cage.vertices))
+    assert b.stats["converged"]
+    # every vertex, including those outside the cage (the ogre has ~90)
+    assert np.abs(w.sum(1) - 1).max() <= 1e-5
+    assert np.linalg.norm(w @ cage.vertices - mesh.vertices, axis=1).max() <= 1e-5 * cage.diagonal
+    assert b.stats["partition_of_unity_error"] <= 1e-5 and b.stats["linear_precision_error"] <= 1e-5
+
+
+def test_vertices_outside_the_cage_are_counted_and_weighted(bindings):
+    b = bindings("ogre")
+    mesh_path, cage_path = pair("ogre")
+    inside, _ = ws.classify_points(ws.check_cage(cage_path), ws.load_surface(mesh_path).vertices, device="cpu")
+    assert b.stats["vertices_outside_cage"] == int((~inside).sum())
+    assert 60 <= b.stats["vertices_outside_cage"] <= 120  # MANIFEST.md: 90 of 26,155
+    assert b.stats["vertices_beyond_band"] == 0  # they are within 0.67% of the diagonal: inside the band
+
+
+def test_vertex_beyond_the_band_gets_mvc_and_a_warning(arm_cage):
+    mesh = ws.load_surface(EXAMPLE / "arm.obj")
+    far = arm_cage.vertices.max(0) + 0.5 * arm_cage.diagonal
+    vertices = np.vstack([mesh.vertices, far])
+    with pytest.warns(UserWarning, match="1 vertices lie outside .* beyond the grid's band"):
+        b = ws.bind((vertices, None), arm_cage, resolution=16, device="cpu")
+    mvc = ws.mean_value_coordinates(arm_cage, far[None], device="cpu")[0]
+    np.testing.assert_allclose(b.weights[-1], mvc, rtol=1e-5, atol=1e-6)
+    assert b.stats["vertices_beyond_band"] == 1
+
+
+def test_deform_reproduces_affine_cage_motion(bindings):
+    b = bindings("arm")
+    rng = np.random.default_rng(3)
+    rest = b.cage_vertices
+    poses = []
+    transforms = []
+    for _ in range(3):
+        m = np.eye(3) + 0.3 * rng.normal(size=(3, 3))
+        t = rng.normal(size=3) * 10
+        poses.append(rest @ m.T + t)
+        transforms.append((m, t))
+    out = b.deform(np.stack(poses))
+    assert out.shape == (3, b.n_vertices, 3)
+    diag = np.linalg.norm(rest.max(0) - rest.min(0))
+    for frame, (m, t) in zip(out, transforms):
+        np.testing.assert_allclose(frame, b.mesh_vertices @ m.T + t, atol=2e-5 * diag * 3)
+    single = b.deform(poses[0])
+    assert single.shape == (b.n_vertices, 3)
+    np.testing.assert_allclose(single, out[0], atol=1e-4)
+
+
+def test_deform_is_w_times_c(bindings):
+    b = bindings("arm")
+    pose = b.cage_vertices + np.random.default_rng(4).normal(size=b.cage_vertices.shape)
+    np.testing.assert_allclose(b.deform(pose), b.weights.astype(np.float64) @ pose, atol=1e-4)
+
+
+def test_deform_with_a_cage_file_and_topology_check(bindings, tmp_path):
+    b = bindings("ogre")
+    mesh_path, cage_path = pair("ogre")
+    deformed_path = cage_path.parent / "cage_deformed_tri.obj"
+    deformed = ws.load_surface(deformed_path)
+    np.testing.assert_allclose(b.deform(deformed_path), b.deform(deformed.vertices), atol=1e-6)
+    # the quad original triangulates to the same cage: accepted
+    np.testing.assert_allclose(b.deform(cage_path.parent / "Ogre_Cage.obj"), b.deform(b.cage_vertices))
+    smpl_cage = pair("smpl")[1]
+    with pytest.raises(ws.BindingError, match="cage_rpose.obj: the cage pose has 126 vertices, the bound cage has 118"):
+        b.deform(smpl_cage)
+    wrong = deformed.faces.copy()
+    wrong[[0, 1]] = wrong[[1, 0, ]][:, [0, 2, 1]]
+    with pytest.raises(ws.BindingError, match="different topology"):
+        b.deform((deformed.vertices, wrong))
+    with pytest.raises(ws.WarpStokesError, match="poses must have shape"):
+        b.deform(np.zeros((5, 3)))
+
+
+def test_save_and_load_round_trip(bindings, tmp_path):
+    b = bindings("arm")
+    path = tmp_path / "arm.npz"
+    b.save(path)
+    assert [p.name for p in tmp_path.iterdir()] == ["arm.npz"]  # no temporary left behind
+    back = ws.load_binding(path, device="cpu")
+    np.testing.assert_array_equal(back.weights, b.weights)
+    np.testing.assert_array_equal(back.cage_faces, b.cage_faces)
+    assert back.settings["resolution"] == 24 and back.stats["iterations"] == b.stats["iterations"]
+    assert back.settings["warp_version"] and json.dumps(back.stats)
+    pose = b.cage_vertices * 1.1
+    np.testing.assert_allclose(back.deform(pose), b.deform(pose))
+
+
+def test_load_refuses_bad_files(bindings, tmp_path):
+    with pytest.raises(ws.BindingError, match="missing.npz: no such file"):
+        ws.load_binding(tmp_path / "missing.npz")
+    junk = tmp_path / "junk.npz"
+    junk.write_bytes(b"not a zip")
+    with pytest.raises(ws.BindingError, match="junk.npz: not a readable binding"):
+        ws.load_binding(junk)
+    other = tmp_path / "other.npz"
+    np.savez(other, weights=np.zeros((2, 2)))
+    with pytest.raises(ws.BindingError, match="other.npz: not a warp-stokes binding"):
+        ws.load_binding(other)
+    b = bindings("arm")
+    path = tmp_path / "arm.npz"
+    b.save(path)
+    data = dict(np.load(path))
+    data["cage_vertices"] = data["cage_vertices"] + 1.0
+    tampered = tmp_path / "tampered.npz"
+    np.savez(tampered, **data)
+    with pytest.raises(ws.BindingError, match="tampered.npz: the stored cage or mesh does not match"):
+        ws.load_binding(tampered)
+
+
+def test_save_into_missing_folder_fails_cleanly(bindings, tmp_path):
+    with pytest.raises(ws.BindingError, match="does not exist"):
+        bindings("arm").save(tmp_path / "nope" / "arm.npz")
+
+
+def test_bad_inputs_to_bind(arm_cage, tmp_path):
+    with pytest.raises(ws.MeshError, match="missing.obj: no such file"):
+        ws.bind(tmp_path / "missing.obj", EXAMPLE / "arm_cage.obj", device="cpu")
+    with pytest.raises(ws.CageError, match="arm.obj: the cage is not closed"):
+        ws.bind(EXAMPLE / "arm.obj", EXAMPLE / "arm.obj", device="cpu")
+    with pytest.raises(ws.WarpStokesError, match="tol"):
+        ws.bind(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", tol=0, device="cpu")
+    with pytest.raises(ws.WarpStokesError, match="device 'cuda:7' is not available"):
+        ws.bind(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", device="cuda:7")
+
+
+def test_thin_features_are_detected_with_a_suggested_resolution():
+    # a slab 1/100 as thick as it is wide: at resolution 16 no node lies inside it
+    from conftest import box_cage
+
+    v, f = box_cage(lo=(-1, -1, -0.01), hi=(1, 1, 0.01))
+    with pytest.raises(ws.ResolutionError, match="no grid node lies inside the cage at resolution 16"):
+        ws.bind((np.zeros((1, 3)), None), (v, f), resolution=16, device="cpu")
+    # the arm's fingers are thinner than two cells at resolution 16, not at 32
+    with pytest.warns(UserWarning, match=r"mesh vertices lie in parts of the cage thinner .* resolution=\d+ would"):
+        b = ws.bind(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", resolution=16, device="cpu")
+    assert b.stats["vertices_in_thin_features"] > 0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        b = ws.bind(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", resolution=32, device="cpu")
+    assert b.stats["vertices_in_thin_features"] == 0

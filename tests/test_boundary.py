@@ -1,0 +1,61 @@
+import numpy as np
+import pytest
+
+import warp_stokes as ws
+from conftest import PAIRS, pair
+from warp_stokes.kernels import labels as L
+
+
+@pytest.mark.parametrize("name", sorted(PAIRS))
+def test_mvc_partition_of_unity_and_linear_precision(name):
+    _, cage_path = pair(name)
+    cage = ws.check_cage(cage_path)
+    rng = np.random.default_rng(0)
+    lo, hi = cage.vertices.min(0), cage.vertices.max(0)
+    pad = 0.2 * (hi - lo)
+    points = rng.uniform(lo - pad, hi + pad, size=(400, 3))  # inside and outside the cage
+    w = ws.mean_value_coordinates(cage, points, device="cpu")
+    assert np.abs(w.sum(1) - 1).max() < 1e-10
+    assert np.linalg.norm(w @ cage.vertices - points, axis=1).max() < 1e-9 * cage.diagonal
+
+
+def test_mvc_interpolates_on_the_cage(arm_cage):
+    # at a cage vertex: the Kronecker delta; on a face: the face's barycentric coordinates
+    w = ws.mean_value_coordinates(arm_cage, arm_cage.vertices[[3, 10]], device="cpu")
+    np.testing.assert_allclose(w, np.eye(len(arm_cage.vertices))[[3, 10]], atol=1e-12)
+    tri = arm_cage.faces[7]
+    bary = np.array([0.2, 0.3, 0.5])
+    w = ws.mean_value_coordinates(arm_cage, (bary @ arm_cage.vertices[tri])[None], device="cpu")[0]
+    expected = np.zeros(len(arm_cage.vertices))
+    expected[tri] = bary
+    np.testing.assert_allclose(w, expected, atol=1e-7)
+
+
+def test_mvc_are_positive_inside_a_convex_cage():
+    import trimesh
+
+    m = trimesh.creation.icosphere(subdivisions=1)
+    cage = ws.check_cage(m)
+    points = np.random.default_rng(1).normal(size=(200, 3))
+    points *= 0.8 * np.random.default_rng(2).uniform(size=(200, 1)) / np.linalg.norm(points, axis=1, keepdims=True)
+    w = ws.mean_value_coordinates(cage, points, device="cpu")
+    assert (w > 0).all()
+
+
+def test_boundary_field_reproduces_linear_functions(arm_cage):
+    grid = ws.voxelize(arm_cage, resolution=16, device="cpu")
+    field = ws.boundary_field(grid, arm_cage, device="cpu").numpy().astype(np.float64)  # (N, L, 4)
+    q, g = field[..., 0], field[..., 1:]
+    n_grad = grid.n_interior + grid.n_ring
+    pos = grid.node_positions() + grid.centre
+    c = arm_cage.vertices - grid.centre
+    # sum_l phi_l = 1 and sum_l c_l phi_l = x at every active node; G of those is 0 and h * identity
+    np.testing.assert_allclose(q.sum(1), 1.0, atol=2e-6)
+    np.testing.assert_allclose(q @ c, pos - grid.centre, atol=3e-6 * arm_cage.diagonal)
+    np.testing.assert_allclose(g[:n_grad].sum(1), 0.0, atol=2e-6)
+    for a in range(3):
+        expected = np.zeros(3)
+        expected[a] = grid.spacing
+        np.testing.assert_allclose(np.einsum("l,nld->nd", c[:, a], g[:n_grad]),
+                                   np.broadcast_to(expected, (n_grad, 3)), atol=3e-6 * arm_cage.diagonal)
+    assert (grid.labels[tuple(grid.active_ijk[grid.n_interior:].T)] != L.INTERIOR).all()

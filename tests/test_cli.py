@@ -1,0 +1,58 @@
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+
+import warp_stokes as ws
+from warp_stokes.cli import main
+from conftest import EXAMPLE
+
+
+def test_bind_then_deform(tmp_path, capsys):
+    out = tmp_path / "arm.npz"
+    rc = main(["bind", str(EXAMPLE / "arm.obj"), str(EXAMPLE / "arm_cage.obj"), "-o", str(out),
+               "--resolution", "16", "--device", "cpu"])
+    printed = capsys.readouterr().out
+    assert rc == 0 and out.exists()
+    for key in ("grid", "interior", "iterations", "partition of unity", "linear precision", "seconds"):
+        assert key in printed
+    b = ws.load_binding(out, device="cpu")
+    assert b.weights.shape == (2089, 58) and b.settings["resolution"] == 16
+
+    # moving the whole cage moves the mesh rigidly
+    cage = ws.load_surface(EXAMPLE / "arm_cage.obj")
+    moved = tmp_path / "moved_cage.obj"
+    with open(moved, "w") as fh:
+        fh.writelines(f"v {x + 5} {y} {z}\n" for x, y, z in cage.vertices)
+        fh.writelines(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in cage.faces)
+    deformed = tmp_path / "arm_moved.obj"
+    assert main(["deform", str(out), str(moved), "-o", str(deformed), "--device", "cpu"]) == 0
+    result = ws.load_surface(deformed)
+    np.testing.assert_allclose(result.vertices, b.mesh_vertices + [5, 0, 0], atol=1e-3)
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["bind", "missing.obj", str(EXAMPLE / "arm_cage.obj")], "missing.obj: no such file"),
+        (["bind", str(EXAMPLE / "arm.obj"), str(EXAMPLE / "arm.obj")], "arm.obj: the cage is not closed"),
+        (["bind", str(EXAMPLE / "arm.obj"), str(EXAMPLE / "arm_cage.obj"), "--resolution", "2"], "resolution"),
+        (["bind", str(EXAMPLE / "arm.obj"), str(EXAMPLE / "arm_cage.obj"), "--device", "tpu"], "device 'tpu'"),
+    ],
+)
+def test_errors_are_one_line_and_exit_non_zero(tmp_path, capsys, args, message):
+    rc = main(args + ["-o", str(tmp_path / "out.npz")] if args[0] == "bind" else args)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc != 0
+    assert len(err) == 1 and err[0].startswith("warp-stokes: error: ") and message in err[0]
+    assert not (tmp_path / "out.npz").exists()
+
+
+def test_console_script_is_installed(tmp_path):
+    exe = shutil.which("warp-stokes")
+    assert exe, "the warp-stokes command is not on PATH: is the package installed?"
+    proc = subprocess.run([exe, "bind", str(tmp_path / "nope.obj"), str(EXAMPLE / "arm_cage.obj"), "-o",
+                           str(tmp_path / "x.npz")], capture_output=True, text=True)
+    assert proc.returncode == 2
+    assert "nope.obj: no such file" in proc.stderr

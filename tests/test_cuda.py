@@ -1,0 +1,28 @@
+"""CPU and CUDA must give the same weights. Runs where CUDA is present (skipped otherwise)."""
+
+import warnings
+
+import numpy as np
+import pytest
+
+import warp_stokes as ws
+from conftest import EXAMPLE, cuda_available, pair
+
+pytestmark = pytest.mark.skipif(not cuda_available(), reason="no CUDA device")
+
+
+@pytest.mark.parametrize("name", ["arm", "ogre"])
+def test_cpu_and_cuda_weights_agree(name):
+    mesh, cage = (EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj") if name == "arm" else pair(name)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        cpu = ws.bind(mesh, cage, resolution=24, device="cpu")
+        gpu = ws.bind(mesh, cage, resolution=24, device="cuda:0")
+    diff = np.abs(cpu.weights - gpu.weights).max()
+    print(f"{name}: max |w_cpu - w_cuda| = {diff:.2e}; iterations cpu {cpu.stats['iterations']}, "
+          f"cuda {gpu.stats['iterations']}")
+    assert cpu.stats["grid_shape"] == gpu.stats["grid_shape"]
+    assert cpu.stats["interior_nodes"] == gpu.stats["interior_nodes"]
+    assert diff <= 1e-5
+    pose = cpu.cage_vertices * 1.2 + 3.0
+    np.testing.assert_allclose(cpu.deform(pose), gpu.deform(pose), atol=1e-4)

@@ -1,0 +1,84 @@
+import numpy as np
+import pytest
+import trimesh
+from scipy import ndimage
+
+import warp_stokes as ws
+from conftest import PAIRS, box_cage, pair
+from warp_stokes.kernels import labels as L
+
+
+@pytest.mark.parametrize("name", sorted(PAIRS))
+def test_inside_test_agrees_with_trimesh_contains(name):
+    _, cage_path = pair(name)
+    cage = ws.check_cage(cage_path)
+    grid = ws.voxelize(cage, resolution=24, device="cpu")
+    nodes = np.stack(np.meshgrid(*[np.arange(s) for s in grid.shape], indexing="ij"), -1).reshape(-1, 3)
+    points = grid.centre + grid.origin + grid.spacing * nodes
+    mesh = trimesh.Trimesh(cage.vertices, cage.faces, process=False)
+    reference = mesh.contains(points)
+    ours = grid.labels.ravel() == L.INTERIOR
+    # ray-cast containment is ambiguous on the surface itself: leave out nodes within 1e-4 of the diagonal
+    distance = np.abs(trimesh.proximity.signed_distance(mesh, points))
+    clear = distance > 1e-4 * cage.diagonal
+    assert clear.mean() > 0.99
+    assert ours.sum() > 100
+    mismatch = (ours != reference) & clear
+    assert mismatch.sum() == 0, f"{mismatch.sum()} of {clear.sum()} nodes disagree with trimesh"
+
+
+def test_ring_and_band_match_morphological_dilation(arm_cage):
+    grid = ws.voxelize(arm_cage, resolution=20, device="cpu")
+    interior = grid.labels == L.INTERIOR
+    stencil = ndimage.generate_binary_structure(3, 2)  # the 18 face and edge neighbours + centre
+    ring = ndimage.binary_dilation(interior, structure=stencil) & ~interior
+    band = ndimage.binary_dilation(interior, structure=np.ones((3, 3, 3)), iterations=ws.grid.BAND_WIDTH)
+    band &= ~interior & ~ring
+    np.testing.assert_array_equal(grid.labels == L.RING, ring)
+    np.testing.assert_array_equal(grid.labels == L.BAND, band)
+    assert grid.n_interior == interior.sum() and grid.n_ring == ring.sum() and grid.n_band == band.sum()
+    # numbering: interior, then ring, then band; index is the inverse of active_ijk
+    i, j, k = grid.active_ijk.T
+    np.testing.assert_array_equal(grid.index[i, j, k], np.arange(grid.n_active))
+    assert (grid.labels[i[: grid.n_interior], j[: grid.n_interior], k[: grid.n_interior]] == L.INTERIOR).all()
+    assert (grid.index >= 0).sum() == grid.n_active
+
+
+def test_grid_covers_the_cage_with_margin(arm_cage):
+    grid = ws.voxelize(arm_cage, resolution=32, device="cpu")
+    lo = grid.centre + grid.origin
+    hi = lo + grid.spacing * (np.array(grid.shape) - 1)
+    margin = ws.grid.MARGIN * grid.spacing * (1 - 1e-9)
+    assert (arm_cage.vertices.min(0) - lo >= margin).all() and (hi - arm_cage.vertices.max(0) >= margin).all()
+    extent = arm_cage.vertices.max(0) - arm_cage.vertices.min(0)
+    assert np.isclose(grid.spacing, extent.max() / 32)
+
+
+def test_box_interior_is_exact():
+    v, f = box_cage(hi=(1.0, 0.5, 0.25), lo=(-1.0, -0.5, -0.25))
+    grid = ws.voxelize(ws.check_cage((v, f)), resolution=16, device="cpu")
+    pos = grid.node_positions(np.arange(grid.n_interior)) + grid.centre
+    assert (np.abs(pos) < [1.0, 0.5, 0.25]).all()
+    # the box spans 16 x 8 x 4 cells: nodes on its surface are not interior, all others are
+    assert grid.n_interior == 15 * 7 * 3
+
+
+@pytest.mark.parametrize("resolution", [4, 5000, 16.5, "64"])
+def test_bad_resolution(arm_cage, resolution):
+    with pytest.raises(ws.ResolutionError, match="resolution"):
+        ws.voxelize(arm_cage, resolution=resolution, device="cpu")
+
+
+def test_grid_from_mask_rejects_interior_at_the_edge():
+    mask = np.zeros((12, 12, 12), bool)
+    mask[2:6, 5:7, 5:7] = True
+    with pytest.raises(ws.ResolutionError, match="away from the mask's edge"):
+        ws.grid_from_mask(mask, device="cpu")
+
+
+def test_classify_points(arm_cage):
+    centre = arm_cage.vertices.mean(0)
+    far = centre + 10 * arm_cage.diagonal
+    inside, distance = ws.classify_points(arm_cage, np.array([far, arm_cage.vertices[0]]), device="cpu")
+    assert not inside[0]
+    assert distance[0] > 9 * arm_cage.diagonal and distance[1] < 1e-5 * arm_cage.diagonal

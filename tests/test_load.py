@@ -1,0 +1,83 @@
+import numpy as np
+import pytest
+import trimesh
+
+import warp_stokes as ws
+from conftest import DATA, EXAMPLE
+
+
+def test_obj_keeps_file_vertex_order():
+    s = ws.load_surface(EXAMPLE / "arm.obj")
+    first = [ln.split()[1:4] for ln in open(EXAMPLE / "arm.obj") if ln.startswith("v ")]
+    assert s.vertices.shape == (2089, 3)
+    np.testing.assert_array_equal(s.vertices, np.array(first, dtype=float))
+    assert s.faces.shape == (4156, 3)
+
+
+@pytest.mark.parametrize("ext", ["ply", "off", "stl", "glb", "obj"])
+def test_formats_round_trip(tmp_path, ext):
+    cage = ws.load_surface(EXAMPLE / "arm_cage.obj")
+    path = tmp_path / f"cage.{ext}"
+    trimesh.Trimesh(cage.vertices, cage.faces, process=False).export(path)
+    back = ws.load_surface(path)
+    if ext == "stl":  # STL stores triangle soups: compare the triangles, not the vertex list
+        np.testing.assert_allclose(back.vertices[back.faces], cage.vertices[cage.faces], rtol=1e-6, atol=1e-5)
+    else:
+        np.testing.assert_allclose(back.vertices, cage.vertices, rtol=1e-6, atol=1e-5)
+        np.testing.assert_array_equal(back.faces, cage.faces)
+
+
+def test_trimesh_and_arrays():
+    m = trimesh.creation.icosphere(subdivisions=1)
+    a = ws.load_surface(m)
+    b = ws.load_surface((m.vertices, m.faces))
+    np.testing.assert_array_equal(a.vertices, m.vertices)
+    np.testing.assert_array_equal(b.faces, m.faces)
+    assert ws.load_surface((m.vertices, None)).faces.shape == (0, 3)
+
+
+def test_quads_are_fan_triangulated_like_the_reference_split():
+    quads = ws.load_surface(DATA / "ogre_qmvc" / "Ogre_Cage.obj")
+    tris = ws.load_surface(DATA / "ogre_qmvc" / "cage_tri.obj")
+    np.testing.assert_array_equal(quads.vertices, tris.vertices)
+    np.testing.assert_array_equal(quads.faces, tris.faces)
+
+
+def test_polygon_list_input():
+    v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0.5, 1.5, 0]], float)
+    s = ws.load_surface((v, [[0, 1, 2, 4, 3], [0, 1, 2]]))
+    assert s.faces.tolist() == [[0, 1, 2], [0, 2, 4], [0, 4, 3], [0, 1, 2]]
+
+
+@pytest.mark.parametrize(
+    "source, message",
+    [
+        ("does/not/exist.obj", "no such file"),
+        ((np.zeros((0, 3)), None), "no vertices"),
+        ((np.array([[0, 0, np.nan]]), None), "non-finite"),
+        ((np.zeros((3, 2)), None), "shape (V, 3)"),
+        ((np.eye(3), [[0, 1, 5]]), "only 3 vertices"),
+        ((np.eye(3), [[0, 1]]), "at least 3"),
+        (42, "expected a path"),
+    ],
+)
+def test_bad_input_names_the_problem(source, message):
+    with pytest.raises(ws.MeshError, match=message.replace("(", r"\(").replace(")", r"\)")):
+        ws.load_surface(source)
+
+
+def test_unreadable_and_empty_files_name_the_file(tmp_path):
+    garbage = tmp_path / "garbage.ply"
+    garbage.write_bytes(b"\x00\x01not a mesh at all")
+    with pytest.raises(ws.MeshError, match="garbage.ply"):
+        ws.load_surface(garbage)
+    empty = tmp_path / "empty.obj"
+    empty.write_text("# nothing here\n")
+    with pytest.raises(ws.MeshError, match="empty.obj: the file has no vertices"):
+        ws.load_surface(empty)
+    with pytest.raises(ws.MeshError, match="is a folder"):
+        ws.load_surface(tmp_path)
+    broken = tmp_path / "broken.obj"
+    broken.write_text("v 0 0 0\nv 1 zero 0\n")
+    with pytest.raises(ws.MeshError, match="broken.obj: line 2"):
+        ws.load_surface(broken)
