@@ -2,8 +2,7 @@
 
 Column reductions and updates run over (chunk, handle) threads: each thread strides over rows
 n = chunk, chunk + n_chunks, ... and adds its partial sum to the handle's float64 accumulator once, so the
-threads of one row still touch consecutive handles. The preconditioner is the inverse diagonal of the
-operator, (1/48, 1/4, 1/4, 1/4) per node. A handle whose `running` flag is 0 is left untouched.
+threads of one row still touch consecutive handles. A handle whose `running` flag is 0 is left untouched.
 """
 
 import warp as wp
@@ -11,14 +10,11 @@ import warp as wp
 INV_DIAGONAL = wp.constant(wp.vec4f(1.0 / 48.0, 0.25, 0.25, 0.25))
 
 
-@wp.func
-def precondition(r: wp.vec4f):
-    return wp.cw_mul(INV_DIAGONAL, r)
-
-
-@wp.func
-def dot64(a: wp.vec4f, b: wp.vec4f):
-    return wp.float64(wp.dot(a, b))
+@wp.kernel
+def jacobi(r: wp.array2d(dtype=wp.vec4f), z: wp.array2d(dtype=wp.vec4f)):
+    """z = D^-1 r with D = diag(48, 4, 4, 4), the diagonal of the fine operator."""
+    n, h = wp.tid()
+    z[n, h] = wp.cw_mul(INV_DIAGONAL, r[n, h])
 
 
 @wp.kernel
@@ -27,45 +23,30 @@ def residual(
     applied: wp.array2d(dtype=wp.vec4f),
     out: wp.array2d(dtype=wp.vec4f),
 ):
-    """out = rhs - applied."""
+    """out = rhs - applied (out may alias either input)."""
     n, h = wp.tid()
     out[n, h] = rhs[n, h] - applied[n, h]
 
 
 @wp.kernel
-def column_norms(
-    r: wp.array2d(dtype=wp.vec4f),
-    n_chunks: int,
-    out: wp.array(dtype=wp.float64),
-):
-    """out[h] += r^T M^-1 r over the rows of column h (the squared preconditioned residual norm)."""
-    c, h = wp.tid()
-    acc = wp.float64(0.0)
-    for n in range(c, r.shape[0], n_chunks):
-        v = r[n, h]
-        acc += dot64(v, precondition(v))
-    wp.atomic_add(out, h, acc)
-
-
-@wp.kernel
-def start_directions(r: wp.array2d(dtype=wp.vec4f), p: wp.array2d(dtype=wp.vec4f)):
-    """p = M^-1 r."""
+def add_columns(a: wp.array2d(dtype=wp.vec4f), b: wp.array2d(dtype=wp.vec4f), out: wp.array2d(dtype=wp.vec4f)):
+    """out = a + b."""
     n, h = wp.tid()
-    p[n, h] = precondition(r[n, h])
+    out[n, h] = a[n, h] + b[n, h]
 
 
 @wp.kernel
-def column_curvature(
-    p: wp.array2d(dtype=wp.vec4f),
-    ap: wp.array2d(dtype=wp.vec4f),
+def column_dots(
+    a: wp.array2d(dtype=wp.vec4f),
+    b: wp.array2d(dtype=wp.vec4f),
     n_chunks: int,
     out: wp.array(dtype=wp.float64),
 ):
-    """out[h] += p^T A p."""
+    """out[h] += sum_n a[n, h] . b[n, h]; launch (chunks, handles) on a zeroed `out`."""
     c, h = wp.tid()
     acc = wp.float64(0.0)
-    for n in range(c, p.shape[0], n_chunks):
-        acc += dot64(p[n, h], ap[n, h])
+    for n in range(c, a.shape[0], n_chunks):
+        acc += wp.float64(wp.dot(a[n, h], b[n, h]))
     wp.atomic_add(out, h, acc)
 
 
@@ -78,45 +59,29 @@ def step(
     rz: wp.array(dtype=wp.float64),
     pap: wp.array(dtype=wp.float64),
     running: wp.array(dtype=wp.int32),
-    n_chunks: int,
-    rz_next: wp.array(dtype=wp.float64),
 ):
-    """x += alpha p, r -= alpha A p with alpha = r^T M^-1 r / p^T A p; accumulates the new r^T M^-1 r."""
-    c, h = wp.tid()
-    if running[h] == 0:
+    """x += alpha p, r -= alpha A p with alpha = r.z / p.Ap per handle."""
+    n, h = wp.tid()
+    if running[h] == 0 or pap[h] <= wp.float64(0.0):
         return
-    alpha = wp.float32(0.0)
-    if pap[h] > wp.float64(0.0):
-        alpha = wp.float32(rz[h] / pap[h])
-    acc = wp.float64(0.0)
-    for n in range(c, x.shape[0], n_chunks):
-        x[n, h] = x[n, h] + alpha * p[n, h]
-        v = r[n, h] - alpha * ap[n, h]
-        r[n, h] = v
-        acc += dot64(v, precondition(v))
-    wp.atomic_add(rz_next, h, acc)
+    alpha = wp.float32(rz[h] / pap[h])
+    x[n, h] = x[n, h] + alpha * p[n, h]
+    r[n, h] = r[n, h] - alpha * ap[n, h]
 
 
 @wp.kernel
 def new_directions(
-    r: wp.array2d(dtype=wp.vec4f),
+    z: wp.array2d(dtype=wp.vec4f),
     p: wp.array2d(dtype=wp.vec4f),
     rz: wp.array(dtype=wp.float64),
     rz_next: wp.array(dtype=wp.float64),
     running: wp.array(dtype=wp.int32),
 ):
-    """p = M^-1 r + beta p with beta = rz_next / rz."""
+    """p = z + beta p with beta = rz_next / rz."""
     n, h = wp.tid()
     if running[h] == 0:
         return
     beta = wp.float32(0.0)
     if rz[h] > wp.float64(0.0):
         beta = wp.float32(rz_next[h] / rz[h])
-    p[n, h] = precondition(r[n, h]) + beta * p[n, h]
-
-
-@wp.kernel
-def add_columns(a: wp.array2d(dtype=wp.vec4f), b: wp.array2d(dtype=wp.vec4f), out: wp.array2d(dtype=wp.vec4f)):
-    """out = a + b."""
-    n, h = wp.tid()
-    out[n, h] = a[n, h] + b[n, h]
+    p[n, h] = z[n, h] + beta * p[n, h]

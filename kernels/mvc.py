@@ -57,6 +57,13 @@ def triangle_weights(
     return wp.vec4d(w0, w1, w2, zero)
 
 
+@wp.func
+def add_weight(weights: wp.array2d(dtype=wp.float64), n: int, handle: int, first: int, w: wp.float64):
+    column = handle - first
+    if column >= 0 and column < weights.shape[1]:
+        weights[n, column] = weights[n, column] + w
+
+
 @wp.kernel
 def mean_value_coordinates(
     points: wp.array(dtype=wp.vec3d),
@@ -64,18 +71,19 @@ def mean_value_coordinates(
     triangles: wp.array(dtype=wp.vec3i),
     eps_distance: wp.float64,
     eps_angle: wp.float64,
+    first_handle: int,
     weights: wp.array2d(dtype=wp.float64),
 ):
-    """weights[n, l] = MVC of handle l at points[n]; one thread per point, rows sum to one."""
+    """weights[n, c] = MVC of handle first_handle + c at points[n], for the handles of one chunk (the columns of
+    `weights`); one thread per point. Normalised by the total over all handles, so rows of a full chunk sum to 1."""
     n = wp.tid()
     x = points[n]
-    n_handles = cage.shape[0]
     zero = wp.float64(0.0)
-    for l in range(n_handles):
-        weights[n, l] = zero
-    for l in range(n_handles):
+    for c in range(weights.shape[1]):
+        weights[n, c] = zero
+    for l in range(cage.shape[0]):
         if wp.length(cage[l] - x) < eps_distance:
-            weights[n, l] = wp.float64(1.0)
+            add_weight(weights, n, l, first_handle, wp.float64(1.0))
             return
     total = zero
     for t in range(triangles.shape[0]):
@@ -89,17 +97,17 @@ def mean_value_coordinates(
         w = triangle_weights(e0 / d0, e1 / d1, e2 / d2, d0, d1, d2, eps_angle)
         if w[3] == wp.float64(2.0):
             # x lies on this triangle: the coordinates are its barycentric coordinates there
-            for l in range(n_handles):
-                weights[n, l] = zero
+            for c in range(weights.shape[1]):
+                weights[n, c] = zero
             s = w[0] + w[1] + w[2]
-            weights[n, tri[0]] = w[0] / s
-            weights[n, tri[1]] = w[1] / s
-            weights[n, tri[2]] = w[2] / s
+            add_weight(weights, n, tri[0], first_handle, w[0] / s)
+            add_weight(weights, n, tri[1], first_handle, w[1] / s)
+            add_weight(weights, n, tri[2], first_handle, w[2] / s)
             return
         if w[3] == zero:
-            weights[n, tri[0]] = weights[n, tri[0]] + w[0]
-            weights[n, tri[1]] = weights[n, tri[1]] + w[1]
-            weights[n, tri[2]] = weights[n, tri[2]] + w[2]
+            add_weight(weights, n, tri[0], first_handle, w[0])
+            add_weight(weights, n, tri[1], first_handle, w[1])
+            add_weight(weights, n, tri[2], first_handle, w[2])
             total = total + w[0] + w[1] + w[2]
-    for l in range(n_handles):
-        weights[n, l] = weights[n, l] / total
+    for c in range(weights.shape[1]):
+        weights[n, c] = weights[n, c] / total

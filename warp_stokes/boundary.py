@@ -22,17 +22,18 @@ __all__ = ["mean_value_coordinates", "boundary_field"]
 EPS_ANGLE = 1e-10
 
 
-def _mvc_on_device(cage: Cage, centre: np.ndarray, points_rel: np.ndarray, device) -> wp.array:
+def _mvc_on_device(cage: Cage, centre: np.ndarray, points_rel: np.ndarray, handles: slice, device) -> wp.array:
     cage_rel = cage.vertices - centre
+    first, stop, _ = handles.indices(cage.n_handles)
     with wp.ScopedDevice(device):
         pts = wp.array(points_rel, dtype=wp.vec3d)
         verts = wp.array(cage_rel, dtype=wp.vec3d)
         tris = wp.array(cage.faces.astype(np.int32), dtype=wp.vec3i)
-        out = wp.empty((len(points_rel), len(cage.vertices)), dtype=wp.float64)
+        out = wp.empty((len(points_rel), stop - first), dtype=wp.float64)
         wp.launch(
             mvc.mean_value_coordinates,
             dim=len(points_rel),
-            inputs=[pts, verts, tris, wp.float64(1e-12 * cage.diagonal), wp.float64(EPS_ANGLE)],
+            inputs=[pts, verts, tris, wp.float64(1e-12 * cage.diagonal), wp.float64(EPS_ANGLE), first],
             outputs=[out],
         )
     return out
@@ -62,10 +63,10 @@ def mean_value_coordinates(cage: Cage, points: np.ndarray, device=None) -> np.nd
     if len(points) == 0:
         return np.zeros((0, len(cage.vertices)))
     centre = 0.5 * (cage.vertices.min(axis=0) + cage.vertices.max(axis=0))
-    return _mvc_on_device(cage, centre, points - centre, device).numpy()
+    return _mvc_on_device(cage, centre, points - centre, slice(None), device).numpy()
 
 
-def boundary_field(grid: Grid, cage: Cage, device=None) -> wp.array:
+def boundary_field(grid: Grid, cage: Cage, device=None, handles: slice = slice(None)) -> wp.array:
     """The packed (q, G) field of every handle at every active node, from mean value coordinates.
 
     Parameters
@@ -73,16 +74,17 @@ def boundary_field(grid: Grid, cage: Cage, device=None) -> wp.array:
     grid : Grid
     cage : Cage
     device : None | str
+    handles : slice, the handles (columns) to compute, e.g. ``slice(0, 32)`` for a chunk; all by default
 
     Returns
     -------
-    wp.array2d of vec4f, shape (grid.n_active, n_handles): known data at ring and band rows, the starting
+    wp.array2d of vec4f, shape (grid.n_active, handles): known data at ring and band rows, the starting
     guess at interior rows. Band rows carry G = 0 (never read).
     """
     device = resolve_device(device)
-    values = _mvc_on_device(cage, grid.centre, grid.node_positions(), device)
+    values = _mvc_on_device(cage, grid.centre, grid.node_positions(), handles, device)
     arrays = grid.device_arrays(device)
-    field = wp.empty((grid.n_active, cage.n_handles), dtype=wp.vec4f, device=device)
+    field = wp.empty(values.shape, dtype=wp.vec4f, device=device)
     wp.launch(
         stencil.pack_nodal_field,
         dim=field.shape,
