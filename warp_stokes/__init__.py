@@ -28,6 +28,7 @@ from .cage import Cage, check_cage, signed_volume  # noqa: E402
 from .grid import Grid, voxelize, grid_from_mask, classify_points  # noqa: E402
 from .boundary import mean_value_coordinates, boundary_field  # noqa: E402
 from .multigrid import Multigrid  # noqa: E402
+from .budget import MemoryEstimate, estimate_memory, available_memory, plan_chunks  # noqa: E402
 from .solve import SolveReport, solve_biharmonic, apply_operator  # noqa: E402
 from .sample import sample_weights  # noqa: E402
 from .deform import deform_vertices  # noqa: E402
@@ -41,6 +42,7 @@ __all__ = [
     "mean_value_coordinates", "boundary_field",
     "solve_biharmonic", "apply_operator", "SolveReport", "Multigrid",
     "sample_weights", "deform_vertices",
+    "MemoryEstimate", "estimate_memory", "available_memory", "plan_chunks",
     "resolve_device", "device_name",
     "WarpStokesError", "MeshError", "CageError", "BindingError", "ResolutionError",
 ]

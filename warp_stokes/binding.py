@@ -18,8 +18,10 @@ from .boundary import boundary_field, mean_value_coordinates
 from .cage import Cage, check_cage
 from .deform import deform_vertices
 from .device import device_name, resolve_device
-from .errors import BindingError, MeshError, WarpStokesError
+from .errors import BindingError, WarpStokesError
+from .budget import available_memory, estimate_memory, plan_chunks
 from .grid import classify_points, voxelize
+from .multigrid import Multigrid
 from .load import Surface, load_surface
 from .sample import sample_weights
 from .solve import solve_biharmonic
@@ -215,7 +217,7 @@ def _suggest_resolution(resolution: int, spacing: float, distances: np.ndarray) 
 
 
 def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_iterations: int | None = None,
-         ) -> Binding:
+         solver: str = "multigrid", memory_budget: int | None = None) -> Binding:
     """Compute Stokes cage coordinates of a mesh's vertices with respect to a cage.
 
     Load -> voxelise (winding number) -> boundary data (mean value coordinates) -> batched solve of the
@@ -233,9 +235,15 @@ def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_i
     device : None | str
         ``"cpu"``, ``"cuda"`` or ``"cuda:N"``; default CUDA when present, else CPU.
     tol : float
-        Relative residual per handle at which the solver stops.
+        Relative (preconditioned) residual per handle, and deviation from partition of unity and linear
+        precision at the nodes, at which the solver stops.
     max_iterations : int, optional
         Solver iteration limit.
+    solver : "multigrid" | "jacobi"
+        The CG preconditioner: the multigrid V-cycle (default), or the inverse diagonal (for comparisons).
+    memory_budget : int, optional
+        Bytes the bind may allocate on the device (default: 90% of a GPU's free memory, half the free RAM on
+        the CPU). Handles are solved in chunks that fit it.
 
     Returns
     -------
@@ -254,33 +262,50 @@ def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_i
     """
     if not (isinstance(tol, (int, float)) and 0 < tol < 1):
         raise WarpStokesError(f"tol must be a number between 0 and 1, got {tol!r}")
+    if solver not in ("multigrid", "jacobi"):
+        raise WarpStokesError(f"solver must be 'multigrid' or 'jacobi', got {solver!r}")
     device = resolve_device(device)
     seconds = {}
     t = time.perf_counter()
     surface = load_surface(mesh)
-    if len(surface.vertices) == 0:
-        raise MeshError(f"{surface.name}: the mesh has no vertices")
     checked: Cage = check_cage(cage)
+    points = surface.vertices
     seconds["load"] = time.perf_counter() - t
 
     t = time.perf_counter()
     grid = voxelize(checked, resolution, device=device)
+    estimate = estimate_memory(grid, len(points), preconditioner=solver)
+    budget = available_memory(device) if memory_budget is None else int(memory_budget)
+    chunks = plan_chunks(estimate, checked.n_handles, budget, resolution, name=checked.name)
     seconds["voxelize"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    field = boundary_field(grid, checked, device=device)
+    preconditioner = Multigrid(grid, device=device) if solver == "multigrid" else "jacobi"
     wp.synchronize_device(device)
-    seconds["boundary"] = time.perf_counter() - t
+    seconds["setup"] = time.perf_counter() - t
+    seconds["boundary"] = seconds["solve"] = seconds["sample"] = 0.0
 
-    report = solve_biharmonic(
-        grid, field, tol=tol, max_iterations=max_iterations, handles=checked.vertices, device=device
-    )
-    seconds["solve"] = report.seconds
+    weights = np.empty((len(points), checked.n_handles), dtype=np.float32)
+    reports = []
+    for chunk in chunks:
+        t = time.perf_counter()
+        field = boundary_field(grid, checked, device=device, handles=chunk)
+        wp.synchronize_device(device)
+        seconds["boundary"] += time.perf_counter() - t
+        whole = chunk.stop - chunk.start == checked.n_handles
+        report = solve_biharmonic(
+            grid, field, tol=tol, max_iterations=max_iterations, handles=checked.vertices if whole else None,
+            preconditioner=preconditioner, device=device,
+        )
+        reports.append(report)
+        seconds["solve"] += report.seconds
+        t = time.perf_counter()
+        weights[:, chunk], corners = sample_weights(grid, field, points, device=device)
+        seconds["sample"] += time.perf_counter() - t
+        del field
 
     t = time.perf_counter()
-    points = surface.vertices
     inside, distance = classify_points(checked, points, device=device)
-    weights, corners = sample_weights(grid, field, points, device=device)
     sampled = (corners >= 0).all(axis=1)
     beyond = ~sampled
     if beyond.any():
@@ -300,11 +325,12 @@ def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_i
             f"resolution={suggestion} would resolve them",
             stacklevel=2,
         )
-    seconds["sample"] = time.perf_counter() - t
+    seconds["sample"] += time.perf_counter() - t
     seconds["total"] = sum(seconds.values())
 
     diag = checked.diagonal
     w64 = weights.astype(np.float64)
+    chunk_size = max(c.stop - c.start for c in chunks)
     stats = {
         "device": device_name(device),
         "grid_shape": list(grid.shape),
@@ -317,10 +343,14 @@ def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_i
         "vertices_outside_cage": int((~inside).sum()),
         "vertices_beyond_band": int(beyond.sum()),
         "vertices_in_thin_features": int(thin.sum()),
-        "iterations": report.iterations,
-        "residual": report.residual,
-        "identity_error": report.identity_error,
-        "converged": report.converged,
+        "solver": solver,
+        "levels": preconditioner.level_sizes if solver == "multigrid" else [grid.n_interior],
+        "chunks": len(chunks),
+        "memory_estimate_bytes": estimate.total(chunk_size),
+        "iterations": max(r.iterations for r in reports),
+        "residual": max(r.residual for r in reports),
+        "identity_error": max(r.identity_error for r in reports),
+        "converged": all(r.converged for r in reports),
         "partition_of_unity_error": float(np.abs(w64.sum(axis=1) - 1.0).max()),
         "linear_precision_error": float(np.linalg.norm(w64 @ checked.vertices - points, axis=1).max() / diag),
         "seconds": seconds,
@@ -329,7 +359,7 @@ def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_i
         "resolution": int(resolution),
         "tol": float(tol),
         "max_iterations": max_iterations,
-        "solver": "cg-jacobi",
+        "solver": solver,
         "boundary": "mvc-central-difference",
         "sampling": "trilinear",
         "mesh": surface.name,

@@ -21,8 +21,10 @@ def format_stats(stats: dict) -> str:
         ("handles", str(stats["handles"])),
         ("vertices", f"{stats['vertices']} ({stats['vertices_outside_cage']} outside the cage, "
                      f"{stats['vertices_beyond_band']} beyond the band)"),
-        ("solver", f"{stats['iterations']} iterations, residual {stats['residual']:.2e}, "
+        ("solver", f"{stats['solver']}, {len(stats['levels'])} level(s), {stats['chunks']} chunk(s), "
+                   f"{stats['iterations']} iterations, residual {stats['residual']:.2e}, "
                    + ("converged" if stats["converged"] else "NOT converged")),
+        ("memory", f"{stats['memory_estimate_bytes'] / 2**20:.0f} MiB (estimate)"),
         ("partition of unity", f"max |sum w - 1| = {stats['partition_of_unity_error']:.2e}"),
         ("linear precision", f"max |W C - P| = {stats['linear_precision_error']:.2e} x diagonal"),
         ("seconds", ", ".join(f"{k} {v:.2f}" for k, v in sec.items())),
@@ -38,8 +40,9 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
 def _bind(args) -> int:
     import warp_stokes as ws
 
+    budget = None if args.memory_gb is None else int(args.memory_gb * 2**30)
     binding = ws.bind(args.mesh, args.cage, resolution=args.resolution, device=args.device, tol=args.tol,
-                      max_iterations=args.max_iterations)
+                      max_iterations=args.max_iterations, solver=args.solver, memory_budget=budget)
     binding.save(args.output)
     print(format_stats(binding.stats))
     print(f"wrote {args.output}")
@@ -83,6 +86,10 @@ def main(argv=None) -> int:
     p.add_argument("--device", default=None, help="cpu, cuda or cuda:N (default: CUDA when present, else CPU)")
     p.add_argument("--tol", type=float, default=1e-6, help="solver tolerance (1e-6)")
     p.add_argument("--max-iterations", type=int, default=None, help="solver iteration limit")
+    p.add_argument("--solver", choices=["multigrid", "jacobi"], default="multigrid",
+                   help="CG preconditioner (multigrid)")
+    p.add_argument("--memory-gb", type=float, default=None,
+                   help="memory budget in GiB (default: 90%% of free GPU memory, half the free RAM on CPU)")
     p.set_defaults(run=_bind)
 
     p = sub.add_parser("deform", help="deform the bound mesh with a deformed cage and write it")

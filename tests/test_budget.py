@@ -1,0 +1,70 @@
+"""Memory: the estimate made before allocating, chunked solves, and budgets that cannot be met."""
+
+import subprocess
+import sys
+import textwrap
+import warnings
+
+import numpy as np
+import pytest
+
+import warp_stokes as ws
+from conftest import EXAMPLE
+
+MEASURE = textwrap.dedent(
+    """
+    import resource, sys, warnings
+    import warp_stokes as ws
+    warnings.simplefilter("ignore")
+    mesh, cage, n = sys.argv[1], sys.argv[2], int(sys.argv[3])
+    ws.bind(mesh, cage, resolution=16, device="cpu")  # load the kernels first
+    checked = ws.check_cage(cage)
+    estimate = ws.estimate_memory(ws.voxelize(checked, n, device="cpu"), len(ws.load_surface(mesh).vertices))
+    base = int(open("/proc/self/statm").read().split()[1]) * resource.getpagesize()
+    ws.bind(mesh, cage, resolution=n, device="cpu")
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    print(estimate.total(checked.n_handles), peak - base)
+    """
+)
+
+
+def test_memory_estimate_is_within_20_percent_of_the_allocation():
+    # a fresh process: its peak resident memory above the level before the bind is what the bind allocated
+    out = subprocess.run([sys.executable, "-c", MEASURE, str(EXAMPLE / "arm.obj"), str(EXAMPLE / "arm_cage.obj"),
+                          "48"], capture_output=True, text=True, check=True).stdout.split()
+    estimate, measured = int(out[-2]), int(out[-1])
+    print(f"arm at resolution 48 on the CPU: estimated {estimate / 2**20:.1f} MiB, measured {measured / 2**20:.1f} MiB")
+    assert measured > 50 * 2**20  # large enough to dominate allocator noise
+    assert abs(measured - estimate) <= 0.2 * measured
+
+
+def test_chunked_and_unchunked_solves_give_the_same_weights(arm_cage):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        whole = ws.bind(EXAMPLE / "arm.obj", arm_cage, resolution=24, device="cpu")
+        grid = ws.voxelize(arm_cage, 24, device="cpu")
+        estimate = ws.estimate_memory(grid, whole.n_vertices)
+        budget = estimate.shared + 20 * estimate.per_handle  # room for 20 of the 58 handles at a time
+        chunked = ws.bind(EXAMPLE / "arm.obj", arm_cage, resolution=24, device="cpu", memory_budget=budget)
+    assert whole.stats["chunks"] == 1 and chunked.stats["chunks"] == 3
+    assert chunked.stats["memory_estimate_bytes"] <= budget < whole.stats["memory_estimate_bytes"]
+    np.testing.assert_allclose(chunked.weights, whole.weights, atol=1e-5)
+    assert chunked.stats["partition_of_unity_error"] <= 1e-5
+
+
+def test_plan_chunks_balances_and_covers_all_handles():
+    est = ws.MemoryEstimate(per_handle=100, shared=1000)
+    chunks = ws.plan_chunks(est, 10, budget=1000 + 4 * 100, resolution=64)
+    assert [c.stop - c.start for c in chunks] == [4, 3, 3] or [c.stop - c.start for c in chunks] == [4, 4, 2]
+    assert chunks[0].start == 0 and chunks[-1].stop == 10
+    assert all(a.stop == b.start for a, b in zip(chunks, chunks[1:]))
+    assert ws.plan_chunks(est, 10, budget=10**9, resolution=64) == [slice(0, 10)]
+
+
+def test_an_impossible_budget_fails_at_once_naming_a_resolution_that_fits(arm_cage):
+    with pytest.raises(ws.ResolutionError, match=r"resolution 64 needs .* GiB .* resolution (\d+) or less would fit") as e:
+        ws.bind(EXAMPLE / "arm.obj", arm_cage, resolution=64, device="cpu", memory_budget=8 * 2**20)
+    suggested = int(str(e.value).split("resolution ")[-1].split(" or less")[0])
+    assert 8 <= suggested < 64
+    grid = ws.voxelize(arm_cage, suggested, device="cpu")
+    assert ws.estimate_memory(grid, 2089).total(1) <= 8 * 2**20  # the suggestion does fit

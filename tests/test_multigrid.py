@@ -1,0 +1,107 @@
+"""The multigrid preconditioner: its parts against exact facts, and level-independent CG iterations."""
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+import warp as wp
+
+import warp_stokes as ws
+from conftest import box_cage
+
+
+def to_scipy(M):
+    off = M.offsets.numpy()[: M.nrow + 1]
+    cols = M.columns.numpy()[: off[-1]]
+    vals = M.values.numpy()[: off[-1]].astype(np.float64)
+    return sp.bsr_matrix((vals, cols, off), shape=(4 * M.nrow, 4 * M.ncol)).tocsr()
+
+
+@pytest.fixture(scope="module")
+def arm_hierarchy(arm_cage):
+    grid = ws.voxelize(arm_cage, resolution=40, device="cpu")
+    return grid, ws.Multigrid(grid, device="cpu", coarsest_nodes=60)
+
+
+def test_levels_shrink_and_coarse_operators_are_galerkin_products(arm_hierarchy):
+    grid, mg = arm_hierarchy
+    sizes = mg.level_sizes
+    assert len(sizes) >= 3 and sizes[0] == grid.n_interior
+    assert all(0.08 < b / a < 0.3 for a, b in zip(sizes, sizes[1:])), sizes
+    from reference import assemble
+
+    fine = assemble(grid.labels == 1)[0]  # the reference's independent assembly of A_II
+    P = to_scipy(mg.levels[0].P)
+    A1 = to_scipy(mg.levels[1].A)
+    np.testing.assert_allclose(A1.toarray(), (P.T @ fine @ P).toarray(), atol=1e-3)
+    for lev in mg.levels[1:]:
+        A = to_scipy(lev.A)
+        assert abs(A - A.T).max() < 1e-4 * abs(A).max()
+        # the Galerkin stencil of the coarse levels: 27 neighbours at most, all within one lattice step
+        off = lev.A.offsets.numpy()[: lev.n + 1]
+        cols = lev.A.columns.numpy()[: off[-1]]
+        rows = np.repeat(np.arange(lev.n), np.diff(off))
+        assert np.abs(lev.ijk[rows] - lev.ijk[cols]).max() <= 1
+        assert np.diff(off).max() <= 27
+
+
+def test_hermite_prolongation_is_exact_for_cubics_along_axes():
+    v, f = box_cage(lo=(-1, -1, -1), hi=(1, 1, 1))
+    grid = ws.voxelize(ws.check_cage((v, f)), resolution=24, device="cpu")
+    mg = ws.Multigrid(grid, device="cpu", coarsest_nodes=50)
+    fine, coarse = mg.levels[0], mg.levels[1]
+
+    def field(ijk, spacing):
+        x = grid.origin + spacing * ijk
+        q = x[:, 0] ** 3 + 2 * x[:, 1] ** 3 - x[:, 2] ** 3 + 0.5 * x[:, 0] - x[:, 2] + 3
+        g = np.stack([3 * x[:, 0] ** 2 + 0.5, 6 * x[:, 1] ** 2, -3 * x[:, 2] ** 2 - 1], 1) * spacing
+        return np.concatenate([q[:, None], g], 1)
+
+    h = grid.spacing
+    exact_fine = field(fine.ijk, h)
+    coarse_values = field(coarse.ijk, 2 * h)
+    P = to_scipy(fine.P)
+    got = (P @ coarse_values.reshape(-1)).reshape(-1, 4)
+    # fine nodes all of whose parents are coarse nodes (away from the masked boundary)
+    counts = np.diff(fine.P.offsets.numpy()[: fine.n + 1])
+    parity = fine.ijk % 2
+    complete = counts == 2 ** parity.sum(1)
+    assert complete.mean() > 0.5
+    np.testing.assert_allclose(got[complete], exact_fine[complete], atol=1e-5 * np.abs(exact_fine).max())
+
+
+def test_v_cycle_is_a_symmetric_positive_preconditioner(arm_hierarchy):
+    grid, mg = arm_hierarchy
+    rng = np.random.default_rng(5)
+    a = wp.array(rng.normal(size=(grid.n_interior, 2, 4)).astype(np.float32), dtype=wp.vec4f, device="cpu")
+    b = wp.array(rng.normal(size=(grid.n_interior, 2, 4)).astype(np.float32), dtype=wp.vec4f, device="cpu")
+    ma, mb = wp.empty_like(a), wp.empty_like(b)
+    mg.apply(a, ma)
+    mg.apply(b, mb)
+    a, b, ma, mb = (x.numpy().astype(np.float64) for x in (a, b, ma, mb))
+    for h in range(2):
+        lhs, rhs = np.sum(ma[:, h] * b[:, h]), np.sum(a[:, h] * mb[:, h])
+        assert abs(lhs - rhs) <= 1e-4 * abs(lhs)
+        assert np.sum(ma[:, h] * a[:, h]) > 0
+
+
+def test_cg_iterations_do_not_grow_with_the_resolution(arm_cage):
+    iterations = {}
+    for n in (24, 48, 96):
+        grid = ws.voxelize(arm_cage, resolution=n, device="cpu")
+        field = ws.boundary_field(grid, arm_cage, device="cpu", handles=slice(10, 14))
+        report = ws.solve_biharmonic(grid, field, tol=1e-6, device="cpu")
+        assert report.converged
+        iterations[n] = report.iterations
+    print("multigrid-preconditioned CG iterations by resolution:", iterations)
+    assert max(iterations.values()) <= 10
+    assert iterations[96] <= iterations[24] + 2
+
+
+def test_jacobi_iterations_do_grow(arm_cage):
+    # the contrast that makes the test above meaningful
+    its = []
+    for n in (16, 32):
+        grid = ws.voxelize(arm_cage, resolution=n, device="cpu")
+        field = ws.boundary_field(grid, arm_cage, device="cpu", handles=slice(10, 12))
+        its.append(ws.solve_biharmonic(grid, field, tol=1e-6, preconditioner="jacobi", device="cpu").iterations)
+    assert its[1] > 1.5 * its[0] and its[1] > 40
