@@ -45,7 +45,12 @@ def triangle_weights(
     c0 = two * sh * wp.sin(h - t0) / (s_t1 * s_t2) - one
     c1 = two * sh * wp.sin(h - t1) / (s_t2 * s_t0) - one
     c2 = two * sh * wp.sin(h - t2) / (s_t0 * s_t1) - one
-    sign = wp.sign(wp.dot(u0, wp.cross(u1, u2)))
+    det = wp.dot(u0, wp.cross(u1, u2))
+    if wp.abs(det) <= eps:
+        # x lies in the triangle's plane, outside it (e.g. on the line through an edge, where one angle is 0
+        # and the paper's test on s below is defeated by round-off): the triangle contributes nothing
+        return wp.vec4d(zero, zero, zero, one)
+    sign = wp.sign(det)
     s0 = sign * wp.sqrt(wp.max(one - c0 * c0, zero))
     s1 = sign * wp.sqrt(wp.max(one - c1 * c1, zero))
     s2 = sign * wp.sqrt(wp.max(one - c2 * c2, zero))

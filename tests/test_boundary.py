@@ -31,6 +31,33 @@ def test_mvc_interpolates_on_the_cage(arm_cage):
     np.testing.assert_allclose(w, expected, atol=1e-7)
 
 
+def test_mvc_in_the_plane_of_cage_triangles():
+    # points on the lines through a box's edges lie in the planes of the triangles at those edges
+    from conftest import box_cage
+
+    cage = ws.check_cage(box_cage(lo=(-1, -2, -3), hi=(1, 2, 3)))
+    points = np.array([[1, 2, 3.5], [1, 2, -4], [1.25, 2, 3], [-1, -2.5, -3], [1.5, 3, 3], [2, 2, 3]], float)
+    w = ws.mean_value_coordinates(cage, points, device="cpu")
+    assert np.abs(w.sum(1) - 1).max() < 1e-10
+    assert np.linalg.norm(w @ cage.vertices - points, axis=1).max() < 1e-9 * cage.diagonal
+
+
+def test_mvc_on_the_line_through_a_cage_edge_with_round_off():
+    # Grid nodes of this ellipsoid at resolution 24 include a point on the line through vertices 8 and 9,
+    # where one corner angle comes out as 1e-16 instead of 0 and the paper's coplanarity test on s misses it:
+    # linear precision was off by 0.99 there before the test on the unit vectors' volume.
+    import trimesh
+
+    sphere = trimesh.creation.uv_sphere(radius=1.0, count=[18, 14])
+    sphere.vertices *= [2.0, 1.0, 0.8]
+    cage = ws.check_cage(sphere)
+    grid = ws.voxelize(cage, 24, device="cpu")
+    points = grid.node_positions() + grid.centre
+    w = ws.mean_value_coordinates(cage, points, device="cpu")
+    assert np.abs(w.sum(1) - 1).max() < 1e-10
+    assert np.linalg.norm(w @ cage.vertices - points, axis=1).max() < 1e-7
+
+
 def test_mvc_are_positive_inside_a_convex_cage():
     import trimesh
 

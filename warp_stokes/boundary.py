@@ -19,6 +19,8 @@ from .kernels import mvc, stencil
 
 __all__ = ["mean_value_coordinates", "boundary_field"]
 
+#: tolerance of the degenerate cases (point on a triangle, or in its plane outside it), on unit-vector
+#: quantities: angles and the volume spanned by the three unit vectors to the corners
 EPS_ANGLE = 1e-10
 
 

@@ -1,0 +1,248 @@
+"""Solver benchmark: whole binds over grid resolutions, pairs and devices, with the roofline of the stencil.
+
+    python benchmarks/bench_solver.py --device cuda:0 --resolutions 32 64 96 128 192 256 --out results.md
+
+Each (pair, resolution) runs in a fresh process (so that the GPU memory pool's high-water mark belongs to that
+bind alone) and reports: device, n, handles, active and interior nodes, seconds per stage after a warm-up bind
+(voxelise, multigrid setup, boundary data, solve, sample) and the whole bind, CG iterations, final residual, max
+weight error at the vertices against a tightly converged reference (tol 1e-9, 60 iterations), peak GPU memory
+(memory-pool high-water mark) next to the estimate made before allocating, and the batched stencil kernel's
+achieved bandwidth (32 bytes per node and handle: read the packed (q, G) once, write the result once) as a
+fraction of a device-to-device copy measured in the same process. At small n it also runs the source paper's
+method: damped Jacobi sweeps (omega = 0.78) stopped when the largest change per sweep falls below 1e-6.
+
+The pairs are the real ones of ../shared/data (WARP_STOKES_DATA) and a synthetic cage with 240+ handles.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+REPO = HERE.parent
+DATA = Path(os.environ.get("WARP_STOKES_DATA", REPO.parent / "shared" / "data"))
+PAIRS = {
+    "arm": (REPO / "examples/arm/arm.obj", REPO / "examples/arm/arm_cage.obj"),
+    "smpl": (DATA / "smpl_humanoid_neuralcages/model_rpose.obj", DATA / "smpl_humanoid_neuralcages/cage_rpose.obj"),
+    "ogre": (DATA / "ogre_qmvc/Ogre.obj", DATA / "ogre_qmvc/cage_tri.obj"),
+    "synthetic": None,
+}
+
+
+def synthetic_pair():
+    """An ellipsoid cage with 242 handles around a 10,242-vertex ellipsoid mesh."""
+    import trimesh
+
+    cage = trimesh.creation.uv_sphere(radius=1.0, count=[12, 12])
+    cage.vertices *= [2.0, 1.0, 0.8]
+    mesh = trimesh.creation.icosphere(subdivisions=5, radius=0.85)
+    mesh.vertices *= [2.0, 1.0, 0.8]
+    return (mesh.vertices, mesh.faces), (cage.vertices, cage.faces)
+
+
+def pair(name):
+    return synthetic_pair() if name == "synthetic" else PAIRS[name]
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# measurements inside one process
+
+
+def copy_bandwidth(wp, device, nbytes=2 << 30, repeats=20):
+    """Device-to-device copy bandwidth (bytes read + written per second)."""
+    n = nbytes // 16
+    a = wp.zeros(n, dtype=wp.vec4f, device=device)
+    b = wp.empty(n, dtype=wp.vec4f, device=device)
+    wp.copy(b, a)
+    times = []
+    for _ in range(repeats):
+        start, end = wp.Event(device, enable_timing=True), wp.Event(device, enable_timing=True)
+        wp.record_event(start)
+        wp.copy(b, a)
+        wp.record_event(end)
+        wp.synchronize_device(device)
+        times.append(wp.get_event_elapsed_time(start, end) / 1e3)
+    return 2 * n * 16 / float(np.median(times))
+
+
+def time_kernel(wp, device, launch, repeats=20):
+    launch()
+    if not wp.get_device(device).is_cuda:
+        t = time.perf_counter()
+        for _ in range(3):
+            launch()
+        return (time.perf_counter() - t) / 3
+    times = []
+    for _ in range(repeats):
+        start, end = wp.Event(device, enable_timing=True), wp.Event(device, enable_timing=True)
+        wp.record_event(start)
+        launch()
+        wp.record_event(end)
+        wp.synchronize_device(device)
+        times.append(wp.get_event_elapsed_time(start, end) / 1e3)
+    return float(np.median(times))
+
+
+def damped_jacobi(ws, wp, grid, cage, device, omega=0.78, threshold=1e-6, max_sweeps=400_000, max_seconds=120):
+    """The source paper's solver: damped Jacobi sweeps stopped when the largest change per sweep < threshold."""
+    from warp_stokes.kernels import multigrid as mgk
+    from warp_stokes.kernels import cg
+
+    @wp.kernel
+    def max_abs(d: wp.array2d(dtype=wp.vec4f), out: wp.array(dtype=float)):
+        n, h = wp.tid()
+        wp.atomic_max(out, 0, wp.abs(d[n, h][0]))
+
+    field = ws.boundary_field(grid, cage, device=device)
+    n = grid.n_interior
+    x = field[0:n]
+    inv = np.zeros((n, 4, 4), np.float32)
+    inv[:, 0, 0], inv[:, 1, 1], inv[:, 2, 2], inv[:, 3, 3] = 1 / 48, 1 / 4, 1 / 4, 1 / 4
+    inv = wp.array(inv, dtype=wp.mat44f, device=device)
+    r = wp.empty(x.shape, dtype=wp.vec4f, device=device)
+    d = wp.empty_like(r)
+    zero = wp.zeros(x.shape, dtype=wp.vec4f, device=device)
+    change = wp.zeros(1, dtype=float, device=device)
+    start = time.perf_counter()
+    sweeps = 0
+    while sweeps < max_sweeps and time.perf_counter() - start < max_seconds:
+        for _ in range(100):
+            ws.apply_operator(grid, field, r, device=device)
+            wp.launch(cg.residual, dim=r.shape, inputs=[zero, r], outputs=[r], device=device)
+            wp.launch(mgk.chebyshev_start, dim=r.shape, inputs=[r, inv, omega], outputs=[x, d], device=device)
+            sweeps += 1
+        change.zero_()
+        wp.launch(max_abs, dim=d.shape, inputs=[d], outputs=[change], device=device)
+        if float(change.numpy()[0]) < threshold:
+            break
+    wp.synchronize_device(device)
+    return field, sweeps, time.perf_counter() - start
+
+
+def one(name, n, device):
+    """Measure one (pair, resolution) in this process; returns a dict."""
+    import warp as wp
+
+    import warp_stokes as ws
+
+    warnings.simplefilter("ignore")
+    mesh, cage = pair(name)
+    dev = ws.resolve_device(device)
+    ws.bind(mesh, cage, resolution=16, device=device)  # warm-up: compile and load the kernels
+    out = {"pair": name, "n": n, "device": ws.device_name(device)}
+    t = time.perf_counter()
+    b = ws.bind(mesh, cage, resolution=n, device=device)
+    out["wall"] = time.perf_counter() - t
+    s = b.stats
+    out.update({k: s[k] for k in ("handles", "interior_nodes", "iterations", "residual", "converged", "levels",
+                                  "chunks", "memory_estimate_bytes", "partition_of_unity_error",
+                                  "linear_precision_error")})
+    out["active_nodes"] = s["interior_nodes"] + s["ring_nodes"] + s["band_nodes"]
+    out["seconds"] = s["seconds"]
+    out["peak_bytes"] = wp.get_mempool_used_mem_high(dev) if dev.is_cuda and wp.is_mempool_enabled(dev) else None
+
+    # stencil kernel bandwidth against a device copy
+    checked = ws.check_cage(cage)
+    grid = ws.voxelize(checked, n, device=device)
+    chunk = slice(0, min(checked.n_handles, 128))
+    field = ws.boundary_field(grid, checked, device=device, handles=chunk)
+    x = field[0 : grid.n_interior]
+    y = wp.empty(x.shape, dtype=wp.vec4f, device=device)
+    seconds = time_kernel(wp, device, lambda: ws.apply_operator(grid, x, y, n_rows=grid.n_interior, device=device))
+    moved = 32 * x.shape[0] * x.shape[1]
+    out["stencil_ms"] = seconds * 1e3
+    out["stencil_gbs"] = moved / seconds / 1e9
+    if dev.is_cuda:
+        out["copy_gbs"] = copy_bandwidth(wp, device) / 1e9
+    del field, x, y
+
+    # tightly converged reference
+    ref = ws.bind(mesh, cage, resolution=n, device=device, tol=1e-9, max_iterations=60)
+    out["ref_iterations"] = ref.stats["iterations"]
+    out["error"] = float(np.abs(b.weights - ref.weights).max())
+
+    if n <= 48:
+        field, sweeps, seconds = damped_jacobi(ws, wp, grid, checked, device)
+        w, _ = ws.sample_weights(grid, field, b.mesh_vertices, device=device)
+        sampled = np.isfinite(w).all(axis=1) & (np.abs(w).sum(axis=1) > 0)
+        out["jacobi"] = {"sweeps": sweeps, "seconds": seconds,
+                         "error": float(np.abs(w[sampled] - ref.weights[sampled]).max())}
+    return out
+
+
+# ---------------------------------------------------------------------------------------------------------------
+
+
+def table(rows):
+    head = ["device", "pair", "n", "handles", "active", "levels", "chunks", "voxel s", "setup s", "bdry s",
+            "solve s", "sample s", "bind s", "iters", "residual", "max err", "peak GiB", "est GiB",
+            "stencil GB/s", "copy GB/s", "stencil/copy"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for r in rows:
+        s = r["seconds"]
+        peak = f"{r['peak_bytes'] / 2**30:.2f}" if r.get("peak_bytes") else "-"
+        copy = r.get("copy_gbs")
+        lines.append("| " + " | ".join(str(v) for v in [
+            r["device"], r["pair"], r["n"], r["handles"], r["active_nodes"], len(r["levels"]), r["chunks"],
+            f"{s['voxelize']:.3f}", f"{s['setup']:.3f}", f"{s['boundary']:.3f}", f"{s['solve']:.3f}",
+            f"{s['sample']:.3f}", f"{r['wall']:.3f}", r["iterations"], f"{r['residual']:.1e}",
+            f"{r['error']:.1e}", peak, f"{r['memory_estimate_bytes'] / 2**30:.2f}", f"{r['stencil_gbs']:.0f}",
+            f"{copy:.0f}" if copy else "-", f"{r['stencil_gbs'] / copy:.0%}" if copy else "-"]) + " |")
+    jac = [r for r in rows if "jacobi" in r]
+    if jac:
+        lines += ["", "Source paper's method (damped Jacobi, omega 0.78, stop when max change per sweep < 1e-6):", "",
+                  "| pair | n | sweeps | seconds | max err at stop | multigrid CG: iters | bind s | max err |",
+                  "|---|---|---|---|---|---|---|---|"]
+        for r in jac:
+            j = r["jacobi"]
+            lines.append(f"| {r['pair']} | {r['n']} | {j['sweeps']} | {j['seconds']:.2f} | {j['error']:.1e} | "
+                         f"{r['iterations']} | {r['wall']:.3f} | {r['error']:.1e} |")
+    return "\n".join(lines)
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--device", default="cuda:0")
+    p.add_argument("--resolutions", nargs="+", type=int, default=[32, 64, 96, 128, 192, 256])
+    p.add_argument("--pairs", nargs="+", default=list(PAIRS))
+    p.add_argument("--out", default=None, help="write the markdown table (and a .json of all figures) here")
+    p.add_argument("--one", nargs=2, metavar=("PAIR", "N"), help=argparse.SUPPRESS)
+    args = p.parse_args(argv)
+    if args.one:
+        print("RESULT " + json.dumps(one(args.one[0], int(args.one[1]), args.device)), flush=True)
+        return 0
+    rows = []
+    for name in args.pairs:
+        for n in args.resolutions:
+            t = time.perf_counter()
+            proc = subprocess.run([sys.executable, __file__, "--device", args.device, "--one", name, str(n)],
+                                  capture_output=True, text=True)
+            found = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
+            if proc.returncode or not found:
+                print(f"{name} n={n}: FAILED ({proc.returncode})\n{proc.stderr[-2000:]}", flush=True)
+                continue
+            rows.append(json.loads(found[-1][7:]))
+            if args.out:  # keep what was measured even if a later configuration runs out of time
+                Path(args.out).with_suffix(".json").write_text(json.dumps(rows, indent=1))
+            r = rows[-1]
+            print(f"{name} n={n}: bind {r['wall']:.3f} s, {r['iterations']} iterations, error {r['error']:.1e}, "
+                  f"stencil {r['stencil_gbs']:.0f} GB/s ({time.perf_counter() - t:.0f} s)", flush=True)
+    text = table(rows)
+    print(text)
+    if args.out:
+        Path(args.out).write_text(text + "\n")
+        Path(args.out).with_suffix(".json").write_text(json.dumps(rows, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
