@@ -137,7 +137,7 @@ def one(name, n, device):
     warnings.simplefilter("ignore")
     mesh, cage = pair(name)
     dev = ws.resolve_device(device)
-    ws.bind(mesh, cage, resolution=16, device=device)  # warm-up: compile and load the kernels
+    ws.bind(mesh, cage, resolution=32, device=device)  # warm-up (two levels or more): compile and load the kernels
     out = {"pair": name, "n": n, "device": ws.device_name(device)}
     t = time.perf_counter()
     b = ws.bind(mesh, cage, resolution=n, device=device)

@@ -12,80 +12,76 @@ nodes come first, so row n < n_interior is interior node n.
 import warp as wp
 
 
-@wp.func
-def node_value(
-    field: wp.array2d(dtype=wp.vec4f),
-    index: wp.array3d(dtype=wp.int32),
-    n_rows: int,
-    i: int,
-    j: int,
-    k: int,
-    handle: int,
-):
-    """The packed (q, G) of a node in float64, zero where the node has no row below `n_rows`."""
-    row = index[i, j, k]
-    if row >= 0 and row < n_rows:
-        return wp.vec4d(field[row, handle])
-    return wp.vec4d()
+def operator_kernel(scalar):
+    """The batched operator with sums in `scalar` (wp.float32 or wp.float64).
+
+    Residuals of a nearly converged float32 field cancel to ~1e-7 of their terms: a float32 sum would stall
+    the solver there, so residuals use float64 sums. Krylov and smoothing applications only need float32;
+    float64 sums cost about a quarter of the kernel's speed (benchmarks/RESULTS.md)."""
+    vec4 = wp.types.vector(length=4, dtype=scalar)
+
+    @wp.func
+    def node_value(
+        field: wp.array2d(dtype=wp.vec4f),
+        index: wp.array3d(dtype=wp.int32),
+        n_rows: int,
+        i: int,
+        j: int,
+        k: int,
+        handle: int,
+    ):
+        # the packed (q, G) of a node, zero where the node has no row below `n_rows`
+        row = index[i, j, k]
+        if row >= 0 and row < n_rows:
+            return vec4(field[row, handle])
+        return vec4()
+
+    @wp.kernel(module="unique")
+    def apply_operator(
+        field: wp.array2d(dtype=wp.vec4f),
+        index: wp.array3d(dtype=wp.int32),
+        interior_ijk: wp.array(dtype=wp.vec3i),
+        n_rows: int,
+        out: wp.array2d(dtype=wp.vec4f),
+    ):
+        # out = A field at the interior nodes, one launch of (interior nodes, handles). Rows of `field` at or
+        # beyond `n_rows` read as zero: with n_rows = n_interior this is the interior block A_II (Krylov
+        # vectors); with all active rows it includes the known ring data (residuals).
+        n, h = wp.tid()
+        c = interior_ijk[n]
+        i = c[0]
+        j = c[1]
+        k = c[2]
+        centre = vec4(field[n, h])
+        xp = node_value(field, index, n_rows, i + 1, j, k, h)
+        xm = node_value(field, index, n_rows, i - 1, j, k, h)
+        yp = node_value(field, index, n_rows, i, j + 1, k, h)
+        ym = node_value(field, index, n_rows, i, j - 1, k, h)
+        zp = node_value(field, index, n_rows, i, j, k + 1, h)
+        zm = node_value(field, index, n_rows, i, j, k - 1, h)
+        edges = scalar(0.0)
+        for a in range(-1, 2, 2):
+            for b in range(-1, 2, 2):
+                edges += node_value(field, index, n_rows, i + a, j + b, k, h)[0]
+                edges += node_value(field, index, n_rows, i + a, j, k + b, h)[0]
+                edges += node_value(field, index, n_rows, i, j + a, k + b, h)[0]
+        faces = xp[0] + xm[0] + yp[0] + ym[0] + zp[0] + zm[0]
+        divergence = (xp[1] - xm[1]) + (yp[2] - ym[2]) + (zp[3] - zm[3])
+        three = scalar(3.0)
+        four = scalar(4.0)
+        value = scalar(48.0) * centre[0] - scalar(10.0) * faces + edges + three * divergence
+        gx = xm[1] + four * centre[1] + xp[1] - three * (xp[0] - xm[0])
+        gy = ym[2] + four * centre[2] + yp[2] - three * (yp[0] - ym[0])
+        gz = zm[3] + four * centre[3] + zp[3] - three * (zp[0] - zm[0])
+        out[n, h] = wp.vec4f(wp.float32(value), wp.float32(gx), wp.float32(gy), wp.float32(gz))
+
+    return apply_operator
 
 
-@wp.func
-def edge_sum(
-    field: wp.array2d(dtype=wp.vec4f),
-    index: wp.array3d(dtype=wp.int32),
-    n_rows: int,
-    i: int,
-    j: int,
-    k: int,
-    handle: int,
-):
-    """Sum of q over the 12 edge neighbours."""
-    s = wp.float64(0.0)
-    for a in range(-1, 2, 2):
-        for b in range(-1, 2, 2):
-            s += node_value(field, index, n_rows, i + a, j + b, k, handle)[0]
-            s += node_value(field, index, n_rows, i + a, j, k + b, handle)[0]
-            s += node_value(field, index, n_rows, i, j + a, k + b, handle)[0]
-    return s
-
-
-@wp.kernel
-def apply_operator(
-    field: wp.array2d(dtype=wp.vec4f),
-    index: wp.array3d(dtype=wp.int32),
-    interior_ijk: wp.array(dtype=wp.vec3i),
-    n_rows: int,
-    out: wp.array2d(dtype=wp.vec4f),
-):
-    """out = A field at the interior nodes, for every handle in one launch of (interior nodes, handles).
-
-    Sums run in float64: residuals of a nearly converged float32 field cancel to ~1e-7 of its terms, and a
-    float32 sum would stall the solver there (the kernel is bandwidth-bound, so this costs little).
-
-    Rows of `field` at or beyond `n_rows` read as zero: with n_rows = n_interior this is the interior block
-    A_II (CG vectors); with all active rows it includes the known ring data (residuals)."""
-    n, h = wp.tid()
-    c = interior_ijk[n]
-    i = c[0]
-    j = c[1]
-    k = c[2]
-    centre = wp.vec4d(field[n, h])
-    xp = node_value(field, index, n_rows, i + 1, j, k, h)
-    xm = node_value(field, index, n_rows, i - 1, j, k, h)
-    yp = node_value(field, index, n_rows, i, j + 1, k, h)
-    ym = node_value(field, index, n_rows, i, j - 1, k, h)
-    zp = node_value(field, index, n_rows, i, j, k + 1, h)
-    zm = node_value(field, index, n_rows, i, j, k - 1, h)
-    faces = xp[0] + xm[0] + yp[0] + ym[0] + zp[0] + zm[0]
-    divergence = (xp[1] - xm[1]) + (yp[2] - ym[2]) + (zp[3] - zm[3])
-    edges = edge_sum(field, index, n_rows, i, j, k, h)
-    three = wp.float64(3.0)
-    four = wp.float64(4.0)
-    value = wp.float64(48.0) * centre[0] - wp.float64(10.0) * faces + edges + three * divergence
-    gx = xm[1] + four * centre[1] + xp[1] - three * (xp[0] - xm[0])
-    gy = ym[2] + four * centre[2] + yp[2] - three * (yp[0] - ym[0])
-    gz = zm[3] + four * centre[3] + zp[3] - three * (zp[0] - zm[0])
-    out[n, h] = wp.vec4f(wp.float32(value), wp.float32(gx), wp.float32(gy), wp.float32(gz))
+#: residuals (float64 sums)
+apply_operator = operator_kernel(wp.float64)
+#: Krylov and smoothing applications (float32 sums)
+apply_operator_fast = operator_kernel(wp.float32)
 
 
 @wp.kernel

@@ -174,7 +174,7 @@ class Multigrid:
         lev = self.levels[depth]
         if depth == 0:
             arrays = self.grid.device_arrays(self.device)
-            wp.launch(stencil.apply_operator, dim=x.shape,
+            wp.launch(stencil.apply_operator_fast, dim=x.shape,
                       inputs=[x, arrays["index"], arrays["active_ijk"], lev.n], outputs=[out])
         else:
             wp.launch(mg.bsr_apply, dim=x.shape,

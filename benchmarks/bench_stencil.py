@@ -1,0 +1,201 @@
+"""Variants of the batched 19-point stencil, timed against a device-to-device copy on the same GPU.
+
+    python benchmarks/bench_stencil.py --device cuda:0 --pair ogre --resolutions 128 256
+
+Bytes counted: 32 per (interior node, handle): the packed (q, G) read once and the result written once.
+Variants (all read and write the package's (node row, handle) vec4 layout, handles innermost):
+  package   warp_stokes.kernels.stencil.apply_operator: one thread per (node, handle), float64 sums, 18
+            neighbour rows looked up in the 3D index grid
+  f32       the same with float32 sums
+  table     float32 sums, neighbour rows from a precomputed (node, 18) table
+  h4        float32 sums, index-grid lookups, 4 handles per thread (the lookups amortised over 4 handles)
+  h4table   float32 sums, neighbour table, 4 handles per thread
+Every variant's output is compared with the package kernel's.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+import warp as wp
+
+import warp_stokes as ws
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_solver import copy_bandwidth, pair, time_kernel  # noqa: E402
+
+OFFSETS = [(1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1), (0, 0, -1)] + [
+    (a, b, 0) for a in (-1, 1) for b in (-1, 1)] + [(a, 0, b) for a in (-1, 1) for b in (-1, 1)] + [
+    (0, a, b) for a in (-1, 1) for b in (-1, 1)]
+
+
+@wp.func
+def fetch(field: wp.array2d(dtype=wp.vec4f), row: int, n_rows: int, h: int):
+    if row >= 0 and row < n_rows:
+        return field[row, h]
+    return wp.vec4f(0.0)
+
+
+@wp.func
+def idx(index: wp.array3d(dtype=wp.int32), c: wp.vec3i, di: int, dj: int, dk: int):
+    return index[c[0] + di, c[1] + dj, c[2] + dk]
+
+
+@wp.func
+def combine(centre: wp.vec4f, xp: wp.vec4f, xm: wp.vec4f, yp: wp.vec4f, ym: wp.vec4f, zp: wp.vec4f,
+            zm: wp.vec4f, edges: float):
+    faces = xp[0] + xm[0] + yp[0] + ym[0] + zp[0] + zm[0]
+    div = (xp[1] - xm[1]) + (yp[2] - ym[2]) + (zp[3] - zm[3])
+    value = 48.0 * centre[0] - 10.0 * faces + edges + 3.0 * div
+    gx = xm[1] + 4.0 * centre[1] + xp[1] - 3.0 * (xp[0] - xm[0])
+    gy = ym[2] + 4.0 * centre[2] + yp[2] - 3.0 * (yp[0] - ym[0])
+    gz = zm[3] + 4.0 * centre[3] + zp[3] - 3.0 * (zp[0] - zm[0])
+    return wp.vec4f(value, gx, gy, gz)
+
+
+@wp.kernel
+def stencil_f32(field: wp.array2d(dtype=wp.vec4f), index: wp.array3d(dtype=wp.int32),
+                ijk: wp.array(dtype=wp.vec3i), n_rows: int, out: wp.array2d(dtype=wp.vec4f)):
+    n, h = wp.tid()
+    c = ijk[n]
+    edges = float(0.0)
+    for a in range(-1, 2, 2):
+        for b in range(-1, 2, 2):
+            edges += fetch(field, idx(index, c, a, b, 0), n_rows, h)[0]
+            edges += fetch(field, idx(index, c, a, 0, b), n_rows, h)[0]
+            edges += fetch(field, idx(index, c, 0, a, b), n_rows, h)[0]
+    out[n, h] = combine(field[n, h], fetch(field, idx(index, c, 1, 0, 0), n_rows, h),
+                        fetch(field, idx(index, c, -1, 0, 0), n_rows, h),
+                        fetch(field, idx(index, c, 0, 1, 0), n_rows, h),
+                        fetch(field, idx(index, c, 0, -1, 0), n_rows, h),
+                        fetch(field, idx(index, c, 0, 0, 1), n_rows, h),
+                        fetch(field, idx(index, c, 0, 0, -1), n_rows, h), edges)
+
+
+@wp.kernel
+def stencil_table(field: wp.array2d(dtype=wp.vec4f), table: wp.array2d(dtype=wp.int32), n_rows: int,
+                  out: wp.array2d(dtype=wp.vec4f)):
+    n, h = wp.tid()
+    edges = float(0.0)
+    for e in range(6, 18):
+        edges += fetch(field, table[n, e], n_rows, h)[0]
+    out[n, h] = combine(field[n, h], fetch(field, table[n, 0], n_rows, h), fetch(field, table[n, 1], n_rows, h),
+                        fetch(field, table[n, 2], n_rows, h), fetch(field, table[n, 3], n_rows, h),
+                        fetch(field, table[n, 4], n_rows, h), fetch(field, table[n, 5], n_rows, h), edges)
+
+
+@wp.kernel
+def stencil_h4(field: wp.array2d(dtype=wp.vec4f), index: wp.array3d(dtype=wp.int32),
+               ijk: wp.array(dtype=wp.vec3i), n_rows: int, out: wp.array2d(dtype=wp.vec4f)):
+    n, g = wp.tid()
+    c = ijk[n]
+    rows = wp.vector(dtype=wp.int32, length=18)
+    for e in range(2):
+        s = 2 * e - 1
+        rows[e] = idx(index, c, -s, 0, 0)
+        rows[2 + e] = idx(index, c, 0, -s, 0)
+        rows[4 + e] = idx(index, c, 0, 0, -s)
+    k = int(6)
+    for a in range(-1, 2, 2):
+        for b in range(-1, 2, 2):
+            rows[k] = idx(index, c, a, b, 0)
+            rows[k + 1] = idx(index, c, a, 0, b)
+            rows[k + 2] = idx(index, c, 0, a, b)
+            k += 3
+    for hh in range(4):
+        h = 4 * g + hh
+        if h < field.shape[1]:
+            edges = float(0.0)
+            for e in range(6, 18):
+                edges += fetch(field, int(rows[e]), n_rows, h)[0]
+            out[n, h] = combine(field[n, h], fetch(field, int(rows[0]), n_rows, h),
+                                fetch(field, int(rows[1]), n_rows, h), fetch(field, int(rows[2]), n_rows, h),
+                                fetch(field, int(rows[3]), n_rows, h), fetch(field, int(rows[4]), n_rows, h),
+                                fetch(field, int(rows[5]), n_rows, h), edges)
+
+
+@wp.kernel
+def stencil_h4_table(field: wp.array2d(dtype=wp.vec4f), table: wp.array2d(dtype=wp.int32), n_rows: int,
+                     out: wp.array2d(dtype=wp.vec4f)):
+    n, g = wp.tid()
+    for hh in range(4):
+        h = 4 * g + hh
+        if h < field.shape[1]:
+            edges = float(0.0)
+            for e in range(6, 18):
+                edges += fetch(field, table[n, e], n_rows, h)[0]
+            out[n, h] = combine(field[n, h], fetch(field, table[n, 0], n_rows, h),
+                                fetch(field, table[n, 1], n_rows, h), fetch(field, table[n, 2], n_rows, h),
+                                fetch(field, table[n, 3], n_rows, h), fetch(field, table[n, 4], n_rows, h),
+                                fetch(field, table[n, 5], n_rows, h), edges)
+
+
+def neighbour_table(grid):
+    """(interior nodes, 18) rows of the face neighbours (+x, -x, +y, -y, +z, -z) then the 12 edge neighbours,
+    in the order the kernels above sum them."""
+    ijk = grid.active_ijk[: grid.n_interior]
+    order = [(1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1), (0, 0, -1)]
+    for a in (-1, 1):
+        for b in (-1, 1):
+            order += [(a, b, 0), (a, 0, b), (0, a, b)]
+    cols = [grid.index[tuple((ijk + np.array(o)).T)] for o in order]
+    return np.stack(cols, axis=1).astype(np.int32)
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--device", default="cuda:0")
+    p.add_argument("--pair", default="ogre")
+    p.add_argument("--resolutions", nargs="+", type=int, default=[128, 256])
+    p.add_argument("--handles", type=int, default=None, help="solve this many handles (default: all, up to 128)")
+    args = p.parse_args(argv)
+    warnings.simplefilter("ignore")
+    device = ws.resolve_device(args.device)
+    copy = copy_bandwidth(wp, device) / 1e9 if device.is_cuda else float("nan")
+    mesh, cage = pair(args.pair)
+    cage = ws.check_cage(cage)
+    print(f"device {ws.device_name(device)}, copy {copy:.0f} GB/s")
+    print("| n | handles | interior | variant | ms | GB/s | of copy | max diff |")
+    print("|---|---|---|---|---|---|---|---|")
+    for n in args.resolutions:
+        grid = ws.voxelize(cage, n, device=device)
+        n_handles = min(cage.n_handles, args.handles or 128)
+        field = ws.boundary_field(grid, cage, device=device, handles=slice(0, n_handles))
+        n_int = grid.n_interior
+        x = field[0:n_int]
+        arrays = grid.device_arrays(device)
+        table = wp.array(neighbour_table(grid), dtype=wp.int32, device=device)
+        reference = wp.empty(x.shape, dtype=wp.vec4f, device=device)
+        ws.apply_operator(grid, x, reference, n_rows=n_int, device=device)
+        ref = reference.numpy()
+        groups = (n_handles + 3) // 4
+        variants = {
+            "package": lambda y: ws.apply_operator(grid, x, y, n_rows=n_int, device=device),
+            "f32": lambda y: wp.launch(stencil_f32, dim=x.shape, inputs=[x, arrays["index"], arrays["active_ijk"],
+                                                                          n_int], outputs=[y], device=device),
+            "table": lambda y: wp.launch(stencil_table, dim=x.shape, inputs=[x, table, n_int], outputs=[y],
+                                         device=device),
+            "h4": lambda y: wp.launch(stencil_h4, dim=(n_int, groups), inputs=[x, arrays["index"],
+                                                                               arrays["active_ijk"], n_int],
+                                      outputs=[y], device=device),
+            "h4table": lambda y: wp.launch(stencil_h4_table, dim=(n_int, groups), inputs=[x, table, n_int],
+                                           outputs=[y], device=device),
+        }
+        for name, launch in variants.items():
+            y = wp.full(x.shape, wp.vec4f(np.nan), dtype=wp.vec4f, device=device)
+            seconds = time_kernel(wp, device, lambda: launch(y))
+            diff = float(np.nanmax(np.abs(y.numpy() - ref))) if np.isfinite(y.numpy()).all() else float("nan")
+            gbs = 32 * n_int * n_handles / seconds / 1e9
+            print(f"| {n} | {n_handles} | {n_int} | {name} | {seconds * 1e3:.3f} | {gbs:.0f} | {gbs / copy:.0%} | "
+                  f"{diff:.1e} |", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
