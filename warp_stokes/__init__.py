@@ -34,6 +34,9 @@ from .sample import sample_weights  # noqa: E402
 from .deform import deform_vertices  # noqa: E402
 from .binding import Binding, bind, load_binding  # noqa: E402
 from .device import resolve_device, device_name  # noqa: E402
+from .poses import Poses, load_poses  # noqa: E402
+from .usd import write_animation  # noqa: E402
+from .batch import read_manifest, run_batch  # noqa: E402
 
 __all__ = [
     "bind", "load_binding", "Binding",
@@ -44,5 +47,6 @@ __all__ = [
     "sample_weights", "deform_vertices",
     "MemoryEstimate", "estimate_memory", "available_memory", "plan_chunks",
     "resolve_device", "device_name",
+    "Poses", "load_poses", "write_animation", "read_manifest", "run_batch",
     "WarpStokesError", "MeshError", "CageError", "BindingError", "ResolutionError",
 ]

@@ -1,4 +1,4 @@
-"""Command line: ``warp-stokes bind MESH CAGE -o BINDING.npz`` and ``warp-stokes deform BINDING CAGE -o OUT``."""
+"""Command line: ``warp-stokes bind | deform | animate | batch``."""
 
 from __future__ import annotations
 
@@ -73,6 +73,29 @@ def _deform(args) -> int:
     return 0
 
 
+def _animate(args) -> int:
+    import warp_stokes as ws
+
+    binding = ws.load_binding(args.binding, device=args.device)
+    poses = ws.load_poses(args.poses, binding.cage_faces, binding.n_handles)
+    ws.write_animation(args.output, binding, poses, fps=args.fps, with_cage=args.with_cage,
+                       with_weights=args.with_weights, up_axis=args.up_axis, meters_per_unit=args.meters_per_unit)
+    print(f"wrote {args.output}: {len(poses.frames)} frames ({poses.frames.min():g} to {poses.frames.max():g}) "
+          f"at {args.fps:g} fps, {binding.n_vertices} vertices")
+    return 0
+
+
+def _batch(args) -> int:
+    from warp_stokes.batch import format_summary, run_batch
+
+    results = run_batch(args.manifest, args.output, force=args.force, device=args.device)
+    print(format_summary(results))
+    failed = sum(r.status == "failed" for r in results)
+    print(f"{len(results) - failed} of {len(results)} assets done, {failed} failed; "
+          f"summary in {os.path.join(args.output, 'summary.json')}")
+    return 1 if failed else 0
+
+
 def main(argv=None) -> int:
     """Entry point of the ``warp-stokes`` command."""
     parser = argparse.ArgumentParser(prog="warp-stokes", description="Stokes cage coordinates with NVIDIA Warp.")
@@ -98,6 +121,25 @@ def main(argv=None) -> int:
     p.add_argument("-o", "--output", required=True, help="mesh file to write (obj, ply, off, stl, glb)")
     p.add_argument("--device", default=None, help="cpu, cuda or cuda:N")
     p.set_defaults(run=_deform)
+
+    p = sub.add_parser("animate", help="write the bound mesh, deformed by a sequence of cage poses, as animated USD")
+    p.add_argument("binding", help="binding file written by 'warp-stokes bind'")
+    p.add_argument("poses", help="cage poses: a folder of OBJ frames, a .npy/.npz array (F, L, 3) or a USD file")
+    p.add_argument("-o", "--output", required=True, help="USD file to write (.usd/.usdc binary, .usda text)")
+    p.add_argument("--fps", type=float, default=24.0, help="time codes per second (24)")
+    p.add_argument("--with-cage", action="store_true", help="also write the animated cage (/Root/Cage)")
+    p.add_argument("--with-weights", action="store_true", help="write the weights as a primvar")
+    p.add_argument("--up-axis", choices=["Y", "Z"], default="Y", help="stage up axis (Y)")
+    p.add_argument("--meters-per-unit", type=float, default=1.0, help="stage metersPerUnit (1.0)")
+    p.add_argument("--device", default=None, help="cpu, cuda or cuda:N")
+    p.set_defaults(run=_animate)
+
+    p = sub.add_parser("batch", help="bind (and animate) every asset of a TOML or JSON manifest")
+    p.add_argument("manifest", help="manifest file (.toml or .json); see the README")
+    p.add_argument("-o", "--output", required=True, help="output folder")
+    p.add_argument("--force", action="store_true", help="redo assets whose outputs are up to date")
+    p.add_argument("--device", default=None, help="cpu, cuda or cuda:N")
+    p.set_defaults(run=_batch)
 
     args = parser.parse_args(argv)
     warnings.showwarning = _show_warning

@@ -1,0 +1,129 @@
+"""Batch binding from a manifest: good and bad assets, summary, exit code, no partial files, re-runs."""
+
+import json
+import os
+
+import numpy as np
+import pytest
+
+import warp_stokes as ws
+from warp_stokes.cli import main
+from conftest import EXAMPLE
+from test_usd import write_obj
+
+
+def poses_npy(path, cage, n_frames=3, drop=0):
+    rest = cage.vertices[: len(cage.vertices) - drop]
+    np.save(path, np.stack([rest * (1 + 0.05 * k) for k in range(n_frames)]))
+
+
+@pytest.fixture
+def manifest(tmp_path):
+    cage = ws.load_surface(EXAMPLE / "arm_cage.obj")
+    (tmp_path / "in").mkdir()
+    poses_npy(tmp_path / "in" / "grow.npy", cage)
+    poses_npy(tmp_path / "in" / "short.npy", cage, drop=1)
+    write_obj(tmp_path / "in" / "open_cage.obj", cage.vertices, cage.faces[1:])
+    arm, arm_cage = os.path.relpath(EXAMPLE / "arm.obj", tmp_path), os.path.relpath(EXAMPLE / "arm_cage.obj", tmp_path)
+    text = f"""
+[defaults]
+resolution = 16
+
+[[asset]]
+name = "arm_a"
+mesh = "{arm}"
+cage = "{arm_cage}"
+poses = "in/grow.npy"
+
+[[asset]]
+name = "arm_b"
+mesh = "{arm}"
+cage = "{arm_cage}"
+poses = "in/grow.npy"
+resolution = 20
+
+[[asset]]
+name = "open"
+mesh = "{arm}"
+cage = "in/open_cage.obj"
+poses = "in/grow.npy"
+
+[[asset]]
+name = "arm_c"
+mesh = "{arm}"
+cage = "{arm_cage}"
+poses = "in/grow.npy"
+
+[[asset]]
+name = "short_pose"
+mesh = "{arm}"
+cage = "{arm_cage}"
+poses = "in/short.npy"
+"""
+    path = tmp_path / "assets.toml"
+    path.write_text(text)
+    return path
+
+
+def test_batch_keeps_going_and_reports(manifest, tmp_path, capsys):
+    out = tmp_path / "out"
+    rc = main(["batch", str(manifest), "-o", str(out), "--device", "cpu"])
+    captured = capsys.readouterr()
+    assert rc == 1
+    files = sorted(os.listdir(out))
+    assert files == ["arm_a.npz", "arm_a.usd", "arm_b.npz", "arm_b.usd", "arm_c.npz", "arm_c.usd", "summary.json"]
+    summary = {r["name"]: r for r in json.loads((out / "summary.json").read_text())}
+    assert [summary[n]["status"] for n in ("arm_a", "arm_b", "open", "arm_c", "short_pose")] == [
+        "ok", "ok", "failed", "ok", "failed"]
+    assert "open_cage.obj: the cage is not closed" in summary["open"]["error"]
+    assert "short.npy: poses must have shape (frames, 58, 3)" in summary["short_pose"]["error"]
+    assert summary["arm_b"]["resolution"] == 20 and summary["arm_a"]["handles"] == 58
+    assert summary["arm_a"]["vertices"] == 2089
+    # the table and the progress lines
+    assert "open" in captured.out and "failed" in captured.out and "3 of 5 assets done, 2 failed" in captured.out
+    assert "arm_b: binding at resolution 20" in captured.err
+    # what was written is whole: the bindings load and the USD files hold every frame
+    from pxr import Usd, UsdGeom
+
+    b = ws.load_binding(out / "arm_a.npz", device="cpu")
+    stage = Usd.Stage.Open(str(out / "arm_a.usd"))
+    assert UsdGeom.Mesh(stage.GetPrimAtPath("/Root/Mesh")).GetPointsAttr().GetTimeSamples() == [1.0, 2.0, 3.0]
+    assert b.settings["resolution"] == 16
+
+
+def test_rerun_skips_up_to_date_assets_unless_forced(manifest, tmp_path):
+    out = tmp_path / "out"
+    first = {r.name: r.status for r in ws.run_batch(manifest, out, device="cpu", progress=None)}
+    again = {r.name: r.status for r in ws.run_batch(manifest, out, device="cpu", progress=None)}
+    assert again == {"arm_a": "skipped", "arm_b": "skipped", "open": "failed", "arm_c": "skipped",
+                     "short_pose": "failed"}
+    assert first["arm_a"] == "ok"
+    os.utime(tmp_path / "in" / "grow.npy")  # a newer input: its assets are redone
+    future = os.path.getmtime(out / "arm_a.npz") + 10
+    os.utime(tmp_path / "in" / "grow.npy", (future, future))
+    redone = {r.name: r.status for r in ws.run_batch(manifest, out, device="cpu", progress=None)}
+    assert redone["arm_a"] == "ok" and redone["arm_c"] == "ok"
+    forced = {r.name: r.status for r in ws.run_batch(manifest, out, force=True, device="cpu", progress=None)}
+    assert forced["arm_b"] == "ok"
+
+
+def test_json_manifest_and_manifest_errors(tmp_path):
+    good = {"assets": [{"mesh": str(EXAMPLE / "arm.obj"), "cage": str(EXAMPLE / "arm_cage.obj"),
+                        "resolution": 16}]}
+    (tmp_path / "m.json").write_text(json.dumps(good))
+    assets = ws.read_manifest(tmp_path / "m.json")
+    assert assets[0].name == "arm" and assets[0].poses is None
+    results = ws.run_batch(tmp_path / "m.json", tmp_path / "out", device="cpu", progress=None)
+    assert [r.status for r in results] == ["ok"] and sorted(os.listdir(tmp_path / "out")) == ["arm.npz",
+                                                                                              "summary.json"]
+    bad = {"assets": [{"mesh": "a.obj", "cage": "b.obj", "colour": "red"}]}
+    (tmp_path / "bad.json").write_text(json.dumps(bad))
+    with pytest.raises(ws.WarpStokesError, match=r"bad.json: asset 1: unknown key\(s\) \['colour'\]"):
+        ws.read_manifest(tmp_path / "bad.json")
+    (tmp_path / "twice.toml").write_text('[[asset]]\nmesh = "a.obj"\ncage = "c.obj"\n[[asset]]\nmesh = "a.obj"\n'
+                                         'cage = "d.obj"\n')
+    with pytest.raises(ws.WarpStokesError, match="the name 'a' is used twice"):
+        ws.read_manifest(tmp_path / "twice.toml")
+    (tmp_path / "broken.toml").write_text("[[asset]\n")
+    rc = main(["batch", str(tmp_path / "broken.toml"), "-o", str(tmp_path / "o2")])
+    assert rc == 2

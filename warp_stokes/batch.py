@@ -1,0 +1,246 @@
+"""Batch binding of many assets from a manifest (TOML or JSON), with animated USD where poses are given.
+
+Manifest (TOML; JSON with the same keys works too, with ``"assets": [...]``)::
+
+    [defaults]            # optional: applies to every asset that does not say otherwise
+    resolution = 64
+    fps = 24
+
+    [[asset]]
+    name = "arm"                  # optional: default is the mesh file's name without extension
+    mesh = "arm/arm.obj"          # paths are relative to the manifest's folder
+    cage = "arm/arm_cage.obj"
+    poses = "arm/walk"            # optional: OBJ frames folder, .npy/.npz or USD (see load_poses)
+    resolution = 48               # optional
+
+For each asset the batch writes ``OUTDIR/<name>.npz`` and, with poses, ``OUTDIR/<name>.usd``. A failing asset
+is reported and the batch goes on; an asset whose outputs are newer than its inputs is skipped unless forced.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import tempfile
+import time
+import traceback
+from dataclasses import dataclass, field
+
+from .errors import WarpStokesError
+
+__all__ = ["Asset", "read_manifest", "run_batch", "format_summary"]
+
+ASSET_KEYS = {"name", "mesh", "cage", "poses", "resolution", "fps", "tol", "with_cage", "with_weights"}
+
+
+class ManifestError(WarpStokesError):
+    """The manifest is unreadable or malformed."""
+
+
+@dataclass
+class Asset:
+    name: str
+    mesh: str
+    cage: str
+    poses: str | None = None
+    resolution: int = 64
+    fps: float = 24.0
+    tol: float = 1e-6
+    with_cage: bool = False
+    with_weights: bool = False
+
+
+@dataclass
+class Result:
+    name: str
+    status: str  # "ok", "skipped" or "failed"
+    vertices: int | None = None
+    handles: int | None = None
+    resolution: int | None = None
+    seconds: float = 0.0
+    error: str = ""
+    outputs: list = field(default_factory=list)
+
+
+def read_manifest(path) -> list[Asset]:
+    """Read a batch manifest (``.toml`` or ``.json``); paths in it are taken relative to its folder.
+
+    Raises
+    ------
+    ManifestError
+        Naming the manifest and the problem (unreadable, unknown keys, missing mesh or cage, duplicate names).
+    """
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise ManifestError(f"{path}: no such file")
+    try:
+        if path.lower().endswith(".json"):
+            with open(path, encoding="utf-8") as fh:
+                data = json.load(fh)
+        else:
+            try:
+                import tomllib
+            except ModuleNotFoundError:  # Python 3.10
+                import tomli as tomllib
+            with open(path, "rb") as fh:
+                data = tomllib.load(fh)
+    except (ValueError, OSError) as exc:
+        raise ManifestError(f"{path}: cannot read the manifest ({exc})") from None
+    if not isinstance(data, dict):
+        raise ManifestError(f"{path}: the manifest must be a table/object with a list of assets")
+    defaults = data.get("defaults", {})
+    entries = data.get("asset", data.get("assets"))
+    if not isinstance(entries, list) or not entries:
+        raise ManifestError(f"{path}: no assets (use [[asset]] tables in TOML, or an \"assets\" list in JSON)")
+    base = os.path.dirname(os.path.abspath(path))
+    assets, names = [], set()
+    for k, entry in enumerate(entries):
+        where = f"{path}: asset {k + 1}"
+        if not isinstance(entry, dict):
+            raise ManifestError(f"{where}: must be a table/object")
+        merged = {**defaults, **entry}
+        unknown = set(merged) - ASSET_KEYS
+        if unknown:
+            raise ManifestError(f"{where}: unknown key(s) {sorted(unknown)}; known: {sorted(ASSET_KEYS)}")
+        for key in ("mesh", "cage"):
+            if not isinstance(merged.get(key), str):
+                raise ManifestError(f"{where}: '{key}' (a path) is required")
+        for key in ("mesh", "cage", "poses"):
+            if merged.get(key) is not None:
+                merged[key] = os.path.join(base, merged[key])
+        merged.setdefault("name", os.path.splitext(os.path.basename(merged["mesh"]))[0])
+        name = str(merged["name"])
+        if not name or any(c in name for c in '/\\:') or name.startswith("."):
+            raise ManifestError(f"{where}: '{name}' cannot be a file name")
+        if name in names:
+            raise ManifestError(f"{where}: the name '{name}' is used twice")
+        names.add(name)
+        merged["name"] = name
+        assets.append(Asset(**merged))
+    return assets
+
+
+def _mtime(path: str) -> float:
+    if os.path.isdir(path):
+        times = [os.path.getmtime(os.path.join(path, f)) for f in os.listdir(path)]
+        return max(times + [os.path.getmtime(path)])
+    return os.path.getmtime(path)
+
+
+def _up_to_date(asset: Asset, outputs: list[str]) -> bool:
+    if not all(os.path.exists(o) for o in outputs):
+        return False
+    inputs = [p for p in (asset.mesh, asset.cage, asset.poses) if p]
+    try:
+        newest_input = max(_mtime(p) for p in inputs)
+    except OSError:
+        return False
+    return min(os.path.getmtime(o) for o in outputs) > newest_input
+
+
+def _progress(stream, k: int, total: int, name: str, stage: str) -> None:
+    width = 20
+    done = int(width * k / total)
+    print(f"[{'#' * done}{'.' * (width - done)}] {k}/{total} {name}: {stage}", file=stream, flush=True)
+
+
+def run_batch(manifest, outdir, force: bool = False, device=None, progress=True) -> list[Result]:
+    """Bind every asset of a manifest, writing ``<name>.npz`` and, with poses, ``<name>.usd`` to ``outdir``.
+
+    Parameters
+    ----------
+    manifest : path of a TOML or JSON manifest (see the module docstring)
+    outdir : output folder (created if missing)
+    force : bool, redo assets whose outputs are newer than their inputs
+    device : None | str
+    progress : True for progress lines on stderr, a text stream for them, or None/False for silence
+
+    Returns
+    -------
+    list of Result, one per asset; ``summary.json`` in ``outdir`` holds the same
+    """
+    from .binding import bind
+    from .cage import check_cage
+    from .poses import load_poses
+    from .usd import write_animation
+
+    if progress is True:
+        progress = sys.stderr
+    assets = read_manifest(manifest)
+    outdir = os.fspath(outdir)
+    os.makedirs(outdir, exist_ok=True)
+    results = []
+    for k, asset in enumerate(assets):
+        npz = os.path.join(outdir, f"{asset.name}.npz")
+        usd = os.path.join(outdir, f"{asset.name}.usd")
+        outputs = [npz] + ([usd] if asset.poses else [])
+        result = Result(asset.name, "ok", resolution=asset.resolution, outputs=outputs)
+        start = time.perf_counter()
+        written = []
+        try:
+            if not force and _up_to_date(asset, outputs):
+                result.status = "skipped"
+                if progress:
+                    _progress(progress, k + 1, len(assets), asset.name, "up to date, skipped")
+                results.append(result)
+                continue
+            if progress:
+                _progress(progress, k, len(assets), asset.name, "checking the cage")
+            cage = check_cage(asset.cage)
+            poses = None
+            if asset.poses:
+                if progress:
+                    _progress(progress, k, len(assets), asset.name, "reading poses")
+                poses = load_poses(asset.poses, cage.faces, cage.n_handles)
+            if progress:
+                _progress(progress, k, len(assets), asset.name, f"binding at resolution {asset.resolution}")
+            binding = bind(asset.mesh, cage, resolution=asset.resolution, device=device, tol=asset.tol)
+            result.vertices, result.handles = binding.n_vertices, binding.n_handles
+            binding.save(npz)
+            written.append(npz)
+            if poses is not None:
+                if progress:
+                    _progress(progress, k, len(assets), asset.name, f"writing {len(poses.frames)} frames of USD")
+                write_animation(usd, binding, poses, fps=asset.fps, with_cage=asset.with_cage,
+                                with_weights=asset.with_weights)
+                written.append(usd)
+        except Exception as exc:  # keep going: one asset's failure is reported, not raised
+            result.status = "failed"
+            known = isinstance(exc, (ValueError, OSError))
+            result.error = str(exc) if known else f"{type(exc).__name__}: {exc}"
+            if not known and progress:
+                traceback.print_exc(file=progress)
+            for path in written:  # an asset is written whole or not at all
+                if os.path.exists(path):
+                    os.unlink(path)
+        result.seconds = time.perf_counter() - start
+        if progress:
+            _progress(progress, k + 1, len(assets), asset.name, result.status)
+        results.append(result)
+    _write_json(os.path.join(outdir, "summary.json"), [r.__dict__ for r in results])
+    return results
+
+
+def _write_json(path: str, data) -> None:
+    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".json", dir=os.path.dirname(path))
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            json.dump(data, fh, indent=1)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
+def format_summary(results: list[Result]) -> str:
+    """The batch results as a table: asset, status, vertices, handles, resolution, seconds, error."""
+    head = ("asset", "status", "vertices", "handles", "resolution", "seconds", "error")
+    rows = [head] + [
+        (r.name, r.status, str(r.vertices or "-"), str(r.handles or "-"), str(r.resolution or "-"),
+         f"{r.seconds:.2f}", r.error)
+        for r in results
+    ]
+    widths = [max(len(row[c]) for row in rows) for c in range(len(head) - 1)]
+    lines = ["  ".join(cell.ljust(w) for cell, w in zip(row[:-1], widths)) + "  " + row[-1] for row in rows]
+    return "\n".join(line.rstrip() for line in lines)

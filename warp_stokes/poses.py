@@ -1,0 +1,189 @@
+"""Cage poses in: a folder of OBJ frames, a .npy/.npz array (F, L, 3), or a USD file with a time-sampled cage."""
+
+from __future__ import annotations
+
+import os
+import re
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import BindingError
+from .load import load_surface
+
+__all__ = ["Poses", "load_poses", "natural_key"]
+
+
+@dataclass
+class Poses:
+    """A sequence of cage poses.
+
+    Attributes
+    ----------
+    positions : (F, L, 3) float64, the cage vertices of every frame
+    frames : (F,) float64, the frame number (USD time code) of every pose
+    name : str, where they came from
+    """
+
+    positions: np.ndarray
+    frames: np.ndarray
+    name: str
+
+
+def natural_key(name: str):
+    """Sort key that orders embedded numbers by value: ``frame_2`` before ``frame_10``."""
+    return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", name)]
+
+
+def _frame_number(name: str, default: int) -> float:
+    digits = re.findall(r"\d+", os.path.splitext(name)[0])
+    return float(digits[-1]) if digits else float(default)
+
+
+def _same_faces(faces: np.ndarray, cage_faces: np.ndarray) -> bool:
+    return faces.shape == cage_faces.shape and (
+        np.array_equal(faces, cage_faces) or np.array_equal(faces[:, ::-1], cage_faces)
+    )
+
+
+def _from_folder(path: str, cage_faces: np.ndarray, n_handles: int) -> Poses:
+    names = sorted((f for f in os.listdir(path) if f.lower().endswith(".obj")), key=natural_key)
+    if not names:
+        raise BindingError(f"{path}: the folder has no .obj frames")
+    positions, frames = [], []
+    for k, name in enumerate(names):
+        frame = os.path.join(path, name)
+        try:
+            surface = load_surface(frame)
+        except ValueError as exc:  # already names the frame's file
+            raise BindingError(str(exc)) from None
+        if len(surface.vertices) != n_handles:
+            raise BindingError(
+                f"{frame}: the pose has {len(surface.vertices)} vertices, the bound cage has {n_handles}"
+            )
+        if not _same_faces(surface.faces, cage_faces):
+            raise BindingError(f"{frame}: the pose's faces differ from the bound cage's (different topology)")
+        positions.append(surface.vertices)
+        frames.append(_frame_number(name, k + 1))
+    frames = np.asarray(frames)
+    if len(np.unique(frames)) != len(frames):  # numbers in the names do not identify frames: number them
+        frames = np.arange(1, len(frames) + 1, dtype=np.float64)
+    return Poses(np.stack(positions), frames, path)
+
+
+def _from_array(path: str, n_handles: int) -> Poses:
+    try:
+        data = np.load(path, allow_pickle=False)
+    except Exception as exc:
+        raise BindingError(f"{path}: cannot read it as a numpy array ({type(exc).__name__}: {exc})") from None
+    frames = None
+    if isinstance(data, np.lib.npyio.NpzFile):
+        with data:
+            keys = data.files
+            key = "poses" if "poses" in keys else (keys[0] if keys else None)
+            if key is None:
+                raise BindingError(f"{path}: the archive is empty")
+            array = data[key]
+            if "frames" in keys:
+                frames = np.asarray(data["frames"], dtype=np.float64)
+    else:
+        array = data
+    array = np.asarray(array, dtype=np.float64)
+    if array.ndim == 2:
+        array = array[None]
+    if array.ndim != 3 or array.shape[1:] != (n_handles, 3):
+        raise BindingError(f"{path}: poses must have shape (frames, {n_handles}, 3) for this cage, got {array.shape}")
+    if not np.all(np.isfinite(array)):
+        bad = int(np.flatnonzero(~np.isfinite(array).all(axis=(1, 2)))[0])
+        raise BindingError(f"{path}: frame {bad} has non-finite coordinates")
+    if frames is None or frames.shape != (len(array),):
+        frames = np.arange(1, len(array) + 1, dtype=np.float64)
+    return Poses(array, frames, path)
+
+
+def _from_usd(path: str, cage_faces: np.ndarray, n_handles: int) -> Poses:
+    from pxr import Usd, UsdGeom
+
+    stage = Usd.Stage.Open(path)
+    if stage is None:
+        raise BindingError(f"{path}: cannot open it as a USD stage")
+    candidates = []
+    for prim in stage.Traverse():
+        if not prim.IsA(UsdGeom.Mesh):
+            continue
+        mesh = UsdGeom.Mesh(prim)
+        points = mesh.GetPointsAttr()
+        times = points.GetTimeSamples()
+        value = points.Get(times[0] if times else Usd.TimeCode.Default())
+        if value is not None and len(value) == n_handles and times:
+            candidates.append((prim, mesh, times))
+    if not candidates:
+        raise BindingError(f"{path}: no mesh with {n_handles} time-sampled points (the bound cage's vertex count)")
+    prim, mesh, times = candidates[0]
+    counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get())
+    indices = np.asarray(mesh.GetFaceVertexIndicesAttr().Get())
+    polys, start = [], 0
+    for c in counts:
+        polys.append(indices[start : start + c])
+        start += c
+    faces = np.array([(p[0], p[k], p[k + 1]) for p in polys for k in range(1, len(p) - 1)], dtype=np.int64)
+    if not _same_faces(faces, cage_faces):
+        raise BindingError(f"{path}: the faces of {prim.GetPath()} differ from the bound cage's (different topology)")
+    positions = []
+    for t in times:
+        value = np.asarray(mesh.GetPointsAttr().Get(t), dtype=np.float64)
+        if value.shape != (n_handles, 3):
+            raise BindingError(
+                f"{path}: {prim.GetPath()} at time {t:g} has {len(value)} points, the bound cage has {n_handles}"
+            )
+        positions.append(value)
+    return Poses(np.stack(positions), np.asarray(times, dtype=np.float64), f"{path}:{prim.GetPath()}")
+
+
+def load_poses(source, cage_faces: np.ndarray, n_handles: int | None = None) -> Poses:
+    """Read a sequence of cage poses and check that every frame has the bound cage's topology.
+
+    Parameters
+    ----------
+    source : path | array (F, L, 3) | Poses
+        A folder of OBJ frames (sorted naturally, frame numbers taken from the last number in each name),
+        a ``.npy`` array or ``.npz`` archive (key ``poses``, optional ``frames``), or a USD file whose cage mesh
+        has time-sampled points (the first mesh with the cage's vertex count).
+    cage_faces : (T, 3) int array, the bound cage's triangles
+    n_handles : int, the bound cage's vertex count (default: from ``cage_faces``)
+
+    Returns
+    -------
+    Poses
+
+    Raises
+    ------
+    BindingError
+        Naming the file (or frame) and the problem: missing, unreadable, wrong vertex count or topology.
+
+    Examples
+    --------
+    >>> poses = load_poses("walk/", binding.cage_faces)   # doctest: +SKIP
+    >>> poses.positions.shape                            # doctest: +SKIP
+    (48, 118, 3)
+    """
+    cage_faces = np.asarray(cage_faces, dtype=np.int64)
+    n_handles = int(cage_faces.max()) + 1 if n_handles is None else int(n_handles)
+    if isinstance(source, Poses):
+        return source
+    if isinstance(source, np.ndarray):
+        array = source[None] if source.ndim == 2 else source
+        if array.ndim != 3 or array.shape[1:] != (n_handles, 3):
+            raise BindingError(f"poses must have shape (frames, {n_handles}, 3) for this cage, got {source.shape}")
+        return Poses(array.astype(np.float64), np.arange(1, len(array) + 1, dtype=np.float64), "<array>")
+    path = os.fspath(source)
+    if not os.path.exists(path):
+        raise BindingError(f"{path}: no such file or folder")
+    if os.path.isdir(path):
+        return _from_folder(path, cage_faces, n_handles)
+    ext = os.path.splitext(path)[1].lower()
+    if ext in (".npy", ".npz"):
+        return _from_array(path, n_handles)
+    if ext in (".usd", ".usda", ".usdc", ".usdz"):
+        return _from_usd(path, cage_faces, n_handles)
+    raise BindingError(f"{path}: poses must be a folder of OBJ frames, a .npy/.npz array or a USD file")
