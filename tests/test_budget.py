@@ -13,17 +13,24 @@ from conftest import EXAMPLE
 
 MEASURE = textwrap.dedent(
     """
-    import resource, sys, warnings
+    import ctypes, gc, sys, warnings
     import warp_stokes as ws
     warnings.simplefilter("ignore")
     mesh, cage, n = sys.argv[1], sys.argv[2], int(sys.argv[3])
-    ws.bind(mesh, cage, resolution=16, device="cpu")  # load the kernels first
+    ws.bind(mesh, cage, resolution=n, device="cpu")  # compile and load every kernel this bind uses first
+    gc.collect()
+    ctypes.CDLL("libc.so.6").malloc_trim(0)  # hand freed heap back, so that the bind's growth is all its own
     checked = ws.check_cage(cage)
     estimate = ws.estimate_memory(ws.voxelize(checked, n, device="cpu"), len(ws.load_surface(mesh).vertices))
-    base = int(open("/proc/self/statm").read().split()[1]) * resource.getpagesize()
+    def status(key):  # kB -> bytes; VmHWM is this process's peak resident memory (ru_maxrss would also count
+        for line in open("/proc/self/status"):  # the pages of the parent it was forked from)
+            if line.startswith(key + ":"):
+                return int(line.split()[1]) * 1024
+    with open("/proc/self/clear_refs", "w") as fh:
+        fh.write("5")  # reset the peak to the current resident size
+    base = status("VmRSS")
     ws.bind(mesh, cage, resolution=n, device="cpu")
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
-    print(estimate.total(checked.n_handles), peak - base)
+    print(estimate.total(checked.n_handles), status("VmHWM") - base)
     """
 )
 

@@ -86,33 +86,46 @@ def _from_arrays(vertices, faces, name: str) -> Surface:
     return Surface(vertices=np.ascontiguousarray(v), faces=np.ascontiguousarray(f), name=name)
 
 
-def _read_obj_polygons(path: str) -> tuple[np.ndarray, list] | None:
+def _read_obj_polygons(path: str) -> tuple[np.ndarray, np.ndarray | list]:
     """Read an OBJ's `v` and `f` records directly, keeping file order and the polygons as written.
 
     trimesh re-orders or splits vertices in some OBJ files (texture seams); users need file order.
     """
-    verts, polys = [], []
     with open(path, encoding="utf-8", errors="replace") as fh:
-        for line_no, line in enumerate(fh, 1):
-            if line.startswith("v "):
-                parts = line.split()
-                if len(parts) < 4:
-                    raise MeshError(f"{path}: line {line_no}: a vertex needs 3 coordinates: {line.strip()!r}")
-                try:
-                    verts.append([float(x) for x in parts[1:4]])
-                except ValueError:
-                    raise MeshError(f"{path}: line {line_no}: unreadable vertex {line.strip()!r}") from None
-            elif line.startswith("f "):
-                idx = []
-                for tok in line.split()[1:]:
-                    try:
-                        k = int(tok.split("/")[0])
-                    except ValueError:
-                        raise MeshError(f"{path}: line {line_no}: unreadable face {line.strip()!r}") from None
-                    # OBJ indices are 1-based; negative ones count back from the last vertex read so far
-                    idx.append(k - 1 if k > 0 else len(verts) + k)
-                polys.append(idx)
-    return np.asarray(verts, dtype=np.float64).reshape(-1, 3), polys
+        lines = fh.read().splitlines()
+    vertex_lines = [(n, ln) for n, ln in enumerate(lines, 1) if ln.startswith("v ")]
+    rows = [ln.split()[1:4] for _, ln in vertex_lines]
+    try:
+        verts = np.array(rows, dtype=np.float64).reshape(-1, 3)
+    except ValueError:  # find the offending line for the message
+        for (line_no, ln), row in zip(vertex_lines, rows):
+            try:
+                if len(row) != 3:
+                    raise ValueError
+                [float(x) for x in row]
+            except ValueError:
+                raise MeshError(f"{path}: line {line_no}: unreadable vertex {ln.strip()!r}") from None
+        raise
+    face_lines = [(n, ln) for n, ln in enumerate(lines, 1) if ln.startswith("f ")]
+    try:
+        polys = [[int(tok.split("/", 1)[0]) for tok in ln.split()[1:]] for _, ln in face_lines]
+    except ValueError:
+        for line_no, ln in face_lines:
+            try:
+                [int(tok.split("/", 1)[0]) for tok in ln.split()[1:]]
+            except ValueError:
+                raise MeshError(f"{path}: line {line_no}: unreadable face {ln.strip()!r}") from None
+        raise
+    if polys and len({len(p) for p in polys}) == 1 and min(min(p) for p in polys) > 0:
+        return verts, np.array(polys, dtype=np.int64) - 1  # the common case: 1-based, one polygon size
+    # OBJ indices are 1-based; negative ones count back from the last vertex read before the face
+    vertex_line_numbers = np.array([n for n, _ in vertex_lines])
+    for (line_no, _), poly in zip(face_lines, polys):
+        if min(poly) < 0:
+            seen = int(np.searchsorted(vertex_line_numbers, line_no))
+            poly[:] = [k if k > 0 else seen + k + 1 for k in poly]
+    polys = [[k - 1 for k in p] for p in polys]
+    return verts, polys
 
 
 def load_surface(source, name: str | None = None) -> Surface:
