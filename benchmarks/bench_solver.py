@@ -143,7 +143,9 @@ def one(name, n, device):
     b = ws.bind(mesh, cage, resolution=n, device=device)
     out["wall"] = time.perf_counter() - t
     s = b.stats
-    out.update({k: s[k] for k in ("handles", "interior_nodes", "iterations", "residual", "converged", "levels",
+    out.update({k: s[k] for k in ("handles", "interior_nodes", "iterations", "restarts", "identity_error",
+                                  "solver_rounds",
+                                  "residual", "converged", "levels",
                                   "chunks", "memory_estimate_bytes", "partition_of_unity_error",
                                   "linear_precision_error")})
     out["active_nodes"] = s["interior_nodes"] + s["ring_nodes"] + s["band_nodes"]
@@ -184,7 +186,7 @@ def one(name, n, device):
 
 def table(rows):
     head = ["device", "pair", "n", "handles", "active", "levels", "chunks", "voxel s", "setup s", "bdry s",
-            "solve s", "sample s", "bind s", "iters", "residual", "max err", "peak GiB", "est GiB",
+            "solve s", "sample s", "bind s", "iters (restarts)", "residual", "max err", "peak GiB", "est GiB",
             "stencil GB/s", "copy GB/s", "stencil/copy"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:
@@ -194,7 +196,8 @@ def table(rows):
         lines.append("| " + " | ".join(str(v) for v in [
             r["device"], r["pair"], r["n"], r["handles"], r["active_nodes"], len(r["levels"]), r["chunks"],
             f"{s['voxelize']:.3f}", f"{s['setup']:.3f}", f"{s['boundary']:.3f}", f"{s['solve']:.3f}",
-            f"{s['sample']:.3f}", f"{r['wall']:.3f}", r["iterations"], f"{r['residual']:.1e}",
+            f"{s['sample']:.3f}", f"{r['wall']:.3f}", f"{r['iterations']} ({r.get('restarts', '?')})",
+            f"{r['residual']:.1e}",
             f"{r['error']:.1e}", peak, f"{r['memory_estimate_bytes'] / 2**30:.2f}", f"{r['stencil_gbs']:.0f}",
             f"{copy:.0f}" if copy else "-", f"{r['stencil_gbs'] / copy:.0%}" if copy else "-"]) + " |")
     jac = [r for r in rows if "jacobi" in r]
@@ -234,7 +237,8 @@ def main(argv=None):
             if args.out:  # keep what was measured even if a later configuration runs out of time
                 Path(args.out).with_suffix(".json").write_text(json.dumps(rows, indent=1))
             r = rows[-1]
-            print(f"{name} n={n}: bind {r['wall']:.3f} s, {r['iterations']} iterations, error {r['error']:.1e}, "
+            print(f"{name} n={n}: bind {r['wall']:.3f} s, {r['iterations']} iterations ({r['restarts']} restarts, "
+                  f"identity {r['identity_error']:.1e}, rounds {r['solver_rounds']}), error {r['error']:.1e}, "
                   f"stencil {r['stencil_gbs']:.0f} GB/s ({time.perf_counter() - t:.0f} s)", flush=True)
     text = table(rows)
     print(text)

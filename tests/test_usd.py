@@ -163,3 +163,30 @@ def test_animate_command(arm, tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "missing: no such file" in err[0]
     assert not (tmp_path / "x.usd").exists()
+
+
+def test_rest_normals_from_the_mesh_file_are_kept(tmp_path):
+    import trimesh
+
+    arm = ws.load_surface(EXAMPLE / "arm.obj")
+    normals = trimesh.Trimesh(arm.vertices, arm.faces, process=False).vertex_normals
+    path = tmp_path / "arm_normals.obj"
+    with open(path, "w") as fh:
+        fh.writelines(f"v {x} {y} {z}\n" for x, y, z in arm.vertices)
+        fh.writelines(f"vn {x} {y} {z}\n" for x, y, z in normals)
+        fh.writelines(f"f {a + 1}//{a + 1} {b + 1}//{b + 1} {c + 1}//{c + 1}\n" for a, b, c in arm.faces)
+    surface = ws.load_surface(path)
+    np.testing.assert_allclose(surface.normals, normals, atol=1e-9)
+    assert ws.load_surface(EXAMPLE / "arm.obj").normals is None
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        b = ws.bind(path, EXAMPLE / "arm_cage.obj", resolution=16, device="cpu")
+    b.save(tmp_path / "b.npz")
+    b = ws.load_binding(tmp_path / "b.npz", device="cpu")
+    np.testing.assert_allclose(b.mesh_normals, normals, atol=1e-9)
+    usd = ws.write_animation(tmp_path / "n.usda", b, ws.Poses(cage_poses(b, 2), np.array([1.0, 2.0]), "g"))
+    stage = Usd.Stage.Open(str(usd))
+    mesh = UsdGeom.Mesh(stage.GetPrimAtPath("/Root/Mesh"))
+    assert mesh.GetNormalsInterpolation() == UsdGeom.Tokens.vertex
+    assert mesh.GetNormalsAttr().GetNumTimeSamples() == 0  # a rest value
+    np.testing.assert_allclose(np.asarray(mesh.GetNormalsAttr().Get()), normals, atol=1e-6)

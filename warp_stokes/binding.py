@@ -48,18 +48,20 @@ class Binding:
     weights : (V, L) float32 numpy array; row j holds vertex j's weight for each handle, rows sum to one
     cage_vertices, cage_faces : the rest cage (faces outward oriented)
     mesh_vertices, mesh_faces : the rest mesh
+    mesh_normals : (V, 3) rest normals when the mesh file had them, else None
     settings : dict of the grid and solver settings used
     stats : dict of what binding measured (grid shape, node counts, iterations, residual, errors, timings)
     device : the Warp device ``deform`` runs on
     """
 
     def __init__(self, weights, cage_vertices, cage_faces, mesh_vertices, mesh_faces, settings, stats,
-                 device=None):
+                 device=None, mesh_normals=None):
         self.weights = np.ascontiguousarray(weights, dtype=np.float32)
         self.cage_vertices = np.asarray(cage_vertices, dtype=np.float64)
         self.cage_faces = np.asarray(cage_faces, dtype=np.int64)
         self.mesh_vertices = np.asarray(mesh_vertices, dtype=np.float64)
         self.mesh_faces = np.asarray(mesh_faces, dtype=np.int64)
+        self.mesh_normals = None if mesh_normals is None else np.asarray(mesh_normals, dtype=np.float64)
         self.settings = dict(settings)
         self.stats = dict(stats)
         self.device = resolve_device(device)
@@ -151,6 +153,7 @@ class Binding:
                     mesh_vertices=self.mesh_vertices,
                     mesh_faces=self.mesh_faces,
                     meta=np.array(json.dumps(meta)),
+                    **({} if self.mesh_normals is None else {"mesh_normals": self.mesh_normals}),
                 )
             os.replace(tmp, path)
         except BaseException:
@@ -206,7 +209,7 @@ def load_binding(path, device=None) -> Binding:
         raise BindingError(f"{path}: the stored cage or mesh does not match its fingerprint (file modified?)")
     return Binding(
         w, arrays["cage_vertices"], arrays["cage_faces"], arrays["mesh_vertices"], arrays["mesh_faces"],
-        meta["settings"], meta["stats"], device=device,
+        meta["settings"], meta["stats"], device=device, mesh_normals=arrays.get("mesh_normals"),
     )
 
 
@@ -348,6 +351,8 @@ def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_i
         "chunks": len(chunks),
         "memory_estimate_bytes": estimate.total(chunk_size),
         "iterations": max(r.iterations for r in reports),
+        "restarts": max(r.restarts for r in reports),
+        "solver_rounds": reports[0].rounds,
         "residual": max(r.residual for r in reports),
         "identity_error": max(r.identity_error for r in reports),
         "converged": all(r.converged for r in reports),
@@ -367,4 +372,5 @@ def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_i
         "cage_flipped": checked.flipped,
         "warp_version": wp.config.version,
     }
-    return Binding(weights, checked.vertices, checked.faces, points, surface.faces, settings, stats, device=device)
+    return Binding(weights, checked.vertices, checked.faces, points, surface.faces, settings, stats, device=device,
+                   mesh_normals=surface.normals)

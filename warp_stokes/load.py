@@ -25,11 +25,15 @@ class Surface:
     faces : (F, 3) int64 array of triangles (polygons are fan-triangulated); may be empty for point sets
     name : str
         Where it came from (a path, or a description such as ``"<array>"``), used in error messages.
+    normals : (V, 3) float64 or None
+        Per-vertex normals when an OBJ file gives them (``vn`` records referenced by its faces); a vertex given
+        several normals gets their normalised mean.
     """
 
     vertices: np.ndarray
     faces: np.ndarray
     name: str
+    normals: np.ndarray | None = None
 
 
 def _triangulate(polygons, name: str, n_vertices: int) -> np.ndarray:
@@ -86,7 +90,7 @@ def _from_arrays(vertices, faces, name: str) -> Surface:
     return Surface(vertices=np.ascontiguousarray(v), faces=np.ascontiguousarray(f), name=name)
 
 
-def _read_obj_polygons(path: str) -> tuple[np.ndarray, np.ndarray | list]:
+def _read_obj_polygons(path: str) -> tuple[np.ndarray, np.ndarray | list, np.ndarray | None]:
     """Read an OBJ's `v` and `f` records directly, keeping file order and the polygons as written.
 
     trimesh re-orders or splits vertices in some OBJ files (texture seams); users need file order.
@@ -116,8 +120,9 @@ def _read_obj_polygons(path: str) -> tuple[np.ndarray, np.ndarray | list]:
             except ValueError:
                 raise MeshError(f"{path}: line {line_no}: unreadable face {ln.strip()!r}") from None
         raise
+    normals = _obj_normals(lines, face_lines, len(verts)) if any(ln.startswith("vn ") for ln in lines) else None
     if polys and len({len(p) for p in polys}) == 1 and min(min(p) for p in polys) > 0:
-        return verts, np.array(polys, dtype=np.int64) - 1  # the common case: 1-based, one polygon size
+        return verts, np.array(polys, dtype=np.int64) - 1, normals  # the common case: 1-based, one size
     # OBJ indices are 1-based; negative ones count back from the last vertex read before the face
     vertex_line_numbers = np.array([n for n, _ in vertex_lines])
     for (line_no, _), poly in zip(face_lines, polys):
@@ -125,7 +130,28 @@ def _read_obj_polygons(path: str) -> tuple[np.ndarray, np.ndarray | list]:
             seen = int(np.searchsorted(vertex_line_numbers, line_no))
             poly[:] = [k if k > 0 else seen + k + 1 for k in poly]
     polys = [[k - 1 for k in p] for p in polys]
-    return verts, polys
+    return verts, polys, normals
+
+
+def _obj_normals(lines: list, face_lines: list, n_vertices: int) -> np.ndarray | None:
+    """Per-vertex normals from `vn` records and the `v//vn` or `v/vt/vn` face tokens (None if incomplete)."""
+    table = np.array([ln.split()[1:4] for ln in lines if ln.startswith("vn ")], dtype=np.float64).reshape(-1, 3)
+    sums = np.zeros((n_vertices, 3))
+    for _, ln in face_lines:
+        for tok in ln.split()[1:]:
+            parts = tok.split("/")
+            if len(parts) < 3 or not parts[2]:
+                return None
+            v, vn = int(parts[0]), int(parts[2])
+            v = v - 1 if v > 0 else n_vertices + v
+            vn = vn - 1 if vn > 0 else len(table) + vn
+            if not (0 <= v < n_vertices and 0 <= vn < len(table)):
+                return None
+            sums[v] += table[vn]
+    length = np.linalg.norm(sums, axis=1)
+    if (length == 0).any():
+        return None
+    return sums / length[:, None]
 
 
 def load_surface(source, name: str | None = None) -> Surface:
@@ -168,10 +194,11 @@ def load_surface(source, name: str | None = None) -> Surface:
         if os.path.isdir(path):
             raise MeshError(f"{path}: is a folder, not a mesh file")
         if path.lower().endswith(".obj"):
-            verts, polys = _read_obj_polygons(path)
+            verts, polys, normals = _read_obj_polygons(path)
             if len(verts) == 0:
                 raise MeshError(f"{path}: the file has no vertices")
-            return _from_arrays(verts, polys, name)
+            surface = _from_arrays(verts, polys, name)
+            return Surface(surface.vertices, surface.faces, surface.name, normals)
         try:
             loaded = trimesh.load(path, force="mesh", process=False, maintain_order=True)
         except Exception as exc:  # trimesh raises many different types for unreadable files

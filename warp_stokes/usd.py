@@ -57,7 +57,8 @@ def write_animation(path, binding, poses: Poses, fps: float = 24.0, with_cage: b
         element size = handles)
     up_axis : "Y" | "Z"
     meters_per_unit : float
-    normals : (V, 3) array, optional rest normals, authored as a rest value
+    normals : (V, 3) array, optional rest normals, authored as a rest value (default: the binding's, when
+        the mesh file had normals)
 
     Returns
     -------
@@ -104,6 +105,7 @@ def write_animation(path, binding, poses: Poses, fps: float = 24.0, with_cage: b
         stage.SetDefaultPrim(root.GetPrim())
 
         mesh = _define_mesh(stage, "/Root/Mesh", binding.mesh_faces, binding.mesh_vertices)
+        normals = getattr(binding, "mesh_normals", None) if normals is None else normals
         if normals is not None:
             mesh.CreateNormalsAttr(Vt.Vec3fArray.FromNumpy(np.asarray(normals, dtype=np.float32)))
             mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
