@@ -3,7 +3,7 @@
     python benchmarks/bench_solver.py --device cuda:0 --resolutions 32 64 96 128 192 256 --out results.md
 
 Each (pair, resolution) runs in a fresh process (so that the GPU memory pool's high-water mark belongs to that
-bind alone) and reports: device, n, handles, active and interior nodes, seconds per stage after a warm-up bind
+bind alone) and reports: device, n, handles, active and interior nodes, seconds per stage after a warm-up bind of the same size
 (voxelise, multigrid setup, boundary data, solve, sample) and the whole bind, CG iterations, final residual, max
 weight error at the vertices against a tightly converged reference (tol 1e-9, 60 iterations), peak GPU memory
 (memory-pool high-water mark) next to the estimate made before allocating, and the batched stencil kernel's
@@ -137,7 +137,7 @@ def one(name, n, device):
     warnings.simplefilter("ignore")
     mesh, cage = pair(name)
     dev = ws.resolve_device(device)
-    ws.bind(mesh, cage, resolution=32, device=device)  # warm-up (two levels or more): compile and load the kernels
+    ws.bind(mesh, cage, resolution=n, device=device)  # warm-up at the same size: compile and load every kernel
     out = {"pair": name, "n": n, "device": ws.device_name(device)}
     t = time.perf_counter()
     b = ws.bind(mesh, cage, resolution=n, device=device)

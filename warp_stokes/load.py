@@ -90,6 +90,17 @@ def _from_arrays(vertices, faces, name: str) -> Surface:
     return Surface(vertices=np.ascontiguousarray(v), faces=np.ascontiguousarray(f), name=name)
 
 
+def _records(lines: list, tag: str) -> tuple[np.ndarray, np.ndarray]:
+    """All tokens of the lines starting with `tag` (tag tokens removed) and each line's token count, in one
+    vectorised pass: 50k-line files take milliseconds instead of a Python loop per line."""
+    tokens = np.array("\n".join(ln for ln in lines if ln.startswith(tag + " ")).split())
+    if len(tokens) == 0:
+        return tokens, np.zeros(0, dtype=np.int64)
+    starts = np.flatnonzero(tokens == tag)
+    counts = np.diff(np.append(starts, len(tokens))) - 1
+    return tokens[np.setdiff1d(np.arange(len(tokens)), starts, assume_unique=True)], counts
+
+
 def _read_obj_polygons(path: str) -> tuple[np.ndarray, np.ndarray | list, np.ndarray | None]:
     """Read an OBJ's `v` and `f` records directly, keeping file order and the polygons as written.
 
@@ -97,40 +108,50 @@ def _read_obj_polygons(path: str) -> tuple[np.ndarray, np.ndarray | list, np.nda
     """
     with open(path, encoding="utf-8", errors="replace") as fh:
         lines = fh.read().splitlines()
-    vertex_lines = [(n, ln) for n, ln in enumerate(lines, 1) if ln.startswith("v ")]
-    rows = [ln.split()[1:4] for _, ln in vertex_lines]
+    tokens, counts = _records(lines, "v")
+    if len(counts) == 0:
+        return np.zeros((0, 3)), [], None
     try:
-        verts = np.array(rows, dtype=np.float64).reshape(-1, 3)
+        if (counts < 3).any():
+            raise ValueError
+        firsts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        verts = tokens[firsts[:, None] + np.arange(3)].astype(np.float64).reshape(-1, 3)
     except ValueError:  # find the offending line for the message
-        for (line_no, ln), row in zip(vertex_lines, rows):
-            try:
-                if len(row) != 3:
-                    raise ValueError
-                [float(x) for x in row]
-            except ValueError:
-                raise MeshError(f"{path}: line {line_no}: unreadable vertex {ln.strip()!r}") from None
+        for line_no, ln in enumerate(lines, 1):
+            if ln.startswith("v "):
+                try:
+                    if len([float(x) for x in ln.split()[1:4]]) != 3:
+                        raise ValueError
+                except ValueError:
+                    raise MeshError(f"{path}: line {line_no}: unreadable vertex {ln.strip()!r}") from None
         raise
-    face_lines = [(n, ln) for n, ln in enumerate(lines, 1) if ln.startswith("f ")]
+    normals = None
+    if any(ln.startswith("vn ") for ln in lines):
+        normals = _obj_normals(lines, [(0, ln) for ln in lines if ln.startswith("f ")], len(verts))
+    tokens, counts = _records(lines, "f")
     try:
-        polys = [[int(tok.split("/", 1)[0]) for tok in ln.split()[1:]] for _, ln in face_lines]
+        indices = np.char.partition(tokens, "/")[:, 0].astype(np.int64) if len(tokens) else np.zeros(0, np.int64)
+        if (counts < 3).any():
+            raise ValueError
     except ValueError:
-        for line_no, ln in face_lines:
-            try:
-                [int(tok.split("/", 1)[0]) for tok in ln.split()[1:]]
-            except ValueError:
-                raise MeshError(f"{path}: line {line_no}: unreadable face {ln.strip()!r}") from None
+        for line_no, ln in enumerate(lines, 1):
+            if ln.startswith("f "):
+                try:
+                    if len([int(tok.split("/", 1)[0]) for tok in ln.split()[1:]]) < 3:
+                        raise ValueError
+                except ValueError:
+                    raise MeshError(f"{path}: line {line_no}: unreadable face {ln.strip()!r}") from None
         raise
-    normals = _obj_normals(lines, face_lines, len(verts)) if any(ln.startswith("vn ") for ln in lines) else None
-    if polys and len({len(p) for p in polys}) == 1 and min(min(p) for p in polys) > 0:
-        return verts, np.array(polys, dtype=np.int64) - 1, normals  # the common case: 1-based, one size
-    # OBJ indices are 1-based; negative ones count back from the last vertex read before the face
-    vertex_line_numbers = np.array([n for n, _ in vertex_lines])
-    for (line_no, _), poly in zip(face_lines, polys):
-        if min(poly) < 0:
-            seen = int(np.searchsorted(vertex_line_numbers, line_no))
-            poly[:] = [k if k > 0 else seen + k + 1 for k in poly]
-    polys = [[k - 1 for k in p] for p in polys]
-    return verts, polys, normals
+    if len(indices) and indices.min() > 0 and len(np.unique(counts)) == 1:
+        return verts, indices.reshape(len(counts), counts[0]) - 1, normals  # the common case
+    polys = np.split(indices, np.cumsum(counts)[:-1]) if len(indices) else []
+    if len(indices) and indices.min() < 0:
+        # negative indices count back from the last vertex read before the face
+        face_lines = [n for n, ln in enumerate(lines, 1) if ln.startswith("f ")]
+        vertex_lines = np.array([n for n, ln in enumerate(lines, 1) if ln.startswith("v ")])
+        seen = np.searchsorted(vertex_lines, face_lines)
+        polys = [np.where(p > 0, p, s + p + 1) for p, s in zip(polys, seen)]
+    return verts, [list(p - 1) for p in polys], normals
 
 
 def _obj_normals(lines: list, face_lines: list, n_vertices: int) -> np.ndarray | None:
