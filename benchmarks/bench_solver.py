@@ -165,7 +165,7 @@ def one(name, n, device):
     out["stencil_gbs"] = moved / seconds / 1e9
     if dev.is_cuda:
         out["copy_gbs"] = copy_bandwidth(wp, device) / 1e9
-    del field, x, y
+    field = x = y = None  # free them before the reference bind
 
     # tightly converged reference
     ref = ws.bind(mesh, cage, resolution=n, device=device, tol=1e-9, max_iterations=60)

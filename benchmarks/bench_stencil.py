@@ -16,9 +16,7 @@ Every variant's output is compared with the package kernel's.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
-import time
 import warnings
 from pathlib import Path
 
@@ -29,11 +27,6 @@ import warp_stokes as ws
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_solver import copy_bandwidth, pair, time_kernel  # noqa: E402
-
-OFFSETS = [(1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1), (0, 0, -1)] + [
-    (a, b, 0) for a in (-1, 1) for b in (-1, 1)] + [(a, 0, b) for a in (-1, 1) for b in (-1, 1)] + [
-    (0, a, b) for a in (-1, 1) for b in (-1, 1)]
-
 
 @wp.func
 def fetch(field: wp.array2d(dtype=wp.vec4f), row: int, n_rows: int, h: int):

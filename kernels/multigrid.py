@@ -22,6 +22,27 @@ def face_block(axis: int, sign: float):
     return m
 
 
+@wp.func
+def neighbour_triplet(
+    index: wp.array3d(dtype=wp.int32),
+    n_interior: int,
+    row: int,
+    nb: wp.vec3i,
+    block: wp.mat44f,
+    slot: int,
+    rows: wp.array(dtype=int),
+    cols: wp.array(dtype=int),
+    blocks: wp.array(dtype=wp.mat44f),
+):
+    """Triplet `slot`: (row, neighbour's row, block), or -1 indices when the neighbour is known data."""
+    col = int(index[nb[0], nb[1], nb[2]])
+    if col >= n_interior:
+        col = -1
+    rows[slot] = wp.where(col >= 0, row, -1)
+    cols[slot] = col
+    blocks[slot] = block
+
+
 @wp.kernel
 def fine_operator_triplets(
     interior_ijk: wp.array(dtype=wp.vec3i),
@@ -45,17 +66,11 @@ def fine_operator_triplets(
     blocks[base] = centre
     slot = base + 1
     for axis in range(3):
-        for s in range(2):
-            sign = float(2 * s - 1)
+        for side in range(2):
             e = wp.vec3i(0, 0, 0)
-            e[axis] = 2 * s - 1
-            nb = c + e
-            col = int(index[nb[0], nb[1], nb[2]])
-            if col >= n_interior:
-                col = -1
-            rows[slot] = wp.where(col >= 0, n, -1)
-            cols[slot] = col
-            blocks[slot] = face_block(axis, sign)
+            e[axis] = 2 * side - 1
+            neighbour_triplet(index, n_interior, n, c + e, face_block(axis, float(2 * side - 1)), slot, rows, cols,
+                              blocks)
             slot += 1
     edge = wp.mat44f()
     edge[0, 0] = 1.0
@@ -65,13 +80,7 @@ def fine_operator_triplets(
                 e = wp.vec3i(0, 0, 0)
                 e[a] = 2 * sa - 1
                 e[(a + 1) % 3] = 2 * sb - 1
-                nb = c + e
-                col = int(index[nb[0], nb[1], nb[2]])
-                if col >= n_interior:
-                    col = -1
-                rows[slot] = wp.where(col >= 0, n, -1)
-                cols[slot] = col
-                blocks[slot] = edge
+                neighbour_triplet(index, n_interior, n, c + e, edge, slot, rows, cols, blocks)
                 slot += 1
 
 
@@ -223,13 +232,6 @@ def chebyshev_step(
     v = a * d[n, h] + b * (inv_diag[n] * r[n, h])
     d[n, h] = v
     x[n, h] = x[n, h] + v
-
-
-@wp.kernel
-def subtract(a: wp.array2d(dtype=wp.vec4f), b: wp.array2d(dtype=wp.vec4f), out: wp.array2d(dtype=wp.vec4f)):
-    """out = a - b."""
-    n, h = wp.tid()
-    out[n, h] = a[n, h] - b[n, h]
 
 
 @wp.kernel

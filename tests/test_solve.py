@@ -7,7 +7,6 @@ import pytest
 import warp as wp
 
 import warp_stokes as ws
-from conftest import EXAMPLE
 from reference import reference_solve, residual
 
 

@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import CageError
-from .load import Surface, load_surface
+from .load import load_surface
 
 __all__ = ["Cage", "check_cage", "signed_volume"]
 
