@@ -105,6 +105,11 @@ def test_rerun_skips_up_to_date_assets_unless_forced(manifest, tmp_path):
     assert redone["arm_a"] == "ok" and redone["arm_c"] == "ok"
     forced = {r.name: r.status for r in ws.run_batch(manifest, out, force=True, device="cpu", progress=None)}
     assert forced["arm_b"] == "ok"
+    # the manifest is an input too: a changed setting redoes every asset
+    future = os.path.getmtime(out / "arm_b.npz") + 20
+    os.utime(manifest, (future, future))
+    changed = {r.name: r.status for r in ws.run_batch(manifest, out, device="cpu", progress=None)}
+    assert changed["arm_b"] == "ok"
 
 
 def test_json_manifest_and_manifest_errors(tmp_path):
@@ -124,6 +129,12 @@ def test_json_manifest_and_manifest_errors(tmp_path):
                                          'cage = "d.obj"\n')
     with pytest.raises(ws.WarpStokesError, match="the name 'a' is used twice"):
         ws.read_manifest(tmp_path / "twice.toml")
+    (tmp_path / "types.toml").write_text('defaults = 3\n[[asset]]\nmesh = "a.obj"\ncage = "c.obj"\n')
+    with pytest.raises(ws.WarpStokesError, match="'defaults' must be a table"):
+        ws.read_manifest(tmp_path / "types.toml")
+    (tmp_path / "types2.toml").write_text('[[asset]]\nmesh = "a.obj"\ncage = "c.obj"\nposes = 3\nresolution = "64"\n')
+    with pytest.raises(ws.WarpStokesError, match="asset 1: 'poses' must be a path"):
+        ws.read_manifest(tmp_path / "types2.toml")
     (tmp_path / "broken.toml").write_text("[[asset]\n")
     rc = main(["batch", str(tmp_path / "broken.toml"), "-o", str(tmp_path / "o2")])
     assert rc == 2

@@ -49,6 +49,25 @@ def test_errors_are_one_line_and_exit_non_zero(tmp_path, capsys, args, message):
     assert not (tmp_path / "out.npz").exists()
 
 
+def test_an_unconverged_bind_exits_non_zero(tmp_path, capsys):
+    out = tmp_path / "arm.npz"
+    rc = main(["bind", str(EXAMPLE / "arm.obj"), str(EXAMPLE / "arm_cage.obj"), "-o", str(out),
+               "--resolution", "16", "--device", "cpu", "--solver", "jacobi", "--max-iterations", "2"])
+    captured = capsys.readouterr()
+    assert rc == 1 and out.exists()
+    assert "did not converge" in captured.err and "NOT converged" in captured.out
+
+
+def test_bad_budget_and_resolution_fail_cleanly(tmp_path, capsys):
+    args = ["bind", str(EXAMPLE / "arm.obj"), str(EXAMPLE / "arm_cage.obj"), "-o", str(tmp_path / "x.npz")]
+    assert main(args + ["--memory-gb", "-1"]) == 2
+    assert "memory_budget must be a positive number" in capsys.readouterr().err
+    # 7e9 nodes: the dense grid alone would need ~94 GiB, refused before allocating anything
+    assert main(args + ["--resolution", "2048"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "resolution 2048 has" in err[0] and "or less would fit" in err[0]
+
+
 def test_console_script_is_installed(tmp_path):
     exe = shutil.which("warp-stokes")
     assert exe, "the warp-stokes command is not on PATH: is the package installed?"

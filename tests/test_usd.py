@@ -190,3 +190,27 @@ def test_rest_normals_from_the_mesh_file_are_kept(tmp_path):
     assert mesh.GetNormalsInterpolation() == UsdGeom.Tokens.vertex
     assert mesh.GetNormalsAttr().GetNumTimeSamples() == 0  # a rest value
     np.testing.assert_allclose(np.asarray(mesh.GetNormalsAttr().Get()), normals, atol=1e-6)
+
+
+def test_bad_pose_inputs_are_named(arm, tmp_path):
+    np.save(tmp_path / "empty.npy", np.zeros((0, 58, 3)))
+    with pytest.raises(ws.BindingError, match="empty.npy: there are no poses"):
+        ws.load_poses(tmp_path / "empty.npy", arm.cage_faces)
+    np.savez(tmp_path / "dup.npz", poses=cage_poses(arm, 2), frames=[1, 1])
+    with pytest.raises(ws.BindingError, match="dup.npz: frame numbers must be finite and distinct"):
+        ws.load_poses(tmp_path / "dup.npz", arm.cage_faces)
+    np.savez(tmp_path / "short.npz", poses=cage_poses(arm, 3), frames=[1, 2])
+    with pytest.raises(ws.BindingError, match=r"short.npz: 'frames' has shape \(2,\)"):
+        ws.load_poses(tmp_path / "short.npz", arm.cage_faces)
+    (tmp_path / "broken.usda").write_text("#usda 1.0\n( this is not usd\n")
+    with pytest.raises(ws.BindingError, match="broken.usda: cannot open it as a USD stage"):
+        ws.load_poses(tmp_path / "broken.usda", arm.cage_faces)
+
+
+def test_outputs_get_the_usual_permissions(arm, tmp_path):
+    old = os.umask(0o022)
+    try:
+        arm.save(tmp_path / "b.npz")
+    finally:
+        os.umask(old)
+    assert (os.stat(tmp_path / "b.npz").st_mode & 0o777) == 0o644

@@ -22,12 +22,12 @@ from __future__ import annotations
 import json
 import os
 import sys
-import tempfile
 import time
 import traceback
 from dataclasses import dataclass, field
 
 from .errors import WarpStokesError
+from .files import atomic_output
 
 __all__ = ["Asset", "read_manifest", "run_batch", "format_summary"]
 
@@ -90,6 +90,8 @@ def read_manifest(path) -> list[Asset]:
     if not isinstance(data, dict):
         raise ManifestError(f"{path}: the manifest must be a table/object with a list of assets")
     defaults = data.get("defaults", {})
+    if not isinstance(defaults, dict):
+        raise ManifestError(f"{path}: 'defaults' must be a table/object")
     entries = data.get("asset", data.get("assets"))
     if not isinstance(entries, list) or not entries:
         raise ManifestError(f"{path}: no assets (use [[asset]] tables in TOML, or an \"assets\" list in JSON)")
@@ -106,6 +108,12 @@ def read_manifest(path) -> list[Asset]:
         for key in ("mesh", "cage"):
             if not isinstance(merged.get(key), str):
                 raise ManifestError(f"{where}: '{key}' (a path) is required")
+        if merged.get("poses") is not None and not isinstance(merged["poses"], str):
+            raise ManifestError(f"{where}: 'poses' must be a path")
+        for key, kind in (("resolution", int), ("fps", (int, float)), ("tol", (int, float)),
+                          ("with_cage", bool), ("with_weights", bool)):
+            if key in merged and (not isinstance(merged[key], kind) or (kind is int and isinstance(merged[key], bool))):
+                raise ManifestError(f"{where}: '{key}' has the wrong type ({type(merged[key]).__name__})")
         for key in ("mesh", "cage", "poses"):
             if merged.get(key) is not None:
                 merged[key] = os.path.join(base, merged[key])
@@ -128,10 +136,11 @@ def _mtime(path: str) -> float:
     return os.path.getmtime(path)
 
 
-def _up_to_date(asset: Asset, outputs: list[str]) -> bool:
+def _up_to_date(asset: Asset, outputs: list[str], manifest: str) -> bool:
     if not all(os.path.exists(o) for o in outputs):
         return False
-    inputs = [p for p in (asset.mesh, asset.cage, asset.poses) if p]
+    # the manifest counts as an input: a changed resolution or fps must redo the asset
+    inputs = [p for p in (asset.mesh, asset.cage, asset.poses, manifest) if p]
     try:
         newest_input = max(_mtime(p) for p in inputs)
     except OSError:
@@ -179,7 +188,7 @@ def run_batch(manifest, outdir, force: bool = False, device=None, progress=True)
         start = time.perf_counter()
         written = []
         try:
-            if not force and _up_to_date(asset, outputs):
+            if not force and _up_to_date(asset, outputs, os.fspath(manifest)):
                 result.status = "skipped"
                 if progress:
                     _progress(progress, k + 1, len(assets), asset.name, "up to date, skipped")
@@ -197,6 +206,11 @@ def run_batch(manifest, outdir, force: bool = False, device=None, progress=True)
                 _progress(progress, k, len(assets), asset.name, f"binding at resolution {asset.resolution}")
             binding = bind(asset.mesh, cage, resolution=asset.resolution, device=device, tol=asset.tol)
             result.vertices, result.handles = binding.n_vertices, binding.n_handles
+            if not binding.stats["converged"]:
+                raise WarpStokesError(
+                    f"the solver did not converge (residual {binding.stats['residual']:.2g}, identity error "
+                    f"{binding.stats['identity_error']:.2g}, tol {asset.tol:g})"
+                )
             binding.save(npz)
             written.append(npz)
             if poses is not None:
@@ -223,14 +237,8 @@ def run_batch(manifest, outdir, force: bool = False, device=None, progress=True)
 
 
 def _write_json(path: str, data) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".json", dir=os.path.dirname(path))
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            json.dump(data, fh, indent=1)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    with atomic_output(path, ".json") as tmp, open(tmp, "w", encoding="utf-8") as fh:
+        json.dump(data, fh, indent=1)
 
 
 def format_summary(results: list[Result]) -> str:

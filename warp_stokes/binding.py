@@ -6,7 +6,6 @@ import hashlib
 import json
 import math
 import os
-import tempfile
 import time
 import warnings
 
@@ -19,6 +18,7 @@ from .cage import Cage, check_cage
 from .deform import deform_vertices
 from .device import device_name, resolve_device
 from .errors import BindingError, WarpStokesError
+from .files import atomic_output
 from .budget import available_memory, estimate_memory, plan_chunks
 from .grid import classify_points, voxelize
 from .multigrid import Multigrid
@@ -131,9 +131,6 @@ class Binding:
         path : str | os.PathLike
         """
         path = os.fspath(path)
-        folder = os.path.dirname(os.path.abspath(path))
-        if not os.path.isdir(folder):
-            raise BindingError(f"{path}: the folder {folder} does not exist")
         meta = {
             "format": FORMAT,
             "version": __version__,
@@ -142,9 +139,8 @@ class Binding:
             "cage_fingerprint": fingerprint(self.cage_vertices, self.cage_faces),
             "mesh_fingerprint": fingerprint(self.mesh_vertices, self.mesh_faces),
         }
-        fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".npz", dir=folder)
         try:
-            with os.fdopen(fd, "wb") as fh:
+            with atomic_output(path, ".npz") as tmp, open(tmp, "wb") as fh:
                 np.savez(
                     fh,
                     weights=self.weights,
@@ -155,11 +151,8 @@ class Binding:
                     meta=np.array(json.dumps(meta)),
                     **({} if self.mesh_normals is None else {"mesh_normals": self.mesh_normals}),
                 )
-            os.replace(tmp, path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
+        except WarpStokesError as exc:
+            raise BindingError(str(exc)) from None
 
 
 def load_binding(path, device=None) -> Binding:
@@ -265,6 +258,8 @@ def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_i
     """
     if not (isinstance(tol, (int, float)) and 0 < tol < 1):
         raise WarpStokesError(f"tol must be a number between 0 and 1, got {tol!r}")
+    if memory_budget is not None and not (isinstance(memory_budget, (int, float)) and memory_budget > 0):
+        raise WarpStokesError(f"memory_budget must be a positive number of bytes, got {memory_budget!r}")
     if solver not in ("multigrid", "jacobi"):
         raise WarpStokesError(f"solver must be 'multigrid' or 'jacobi', got {solver!r}")
     device = resolve_device(device)

@@ -11,12 +11,11 @@ product (calibrated per fine node, see tests/test_budget.py and benchmarks/RESUL
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import dataclass
 
 import numpy as np
 
-from .device import resolve_device
+from .device import available_memory, resolve_device  # noqa: F401 (re-exported)
 from .errors import ResolutionError
 from .grid import Grid
 
@@ -80,18 +79,6 @@ def estimate_memory(grid: Grid, n_vertices: int = 0, preconditioner: str = "mult
     if preconditioner == "multigrid":
         shared += 4 * nodes + max(SETUP_BYTES_PER_NODE, HIERARCHY_BYTES_PER_NODE) * n_int
     return MemoryEstimate(per_handle=int(math.ceil(per_handle)), shared=int(math.ceil(shared)))
-
-
-def available_memory(device=None) -> int:
-    """Bytes a bind may use on ``device``: 90% of the free memory of a CUDA device, half the available RAM on
-    the CPU."""
-    d = resolve_device(device)
-    if d.is_cuda:
-        return int(0.9 * d.free_memory)
-    try:
-        return int(0.5 * os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
-    except (ValueError, OSError, AttributeError):
-        return 8 << 30
 
 
 def plan_chunks(estimate: MemoryEstimate, n_handles: int, budget: int, resolution: int,

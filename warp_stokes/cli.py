@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import tempfile
 import warnings
 
 __all__ = ["main", "format_stats"]
@@ -40,12 +39,16 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
 def _bind(args) -> int:
     import warp_stokes as ws
 
-    budget = None if args.memory_gb is None else int(args.memory_gb * 2**30)
+    budget = None if args.memory_gb is None else args.memory_gb * 2**30
     binding = ws.bind(args.mesh, args.cage, resolution=args.resolution, device=args.device, tol=args.tol,
                       max_iterations=args.max_iterations, solver=args.solver, memory_budget=budget)
     binding.save(args.output)
     print(format_stats(binding.stats))
     print(f"wrote {args.output}")
+    if not binding.stats["converged"]:
+        print(f"warp-stokes: error: the solver did not converge to tol {args.tol:g}; {args.output} holds its last "
+              "iterate (raise --max-iterations or --tol)", file=sys.stderr)
+        return 1
     return 0
 
 
@@ -60,15 +63,10 @@ def _deform(args) -> int:
     ext = os.path.splitext(args.output)[1].lower().lstrip(".")
     if ext not in ("obj", "ply", "off", "stl", "glb"):
         raise ws.WarpStokesError(f"{args.output}: unsupported mesh format {ext!r} (use obj, ply, off, stl or glb)")
-    folder = os.path.dirname(os.path.abspath(args.output))
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix="." + ext, dir=folder)
-    os.close(fd)
-    try:
+    from warp_stokes.files import atomic_output
+
+    with atomic_output(args.output, "." + ext) as tmp:
         mesh.export(tmp, file_type=ext)
-        os.replace(tmp, args.output)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
     print(f"wrote {args.output} ({len(vertices)} vertices)")
     return 0
 

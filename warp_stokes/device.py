@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import os
+
 import warp as wp
 
 from .errors import WarpStokesError
 
-__all__ = ["resolve_device", "device_name"]
+__all__ = ["resolve_device", "device_name", "available_memory"]
 
 
 def resolve_device(device=None) -> wp.context.Device:
@@ -46,3 +48,15 @@ def device_name(device) -> str:
     """A readable name such as ``"cuda:0 (NVIDIA H100 80GB HBM3)"`` or ``"cpu"``."""
     d = resolve_device(device)
     return f"{d.alias} ({d.name})" if d.is_cuda else d.alias
+
+
+def available_memory(device=None) -> int:
+    """Bytes a bind may use on ``device``: 90% of the free memory of a CUDA device, half the available RAM on
+    the CPU."""
+    d = resolve_device(device)
+    if d.is_cuda:
+        return int(0.9 * d.free_memory)
+    try:
+        return int(0.5 * os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+    except (ValueError, OSError, AttributeError):
+        return 8 << 30

@@ -8,7 +8,7 @@ import numpy as np
 import warp as wp
 
 from .cage import Cage
-from .device import resolve_device
+from .device import available_memory, resolve_device
 from .errors import ResolutionError
 from .kernels import labels as L
 from .kernels import voxel
@@ -133,6 +133,16 @@ def voxelize(cage: Cage, resolution: int = 64, device=None) -> Grid:
     origin = -0.5 * spacing * (counts - 1).astype(np.float64)
 
     shape = tuple(int(c) for c in counts)
+    # the dense node arrays (winding labels, labels, row index on the device and the host): fail before allocating
+    dense = 14 * int(np.prod(counts))
+    room = available_memory(device)
+    if dense > room:
+        fits = int(resolution * (room / dense) ** (1.0 / 3.0) * 0.9)
+        raise ResolutionError(
+            f"{cage.name}: a grid at resolution {resolution} has {int(np.prod(counts)):,} nodes and needs "
+            f"{dense / 2**30:.1f} GiB before solving; {room / 2**30:.1f} GiB are available: resolution {fits} or less "
+            "would fit"
+        )
     with wp.ScopedDevice(device):
         mesh = _cage_mesh(cage, centre, device)
         inside = wp.empty(shape, dtype=wp.int8)

@@ -106,8 +106,11 @@ def _read_obj_polygons(path: str) -> tuple[np.ndarray, np.ndarray | list, np.nda
 
     trimesh re-orders or splits vertices in some OBJ files (texture seams); users need file order.
     """
-    with open(path, encoding="utf-8", errors="replace") as fh:
-        lines = fh.read().splitlines()
+    try:
+        with open(path, encoding="utf-8", errors="replace") as fh:
+            lines = fh.read().splitlines()
+    except OSError as exc:
+        raise MeshError(f"{path}: cannot read it ({exc.strerror or exc})") from None
     tokens, counts = _records(lines, "v")
     if len(counts) == 0:
         return np.zeros((0, 3)), [], None

@@ -96,15 +96,20 @@ def _from_array(path: str, n_handles: int) -> Poses:
     if not np.all(np.isfinite(array)):
         bad = int(np.flatnonzero(~np.isfinite(array).all(axis=(1, 2)))[0])
         raise BindingError(f"{path}: frame {bad} has non-finite coordinates")
-    if frames is None or frames.shape != (len(array),):
+    if frames is None:
         frames = np.arange(1, len(array) + 1, dtype=np.float64)
+    elif frames.shape != (len(array),):
+        raise BindingError(f"{path}: 'frames' has shape {frames.shape}, expected ({len(array)},) for {len(array)} poses")
     return Poses(array, frames, path)
 
 
 def _from_usd(path: str, cage_faces: np.ndarray, n_handles: int) -> Poses:
     from pxr import Usd, UsdGeom
 
-    stage = Usd.Stage.Open(path)
+    try:
+        stage = Usd.Stage.Open(path)
+    except Exception as exc:  # pxr raises Tf.ErrorException (a RuntimeError) for unreadable layers
+        raise BindingError(f"{path}: cannot open it as a USD stage ({str(exc).strip().splitlines()[-1]})") from None
     if stage is None:
         raise BindingError(f"{path}: cannot open it as a USD stage")
     candidates = []
@@ -140,6 +145,15 @@ def _from_usd(path: str, cage_faces: np.ndarray, n_handles: int) -> Poses:
     return Poses(np.stack(positions), np.asarray(times, dtype=np.float64), f"{path}:{prim.GetPath()}")
 
 
+def _checked(poses: Poses) -> Poses:
+    if len(poses.positions) == 0:
+        raise BindingError(f"{poses.name}: there are no poses")
+    frames = np.asarray(poses.frames, dtype=np.float64)
+    if not np.all(np.isfinite(frames)) or len(np.unique(frames)) != len(frames):
+        raise BindingError(f"{poses.name}: frame numbers must be finite and distinct, got {frames.tolist()[:10]}")
+    return poses
+
+
 def load_poses(source, cage_faces: np.ndarray, n_handles: int | None = None) -> Poses:
     """Read a sequence of cage poses and check that every frame has the bound cage's topology.
 
@@ -170,20 +184,20 @@ def load_poses(source, cage_faces: np.ndarray, n_handles: int | None = None) -> 
     cage_faces = np.asarray(cage_faces, dtype=np.int64)
     n_handles = int(cage_faces.max()) + 1 if n_handles is None else int(n_handles)
     if isinstance(source, Poses):
-        return source
+        return _checked(source)
     if isinstance(source, np.ndarray):
         array = source[None] if source.ndim == 2 else source
         if array.ndim != 3 or array.shape[1:] != (n_handles, 3):
             raise BindingError(f"poses must have shape (frames, {n_handles}, 3) for this cage, got {source.shape}")
-        return Poses(array.astype(np.float64), np.arange(1, len(array) + 1, dtype=np.float64), "<array>")
+        return _checked(Poses(array.astype(np.float64), np.arange(1, len(array) + 1, dtype=np.float64), "<array>"))
     path = os.fspath(source)
     if not os.path.exists(path):
         raise BindingError(f"{path}: no such file or folder")
     if os.path.isdir(path):
-        return _from_folder(path, cage_faces, n_handles)
+        return _checked(_from_folder(path, cage_faces, n_handles))
     ext = os.path.splitext(path)[1].lower()
     if ext in (".npy", ".npz"):
-        return _from_array(path, n_handles)
+        return _checked(_from_array(path, n_handles))
     if ext in (".usd", ".usda", ".usdc", ".usdz"):
-        return _from_usd(path, cage_faces, n_handles)
+        return _checked(_from_usd(path, cage_faces, n_handles))
     raise BindingError(f"{path}: poses must be a folder of OBJ frames, a .npy/.npz array or a USD file")

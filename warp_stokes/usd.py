@@ -86,6 +86,8 @@ def write_animation(path, binding, poses: Poses, fps: float = 24.0, with_cage: b
         raise WarpStokesError(f"{poses.name}: poses of shape {positions.shape} do not fit a cage of "
                               f"{binding.n_handles} vertices")
     frames = np.asarray(poses.frames, dtype=np.float64)
+    if len(positions) == 0 or frames.shape != (len(positions),) or len(np.unique(frames)) != len(frames):
+        raise WarpStokesError(f"{poses.name}: need at least one pose and one distinct frame number per pose")
     if len(binding.mesh_faces) == 0:
         raise WarpStokesError("the bound mesh has no faces: there is nothing to write as a USD mesh")
 

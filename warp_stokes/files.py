@@ -1,0 +1,42 @@
+"""Writing output files whole or not at all: a temporary name in the target folder, renamed when complete."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import tempfile
+
+from .errors import WarpStokesError
+
+__all__ = ["atomic_output"]
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+@contextlib.contextmanager
+def atomic_output(path, suffix: str = ""):
+    """Yield a temporary path beside ``path``; on success it is renamed to ``path`` with the permissions a newly
+    created file would get (``mkstemp`` makes it private), on failure it is removed.
+
+    Examples
+    --------
+    >>> with atomic_output("out.npz", ".npz") as tmp:   # doctest: +SKIP
+    ...     np.savez(tmp, weights=w)
+    """
+    path = os.fspath(path)
+    folder = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(folder):
+        raise WarpStokesError(f"{path}: the folder {folder} does not exist")
+    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=suffix, dir=folder)
+    os.close(fd)
+    try:
+        yield tmp
+        os.chmod(tmp, 0o666 & ~_umask())
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
