@@ -1,18 +1,20 @@
 """Solving the compact coupled biharmonic scheme for all handles at once.
 
-The interior block A_II of the scheme is symmetric positive definite, so conjugate gradients apply directly.
-Every handle is a column of one (node, handle) array: each operator application is one launch over all
-interior nodes and all handles. This module holds the launch code; the kernels are in
-``warp_stokes.kernels.stencil`` and ``warp_stokes.kernels.cg``.
+The interior block A_II of the scheme is symmetric positive definite, so conjugate gradients apply directly,
+preconditioned by the multigrid V-cycle (``warp_stokes.multigrid``) or by the inverse diagonal. Every handle is
+a column of one (node, handle) array: each operator application is one launch over all interior nodes and all
+handles. This module holds the launch code; the kernels are in ``warp_stokes.kernels.stencil`` and
+``warp_stokes.kernels.cg``.
 
 Stopping rule. For handle h let b_h = f_h - A_IK x_K be the right-hand side (boundary forcing) and
-r_h = b_h - A_II x_I the residual, with ``||v||_M^2 = v^T D^-1 v`` (D the diagonal). CG runs until
+r_h = b_h - A_II x_I the residual, with ``||v||_M^2 = v^T M v`` (M the preconditioner). CG runs until
 ``||r_h||_M / ||b_h||_M`` is below the CG tolerance for every handle; then the residual is recomputed from
 scratch in float64 sums (the CG recurrence drifts in float32) and, when the columns are cage coordinates,
 the deviation from partition of unity and linear precision at the nodes is measured. The solve ends when
 both are <= tol (the identity check allows twice its float32 rounding floor, measured on the starting field,
-when that is larger). The residual alone does not bound the weight error on fine grids (the error-to-residual ratio
-grows like n^2), so while the identity check fails CG restarts from the current iterate with a tolerance ten
+when that is larger). The residual alone does not bound the weight error tightly (with the diagonal preconditioner
+the error-to-residual ratio grows like n^2; with multigrid it is a few, and larger at n >= 192 where the float32
+recurrence drifts), so while the identity check fails CG restarts from the current iterate with a tolerance ten
 times tighter. Checked against a direct float64 solve in tests/test_solve.py.
 """
 
