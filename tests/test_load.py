@@ -81,3 +81,16 @@ def test_unreadable_and_empty_files_name_the_file(tmp_path):
     broken.write_text("v 0 0 0\nv 1 zero 0\n")
     with pytest.raises(ws.MeshError, match="broken.obj: line 2"):
         ws.load_surface(broken)
+
+
+def test_fast_and_general_obj_paths_agree(tmp_path):
+    # CRLF line ends and a quad take the general path; plain triangles the fast one
+    text = (EXAMPLE / "arm.obj").read_text()
+    crlf = tmp_path / "arm_crlf.obj"
+    crlf.write_bytes(text.replace("\n", "\r\n").encode())
+    fast, general = ws.load_surface(EXAMPLE / "arm.obj"), ws.load_surface(crlf)
+    np.testing.assert_array_equal(fast.vertices, general.vertices)
+    np.testing.assert_array_equal(fast.faces, general.faces)
+    mixed = tmp_path / "mixed.obj"
+    mixed.write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1/1/1 2/2/2 3/3/3\nf 1 3 4 2\n")
+    assert ws.load_surface(mixed).faces.tolist() == [[0, 1, 2], [0, 2, 3], [0, 3, 1]]

@@ -6,6 +6,7 @@ Vertex order is preserved exactly (no merging, no reordering): users map weights
 from __future__ import annotations
 
 import os
+import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -101,6 +102,32 @@ def _records(lines: list, tag: str) -> tuple[np.ndarray, np.ndarray]:
     return tokens[np.setdiff1d(np.arange(len(tokens)), starts, assume_unique=True)], counts
 
 
+_VERTEX = re.compile(r"^v[ \t]+(\S+)[ \t]+(\S+)[ \t]+(\S+)", re.M)
+_TRIANGLE = re.compile(r"^f[ \t]+(\d+)\S*[ \t]+(\d+)\S*[ \t]+(\d+)\S*[ \t]*$", re.M)
+
+
+def _count_records(text: str, tag: str) -> int:
+    return text.count("\n" + tag + " ") + text.startswith(tag + " ")
+
+
+def _read_obj_triangles(text: str):
+    """The common case at C speed: every face a triangle with positive indices, no normals. None otherwise."""
+    if "\nvn " in text or text.startswith("vn "):
+        return None
+    vertices = _VERTEX.findall(text)
+    triangles = _TRIANGLE.findall(text)
+    if len(vertices) != _count_records(text, "v") or len(triangles) != _count_records(text, "f"):
+        return None
+    try:
+        verts = np.array(vertices, dtype=np.float64).reshape(-1, 3)
+    except ValueError:
+        return None
+    faces = np.array(triangles, dtype=np.int64).reshape(-1, 3) - 1
+    if faces.size and faces.min() < 0:
+        return None
+    return verts, faces, None
+
+
 def _read_obj_polygons(path: str) -> tuple[np.ndarray, np.ndarray | list, np.ndarray | None]:
     """Read an OBJ's `v` and `f` records directly, keeping file order and the polygons as written.
 
@@ -108,9 +135,13 @@ def _read_obj_polygons(path: str) -> tuple[np.ndarray, np.ndarray | list, np.nda
     """
     try:
         with open(path, encoding="utf-8", errors="replace") as fh:
-            lines = fh.read().splitlines()
+            text = fh.read()
     except OSError as exc:
         raise MeshError(f"{path}: cannot read it ({exc.strerror or exc})") from None
+    fast = _read_obj_triangles(text)
+    if fast is not None:
+        return fast
+    lines = text.splitlines()
     tokens, counts = _records(lines, "v")
     if len(counts) == 0:
         return np.zeros((0, 3)), [], None
