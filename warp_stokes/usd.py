@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import os
-import tempfile
 
 import numpy as np
 
 from .errors import WarpStokesError
+from .files import atomic_output
 from .poses import Poses
 
 __all__ = ["write_animation", "FRAMES_PER_CHUNK"]
@@ -78,9 +78,6 @@ def write_animation(path, binding, poses: Poses, fps: float = 24.0, with_cage: b
         raise WarpStokesError(f"up axis must be 'Y' or 'Z', got {up_axis!r}")
     if not fps > 0:
         raise WarpStokesError(f"fps must be positive, got {fps!r}")
-    folder = os.path.dirname(os.path.abspath(path))
-    if not os.path.isdir(folder):
-        raise WarpStokesError(f"{path}: the folder {folder} does not exist")
     positions = np.asarray(poses.positions, dtype=np.float64)
     if positions.ndim != 3 or positions.shape[1:] != (binding.n_handles, 3):
         raise WarpStokesError(f"{poses.name}: poses of shape {positions.shape} do not fit a cage of "
@@ -91,10 +88,7 @@ def write_animation(path, binding, poses: Poses, fps: float = 24.0, with_cage: b
     if len(binding.mesh_faces) == 0:
         raise WarpStokesError("the bound mesh has no faces: there is nothing to write as a USD mesh")
 
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=ext, dir=folder)
-    os.close(fd)
-    os.unlink(tmp)  # USD creates the layer itself
-    try:
+    with atomic_output(path, ext) as tmp:
         layer = Sdf.Layer.CreateNew(tmp, args={"format": "usda"} if ext == ".usda" else {"format": "usdc"})
         stage = Usd.Stage.Open(layer)
         UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y if up_axis == "Y" else UsdGeom.Tokens.z)
@@ -134,8 +128,4 @@ def write_animation(path, binding, poses: Poses, fps: float = 24.0, with_cage: b
                     cage.GetExtentAttr().Set(_extent(cage_points), t)
         layer.Save()
         del stage, layer
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
     return path
