@@ -4,12 +4,19 @@
 
 Bytes counted: 32 per (interior node, handle): the packed (q, G) read once and the result written once.
 Variants (all read and write the package's (node row, handle) vec4 layout, handles innermost):
-  package   warp_stokes.kernels.stencil.apply_operator: one thread per (node, handle), float64 sums, 18
-            neighbour rows looked up in the 3D index grid
-  f32       the same with float32 sums
-  table     float32 sums, neighbour rows from a precomputed (node, 18) table
-  h4        float32 sums, index-grid lookups, 4 handles per thread (the lookups amortised over 4 handles)
-  h4table   float32 sums, neighbour table, 4 handles per thread
+  package      warp_stokes.apply_operator (float64 sums, used for residuals): one thread per (handle, z line of at
+               most LINE_LENGTH interior nodes), the planes below / at / above the node kept in registers;
+               launched (handle groups of 32, lines, 32) so that a block's warps walk neighbouring lines
+  package f32  the same kernel with float32 sums (used in CG and smoothing steps)
+  lines L      the float32 kernel with lines cut at L nodes
+  lean L       the same walk keeping only the components each neighbour contributes (stencil_variants.py)
+  pairs L      one thread walks two neighbouring columns: 12 loads per plane for 2 nodes (stencil_variants.py)
+  gather f64   one thread per (node, handle), 18 neighbour rows looked up in the 3D index grid, float64 sums
+               (the package kernel before the line form)
+  gather f32   the same with float32 sums
+  table        float32 sums, neighbour rows from a precomputed (node, 18) table
+  h4           float32 sums, index-grid lookups, 4 handles per thread (the lookups amortised over 4 handles)
+  h4table      float32 sums, neighbour table, 4 handles per thread
 Every variant's output is compared with the package kernel's.
 """
 
@@ -24,9 +31,11 @@ import numpy as np
 import warp as wp
 
 import warp_stokes as ws
+from warp_stokes.kernels import stencil
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_solver import copy_bandwidth, pair, time_kernel  # noqa: E402
+import stencil_variants as sv  # noqa: E402
 
 @wp.func
 def fetch(field: wp.array2d(dtype=wp.vec4f), row: int, n_rows: int, h: int):
@@ -52,23 +61,40 @@ def combine(centre: wp.vec4f, xp: wp.vec4f, xm: wp.vec4f, yp: wp.vec4f, ym: wp.v
     return wp.vec4f(value, gx, gy, gz)
 
 
-@wp.kernel
-def stencil_f32(field: wp.array2d(dtype=wp.vec4f), index: wp.array3d(dtype=wp.int32),
-                ijk: wp.array(dtype=wp.vec3i), n_rows: int, out: wp.array2d(dtype=wp.vec4f)):
-    n, h = wp.tid()
-    c = ijk[n]
-    edges = float(0.0)
-    for a in range(-1, 2, 2):
-        for b in range(-1, 2, 2):
-            edges += fetch(field, idx(index, c, a, b, 0), n_rows, h)[0]
-            edges += fetch(field, idx(index, c, a, 0, b), n_rows, h)[0]
-            edges += fetch(field, idx(index, c, 0, a, b), n_rows, h)[0]
-    out[n, h] = combine(field[n, h], fetch(field, idx(index, c, 1, 0, 0), n_rows, h),
-                        fetch(field, idx(index, c, -1, 0, 0), n_rows, h),
-                        fetch(field, idx(index, c, 0, 1, 0), n_rows, h),
-                        fetch(field, idx(index, c, 0, -1, 0), n_rows, h),
-                        fetch(field, idx(index, c, 0, 0, 1), n_rows, h),
-                        fetch(field, idx(index, c, 0, 0, -1), n_rows, h), edges)
+def gather_kernel(scalar):
+    vec4 = wp.types.vector(length=4, dtype=scalar)
+
+    @wp.kernel(module="unique")
+    def gather(field: wp.array2d(dtype=wp.vec4f), index: wp.array3d(dtype=wp.int32),
+               ijk: wp.array(dtype=wp.vec3i), n_rows: int, out: wp.array2d(dtype=wp.vec4f)):
+        n, h = wp.tid()
+        c = ijk[n]
+        edges = scalar(0.0)
+        for a in range(-1, 2, 2):
+            for b in range(-1, 2, 2):
+                edges += scalar(fetch(field, idx(index, c, a, b, 0), n_rows, h)[0])
+                edges += scalar(fetch(field, idx(index, c, a, 0, b), n_rows, h)[0])
+                edges += scalar(fetch(field, idx(index, c, 0, a, b), n_rows, h)[0])
+        centre = vec4(field[n, h])
+        xp = vec4(fetch(field, idx(index, c, 1, 0, 0), n_rows, h))
+        xm = vec4(fetch(field, idx(index, c, -1, 0, 0), n_rows, h))
+        yp = vec4(fetch(field, idx(index, c, 0, 1, 0), n_rows, h))
+        ym = vec4(fetch(field, idx(index, c, 0, -1, 0), n_rows, h))
+        zp = vec4(fetch(field, idx(index, c, 0, 0, 1), n_rows, h))
+        zm = vec4(fetch(field, idx(index, c, 0, 0, -1), n_rows, h))
+        faces = xp[0] + xm[0] + yp[0] + ym[0] + zp[0] + zm[0]
+        div = (xp[1] - xm[1]) + (yp[2] - ym[2]) + (zp[3] - zm[3])
+        value = scalar(48.0) * centre[0] - scalar(10.0) * faces + edges + scalar(3.0) * div
+        gx = xm[1] + scalar(4.0) * centre[1] + xp[1] - scalar(3.0) * (xp[0] - xm[0])
+        gy = ym[2] + scalar(4.0) * centre[2] + yp[2] - scalar(3.0) * (yp[0] - ym[0])
+        gz = zm[3] + scalar(4.0) * centre[3] + zp[3] - scalar(3.0) * (zp[0] - zm[0])
+        out[n, h] = wp.vec4f(wp.float32(value), wp.float32(gx), wp.float32(gy), wp.float32(gz))
+
+    return gather
+
+
+gather_f64 = gather_kernel(wp.float64)
+gather_f32 = gather_kernel(wp.float32)
 
 
 @wp.kernel
@@ -170,8 +196,28 @@ def main(argv=None):
         groups = (n_handles + 3) // 4
         variants = {
             "package": lambda y: ws.apply_operator(grid, x, y, n_rows=n_int, device=device),
-            "f32": lambda y: wp.launch(stencil_f32, dim=x.shape, inputs=[x, arrays["index"], arrays["active_ijk"],
-                                                                          n_int], outputs=[y], device=device),
+            "package f32": lambda y: ws.apply_operator(grid, x, y, n_rows=n_int, device=device, precise=False),
+        }
+        groups32 = (n_handles + stencil.GROUP - 1) // stencil.GROUP
+        for length in (32, 64, 128, 256):
+            lines = wp.array(grid.interior_lines(length), dtype=wp.vec2i, device=device)
+            variants[f"lines {length}"] = lambda y, lines=lines: wp.launch(
+                stencil.apply_operator_fast, dim=(groups32, lines.shape[0], stencil.GROUP),
+                inputs=[x, arrays["index"], arrays["active_ijk"], lines, n_int], outputs=[y], device=device)
+            variants[f"lean {length}"] = lambda y, lines=lines: wp.launch(
+                sv.apply_lean, dim=(groups32, lines.shape[0], 32),
+                inputs=[x, arrays["index"], arrays["active_ijk"], lines, n_int], outputs=[y], device=device)
+            items = wp.array(sv.pair_items(grid, length), dtype=wp.vec4i, device=device)
+            variants[f"pairs {length}"] = lambda y, items=items: wp.launch(
+                sv.apply_pairs, dim=(groups32, items.shape[0], 32), inputs=[x, arrays["index"], items, n_int],
+                outputs=[y], device=device)
+        variants.update({
+            "gather f64": lambda y: wp.launch(gather_f64, dim=x.shape, inputs=[x, arrays["index"],
+                                                                            arrays["active_ijk"], n_int],
+                                              outputs=[y], device=device),
+            "gather f32": lambda y: wp.launch(gather_f32, dim=x.shape, inputs=[x, arrays["index"],
+                                                                            arrays["active_ijk"], n_int],
+                                              outputs=[y], device=device),
             "table": lambda y: wp.launch(stencil_table, dim=x.shape, inputs=[x, table, n_int], outputs=[y],
                                          device=device),
             "h4": lambda y: wp.launch(stencil_h4, dim=(n_int, groups), inputs=[x, arrays["index"],
@@ -179,7 +225,7 @@ def main(argv=None):
                                       outputs=[y], device=device),
             "h4table": lambda y: wp.launch(stencil_h4_table, dim=(n_int, groups), inputs=[x, table, n_int],
                                            outputs=[y], device=device),
-        }
+        })
         for name, launch in variants.items():
             y = wp.full(x.shape, wp.vec4f(np.nan), dtype=wp.vec4f, device=device)
             seconds = time_kernel(wp, device, lambda: launch(y))

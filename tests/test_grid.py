@@ -82,3 +82,23 @@ def test_classify_points(arm_cage):
     inside, distance = ws.classify_points(arm_cage, np.array([far, arm_cage.vertices[0]]), device="cpu")
     assert not inside[0]
     assert distance[0] > 9 * arm_cage.diagonal and distance[1] < 1e-5 * arm_cage.diagonal
+
+
+@pytest.mark.parametrize("max_length", [1, 3, 32])
+def test_interior_lines_cover_each_interior_row_once(arm_cage, max_length):
+    grid = ws.voxelize(arm_cage, 24, device="cpu")
+    lines = grid.interior_lines(max_length)
+    assert lines.dtype == np.int32 and (lines[:, 1] >= 1).all() and (lines[:, 1] <= max_length).all()
+    rows = np.concatenate([np.arange(s, s + n) for s, n in lines])
+    np.testing.assert_array_equal(rows, np.arange(grid.n_interior))
+    # within a line the nodes are z neighbours of one column
+    ijk = grid.active_ijk
+    for s, n in lines:
+        run = ijk[s : s + n]
+        assert (run[:, :2] == run[0, :2]).all() and (np.diff(run[:, 2]) == 1).all()
+    if max_length == 32:  # runs are split only where they must be: each line ends at a run's end or a full piece
+        ends = lines[:, 0] + lines[:, 1]
+        last = ijk[ends[:-1] - 1]
+        nxt = ijk[ends[:-1]]
+        continues = (last[:, :2] == nxt[:, :2]).all(axis=1) & (nxt[:, 2] == last[:, 2] + 1)
+        assert (lines[:-1, 1][continues] == max_length).all()

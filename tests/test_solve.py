@@ -89,6 +89,34 @@ def test_operator_matches_the_assembled_reference_matrix():
     np.testing.assert_allclose(out.numpy(), ref, atol=2e-5)
 
 
+@pytest.mark.parametrize("max_length,handles", [(1, 3), (2, 40), (1000, 3)])
+@pytest.mark.parametrize("precise", [True, False])
+def test_operator_does_not_depend_on_how_lines_are_cut(max_length, handles, precise):
+    # the kernel walks z lines keeping three planes in registers: cutting lines elsewhere (down to one node per
+    # thread) must not change a bit with float64 sums, and only rounding with float32 ones; 40 handles take two
+    # thread groups, the second one partly idle
+    from warp_stokes.kernels import stencil
+
+    grid = ball_grid()
+    rng = np.random.default_rng(3)
+    field = wp.array(rng.standard_normal((grid.n_active, handles, 4)).astype(np.float32), dtype=wp.vec4f,
+                     device="cpu")
+    expected = wp.empty((grid.n_interior, handles), dtype=wp.vec4f, device="cpu")
+    ws.apply_operator(grid, field, expected, device="cpu")
+    lines = wp.array(grid.interior_lines(max_length), dtype=wp.vec2i, device="cpu")
+    arrays = grid.device_arrays("cpu")
+    out = wp.full((grid.n_interior, handles), wp.vec4f(np.nan), dtype=wp.vec4f, device="cpu")
+    kernel = stencil.apply_operator if precise else stencil.apply_operator_fast
+    groups = -(-handles // stencil.GROUP)
+    wp.launch(kernel, dim=(groups, lines.shape[0], stencil.GROUP),
+              inputs=[field, arrays["index"], arrays["active_ijk"], lines, grid.n_active], outputs=[out],
+              device="cpu")
+    if precise:
+        np.testing.assert_array_equal(out.numpy(), expected.numpy())
+    else:
+        np.testing.assert_allclose(out.numpy(), expected.numpy(), rtol=0, atol=1e-5 * np.abs(expected.numpy()).max())
+
+
 def make_preconditioner(name, grid):
     """'jacobi', or multigrid with a small coarsest level so that even these small grids have 3+ levels."""
     if name == "jacobi":
@@ -143,6 +171,61 @@ def test_stokes_weights_match_direct_solve_on_a_real_cage(arm_cage, precondition
     assert np.abs(ref[inside][..., 0].sum(-1) - 1).max() < 1e-6
     print(f"arm, resolution 18, {preconditioner}: {report.iterations} iterations, max weight error {err:.2e} "
           "against the direct solve")
+
+
+def test_callback_sees_each_iterate_approach_the_direct_solve(arm_cage):
+    grid = ws.voxelize(arm_cage, resolution=18, device="cpu")
+    field = ws.boundary_field(grid, arm_cage, device="cpu")
+    known = to_dense(grid, field, np.zeros(grid.shape + (arm_cage.n_handles, 4)))
+    ref = reference_solve(grid.labels == 1, known)
+    inside = grid.labels == 1
+    history = []
+
+    def record(iteration, current):
+        history.append((iteration, np.abs(to_dense(grid, current, known)[inside] - ref[inside]).max()))
+
+    report = ws.solve_biharmonic(grid, field, tol=1e-6, handles=arm_cage.vertices, device="cpu",
+                                 preconditioner=make_preconditioner("multigrid", grid), callback=record)
+    assert [i for i, _ in history] == list(range(report.iterations + 1))
+    errors = np.array([e for _, e in history])
+    print("max weight error per iteration:", " ".join(f"{e:.1e}" for e in errors))
+    assert errors[0] > 1e-3  # the MVC start is not the solution
+    assert errors[-1] == np.abs(to_dense(grid, field, known)[inside] - ref[inside]).max() <= 1e-5
+    assert errors[5] < 1e-2 * errors[0]  # multigrid CG: two orders of magnitude in five iterations
+
+
+def test_failing_identity_check_keeps_cg_correct_and_stops_at_stagnation(arm_cage, monkeypatch):
+    # handle positions that are not the cage's: "linear precision" cannot hold, so the identity check fails at
+    # every iteration (its float32 floor, measured on the starting field, is reported as 0 so that the tolerance
+    # stays at tol). CG must go on (every handle resuming its own iteration, some after having stopped), stop
+    # when the check stagnates, restart, warn, and still return the right weights.
+    grid = ws.voxelize(arm_cage, resolution=18, device="cpu")
+    field = ws.boundary_field(grid, arm_cage, device="cpu")
+    known = to_dense(grid, field, np.zeros(grid.shape + (arm_cage.n_handles, 4)))
+    ref = reference_solve(grid.labels == 1, known)
+    real_check = ws.solve._identity_check
+    checks = []
+
+    def wrong_identity_check(grid, field, handles, device):
+        deviation = real_check(grid, field, handles * np.array([1.0, 1.2, 1.0]), device)
+
+        def counted():
+            checks.append(deviation())
+            return 0.0 if len(checks) == 1 else checks[-1]
+
+        return counted
+
+    monkeypatch.setattr(ws.solve, "_identity_check", wrong_identity_check)
+    with pytest.warns(UserWarning, match="identity deviation"):
+        report = ws.solve_biharmonic(grid, field, tol=1e-6, handles=arm_cage.vertices, device="cpu",
+                                     preconditioner=make_preconditioner("multigrid", grid))
+    assert not report.converged and report.identity_error > 1e-3
+    assert report.restarts == ws.solve.MAX_RESTARTS and report.iterations < 120
+    # the check ran after every iteration once the residuals were small, not only at the end of each round
+    assert len(checks) > 2 * (report.restarts + 1)
+    inside = grid.labels == 1
+    err = np.abs(to_dense(grid, field, known)[inside] - ref[inside]).max()
+    assert err <= 1e-5, f"max weight error {err:.2e} against the direct solve"
 
 
 def manufactured_error(n):

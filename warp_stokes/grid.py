@@ -13,7 +13,7 @@ from .errors import ResolutionError
 from .kernels import labels as L
 from .kernels import voxel
 
-__all__ = ["Grid", "voxelize", "grid_from_mask", "classify_points", "MARGIN", "BAND_WIDTH"]
+__all__ = ["Grid", "voxelize", "grid_from_mask", "classify_points", "MARGIN", "BAND_WIDTH", "LINE_LENGTH"]
 
 #: nodes of known data kept outside the interior (max-norm distance): the ring plus a sampling band, so that
 #: trilinear sampling of vertices slightly outside the cage reads only known corners
@@ -23,6 +23,9 @@ BAND_WIDTH = 3
 MARGIN = BAND_WIDTH + 1
 #: accuracy of Warp's fast winding number (dipole expansion used beyond this many cluster radii)
 WINDING_ACCURACY = 2.0
+#: the stencil kernel walks runs of consecutive interior nodes along z, split into pieces of at most this many
+#: nodes so that short and long runs balance across threads (benchmarks/RESULTS.md)
+LINE_LENGTH = 128
 
 
 @dataclass
@@ -69,13 +72,37 @@ class Grid:
         ijk = self.active_ijk if rows is None else self.active_ijk[rows]
         return self.origin + self.spacing * ijk.astype(np.float64)
 
+    def interior_lines(self, max_length: int = LINE_LENGTH) -> np.ndarray:
+        """Runs of consecutive interior nodes along z, as (first row, length) pairs of at most ``max_length``
+        nodes; interior rows are numbered with k fastest, so a run's rows are consecutive.
+
+        Parameters
+        ----------
+        max_length : int, longer runs are split
+
+        Returns
+        -------
+        (L, 2) int32 array; the runs cover rows 0 .. n_interior - 1 once each, in order
+        """
+        ijk = self.active_ijk[: self.n_interior].astype(np.int64)
+        new_run = np.ones(len(ijk), dtype=bool)
+        new_run[1:] = (ijk[1:, 0] != ijk[:-1, 0]) | (ijk[1:, 1] != ijk[:-1, 1]) | (ijk[1:, 2] != ijk[:-1, 2] + 1)
+        starts = np.flatnonzero(new_run)
+        ends = np.append(starts[1:], len(ijk))
+        pieces = -(-(ends - starts) // max_length)
+        first = np.repeat(starts, pieces)
+        first += max_length * (np.arange(pieces.sum()) - np.repeat(np.cumsum(pieces) - pieces, pieces))
+        lengths = np.minimum(first + max_length, np.repeat(ends, pieces)) - first
+        return np.stack([first, lengths], axis=1).astype(np.int32)
+
     def device_arrays(self, device) -> dict:
-        """``index`` and ``active_ijk`` on ``device`` (uploaded once per device)."""
+        """``index``, ``active_ijk`` and the interior ``lines`` on ``device`` (uploaded once per device)."""
         d = resolve_device(device)
         if d.alias not in self._device_arrays:
             self._device_arrays[d.alias] = {
                 "index": wp.array(self.index, dtype=wp.int32, device=d),
                 "active_ijk": wp.array(self.active_ijk, dtype=wp.vec3i, device=d),
+                "lines": wp.array(self.interior_lines(), dtype=wp.vec2i, device=d),
             }
         return self._device_arrays[d.alias]
 

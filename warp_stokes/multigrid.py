@@ -26,7 +26,8 @@ import warp.sparse as wps
 
 from .device import resolve_device
 from .grid import Grid
-from .kernels import cg, multigrid as mg, stencil
+from .kernels import cg, multigrid as mg
+from .operator import apply_operator
 
 __all__ = ["Multigrid", "SMOOTHER_DEGREE", "COARSEST_NODES"]
 
@@ -173,9 +174,7 @@ class Multigrid:
     def _apply_A(self, depth: int, x: wp.array, out: wp.array) -> None:
         lev = self.levels[depth]
         if depth == 0:
-            arrays = self.grid.device_arrays(self.device)
-            wp.launch(stencil.apply_operator_fast, dim=x.shape,
-                      inputs=[x, arrays["index"], arrays["active_ijk"], lev.n], outputs=[out])
+            apply_operator(self.grid, x, out, n_rows=lev.n, device=self.device, precise=False)
         else:
             wp.launch(mg.bsr_apply, dim=x.shape,
                       inputs=[lev.A.offsets, lev.A.columns, lev.A.values, x, 1.0, 0.0], outputs=[out])
