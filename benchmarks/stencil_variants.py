@@ -9,14 +9,7 @@ pairs  one thread walks two neighbouring columns (i, j0) and (i, j0 + 1) for one
 import numpy as np
 import warp as wp
 
-
-@wp.func
-def value_at(field: wp.array2d(dtype=wp.vec4f), index: wp.array3d(dtype=wp.int32), n_rows: int, i: int, j: int,
-             k: int, h: int):
-    row = index[i, j, k]
-    if row >= 0 and row < n_rows:
-        return field[row, h]
-    return wp.vec4f()
+from warp_stokes.kernels.stencil import node_value as value_at
 
 
 @wp.struct
