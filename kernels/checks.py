@@ -7,20 +7,23 @@ import warp as wp
 def identity_deviation(
     field: wp.array2d(dtype=wp.vec4f),
     positions: wp.array(dtype=wp.vec3d),
-    handles: wp.array(dtype=wp.vec3d),
+    columns: wp.array(dtype=wp.vec4d),
     scale: wp.float64,
     out: wp.array(dtype=float),
 ):
-    """out[0] = max over rows n of max(|sum_h q_h - 1|, |sum_h q_h c_h - x_n| / scale).
+    """out[0] = max over rows n of max(|sum_h a_h q_h - 1|, |sum_h c_h q_h - x_n| / scale), where column h
+    contributes (a_h, c_h) = columns[h]: (1, its handle's position) for a cage coordinate, other values for
+    columns that stand for sums of handles (the complement of a chunk).
 
     The exact discrete solution reproduces constants and linear functions, so this is a lower bound on the
     error of the weights that costs one pass over the field; launch over rows."""
     n = wp.tid()
     total = wp.float64(0.0)
     moment = wp.vec3d()
-    for h in range(handles.shape[0]):
+    for h in range(columns.shape[0]):
         q = wp.float64(field[n, h][0])
-        total += q
-        moment += q * handles[h]
+        c = columns[h]
+        total += q * c[0]
+        moment += q * wp.vec3d(c[1], c[2], c[3])
     d = wp.max(wp.abs(total - wp.float64(1.0)), wp.length(moment - positions[n]) / scale)
     wp.atomic_max(out, 0, float(d))

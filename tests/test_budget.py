@@ -51,21 +51,31 @@ def test_chunked_and_unchunked_solves_give_the_same_weights(arm_cage):
         whole = ws.bind(EXAMPLE / "arm.obj", arm_cage, resolution=24, device="cpu")
         grid = ws.voxelize(arm_cage, 24, device="cpu")
         estimate = ws.estimate_memory(grid, whole.n_vertices)
-        budget = estimate.shared + 20 * estimate.per_handle  # room for 20 of the 58 handles at a time
+        # room for 24 columns: 20 of the 58 handles at a time and the 4 columns of the rest of the cage
+        budget = estimate.shared + 24 * estimate.per_handle
         chunked = ws.bind(EXAMPLE / "arm.obj", arm_cage, resolution=24, device="cpu", memory_budget=budget)
     assert whole.stats["chunks"] == 1 and chunked.stats["chunks"] == 3
     assert chunked.stats["memory_estimate_bytes"] <= budget < whole.stats["memory_estimate_bytes"]
     np.testing.assert_allclose(chunked.weights, whole.weights, atol=1e-5)
     assert chunked.stats["partition_of_unity_error"] <= 1e-5
+    # each chunk ran the identity check (with the complement columns), as the whole solve did
+    assert chunked.stats["converged"] and 0 < chunked.stats["identity_error"] <= 1e-6
 
 
 def test_plan_chunks_balances_and_covers_all_handles():
     est = ws.MemoryEstimate(per_handle=100, shared=1000)
-    chunks = ws.plan_chunks(est, 10, budget=1000 + 4 * 100, resolution=64)
-    assert [c.stop - c.start for c in chunks] == [4, 3, 3] or [c.stop - c.start for c in chunks] == [4, 4, 2]
+    # 8 columns fit: chunks of at most 4 handles, each with the 4 complement columns
+    chunks = ws.plan_chunks(est, 10, budget=1000 + 8 * 100, resolution=64)
+    assert [c.stop - c.start for c in chunks] == [4, 4, 2]
     assert chunks[0].start == 0 and chunks[-1].stop == 10
     assert all(a.stop == b.start for a, b in zip(chunks, chunks[1:]))
+    assert ws.budget.chunk_columns(chunks) == 8
     assert ws.plan_chunks(est, 10, budget=10**9, resolution=64) == [slice(0, 10)]
+    assert ws.plan_chunks(est, 10, budget=1000 + 10 * 100, resolution=64) == [slice(0, 10)]  # all fit: no complement
+    assert ws.budget.chunk_columns([slice(0, 10)]) == 10
+    assert len(ws.plan_chunks(est, 10, budget=1000 + 5 * 100, resolution=64)) == 10  # one handle + 4 columns
+    with pytest.raises(ws.ResolutionError, match="one handle at a time"):
+        ws.plan_chunks(est, 10, budget=1000 + 4 * 100, resolution=64)
 
 
 def test_an_impossible_budget_fails_at_once_naming_a_resolution_that_fits(arm_cage):
@@ -74,4 +84,5 @@ def test_an_impossible_budget_fails_at_once_naming_a_resolution_that_fits(arm_ca
     suggested = int(str(e.value).split("resolution ")[-1].split(" or less")[0])
     assert 8 <= suggested < 64
     grid = ws.voxelize(arm_cage, suggested, device="cpu")
-    assert ws.estimate_memory(grid, 2089).total(1) <= 8 * 2**20  # the suggestion does fit
+    # the suggestion does fit: one handle with the complement columns of a chunked solve
+    assert ws.estimate_memory(grid, 2089).total(1 + ws.COMPLEMENT_COLUMNS) <= 8 * 2**20

@@ -206,8 +206,8 @@ def test_failing_identity_check_keeps_cg_correct_and_stops_at_stagnation(arm_cag
     real_check = ws.solve._identity_check
     checks = []
 
-    def wrong_identity_check(grid, field, handles, device):
-        deviation = real_check(grid, field, handles * np.array([1.0, 1.2, 1.0]), device)
+    def wrong_identity_check(grid, field, handles, device, chunk=None):
+        deviation = real_check(grid, field, handles * np.array([1.0, 1.2, 1.0]), device, chunk)
 
         def counted():
             checks.append(deviation())
@@ -226,6 +226,36 @@ def test_failing_identity_check_keeps_cg_correct_and_stops_at_stagnation(arm_cag
     inside = grid.labels == 1
     err = np.abs(to_dense(grid, field, known)[inside] - ref[inside]).max()
     assert err <= 1e-5, f"max weight error {err:.2e} against the direct solve"
+
+
+def test_a_chunk_is_checked_through_its_complement_columns(arm_cage):
+    # A chunk of handles and the four columns that stand for the rest of the cage: the solver runs the same
+    # identity check as on the whole cage, converges on it, and matches the direct float64 solve.
+    grid = ws.voxelize(arm_cage, resolution=18, device="cpu")
+    chunk = slice(10, 30)
+    field = ws.boundary_field(grid, arm_cage, device="cpu", handles=chunk, complement=True)
+    known = to_dense(grid, field, np.zeros(grid.shape + (field.shape[1], 4)))
+    ref = reference_solve(grid.labels == 1, known)
+    report = ws.solve_biharmonic(grid, field, tol=1e-6, handles=arm_cage.vertices, chunk=chunk, device="cpu",
+                                 preconditioner=make_preconditioner("multigrid", grid))
+    assert report.converged and 0 < report.identity_error <= 1e-6
+    inside = grid.labels == 1
+    err = np.abs(to_dense(grid, field, known)[inside] - ref[inside]).max()
+    assert err <= 1e-5, f"max weight error {err:.2e} against the direct solve"
+
+    # the check can fail: complement data 1% off at the boundary breaks partition of unity for good
+    bad = ws.boundary_field(grid, arm_cage, device="cpu", handles=chunk, complement=True).numpy()
+    bad[grid.n_interior :, 20] *= 1.01
+    bad = wp.array(bad, dtype=wp.vec4f, device="cpu")
+    with pytest.warns(UserWarning, match="identity deviation"):
+        report = ws.solve_biharmonic(grid, bad, tol=1e-6, handles=arm_cage.vertices, chunk=chunk, device="cpu",
+                                     max_iterations=40, preconditioner=make_preconditioner("multigrid", grid))
+    assert not report.converged and report.identity_error > 1e-4
+
+    # a chunk's field without the complement columns is refused, saying what was expected
+    plain = ws.boundary_field(grid, arm_cage, device="cpu", handles=chunk)
+    with pytest.raises(ValueError, match=r"has 20 columns; the identity check expects 24 \(20 handles of the chunk"):
+        ws.solve_biharmonic(grid, plain, handles=arm_cage.vertices, chunk=chunk, device="cpu")
 
 
 def manufactured_error(n):

@@ -19,7 +19,7 @@ from .deform import deform_vertices
 from .device import device_name, resolve_device
 from .errors import BindingError, WarpStokesError
 from .files import atomic_output
-from .budget import available_memory, estimate_memory, plan_chunks
+from .budget import available_memory, chunk_columns, estimate_memory, plan_chunks
 from .grid import classify_points, voxelize
 from .multigrid import Multigrid
 from .load import Surface, load_surface
@@ -285,20 +285,22 @@ def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_i
 
     weights = np.empty((len(points), checked.n_handles), dtype=np.float32)
     reports = []
+    chunked = len(chunks) > 1
     for chunk in chunks:
         t = time.perf_counter()
-        field = boundary_field(grid, checked, device=device, handles=chunk)
+        # a chunk carries the rest of the cage in four more columns, so that its solve is checked like a whole one
+        field = boundary_field(grid, checked, device=device, handles=chunk, complement=chunked)
         wp.synchronize_device(device)
         seconds["boundary"] += time.perf_counter() - t
-        whole = chunk.stop - chunk.start == checked.n_handles
         report = solve_biharmonic(
-            grid, field, tol=tol, max_iterations=max_iterations, handles=checked.vertices if whole else None,
-            preconditioner=preconditioner, device=device,
+            grid, field, tol=tol, max_iterations=max_iterations, handles=checked.vertices,
+            chunk=chunk if chunked else None, preconditioner=preconditioner, device=device,
         )
         reports.append(report)
         seconds["solve"] += report.seconds
         t = time.perf_counter()
-        weights[:, chunk], corners = sample_weights(grid, field, points, device=device)
+        sampled_columns, corners = sample_weights(grid, field, points, device=device)
+        weights[:, chunk] = sampled_columns[:, : chunk.stop - chunk.start]
         seconds["sample"] += time.perf_counter() - t
         del field
 
@@ -328,7 +330,6 @@ def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_i
 
     diag = checked.diagonal
     w64 = weights.astype(np.float64)
-    chunk_size = max(c.stop - c.start for c in chunks)
     stats = {
         "device": device_name(device),
         "grid_shape": list(grid.shape),
@@ -344,7 +345,7 @@ def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_i
         "solver": solver,
         "levels": preconditioner.level_sizes if solver == "multigrid" else [grid.n_interior],
         "chunks": len(chunks),
-        "memory_estimate_bytes": estimate.total(chunk_size),
+        "memory_estimate_bytes": estimate.total(chunk_columns(chunks)),
         "iterations": max(r.iterations for r in reports),
         "restarts": max(r.restarts for r in reports),
         "solver_rounds": reports[0].rounds,

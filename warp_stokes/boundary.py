@@ -17,21 +17,27 @@ from .device import resolve_device
 from .grid import Grid
 from .kernels import mvc, stencil
 
-__all__ = ["mean_value_coordinates", "boundary_field"]
+__all__ = ["mean_value_coordinates", "boundary_field", "COMPLEMENT_COLUMNS"]
 
 #: tolerance of the degenerate cases (point on a triangle, or in its plane outside it), on unit-vector
 #: quantities: angles and the volume spanned by the three unit vectors to the corners
 EPS_ANGLE = 1e-10
+#: columns that stand for the rest of the cage in a chunk's field (``boundary_field(..., complement=True)``)
+COMPLEMENT_COLUMNS = 4
 
 
-def _mvc_on_device(cage: Cage, centre: np.ndarray, points_rel: np.ndarray, handles: slice, device) -> wp.array:
+def _mvc_on_device(cage: Cage, centre: np.ndarray, points_rel: np.ndarray, handles: slice, device,
+                   out: wp.array | None = None) -> wp.array:
+    """MVC of the handles in `handles` at the points (relative to `centre`), into `out` (points, handles) or a
+    new float64 array."""
     cage_rel = cage.vertices - centre
     first, stop, _ = handles.indices(cage.n_handles)
     with wp.ScopedDevice(device):
         pts = wp.array(points_rel, dtype=wp.vec3d)
         verts = wp.array(cage_rel, dtype=wp.vec3d)
         tris = wp.array(cage.faces.astype(np.int32), dtype=wp.vec3i)
-        out = wp.empty((len(points_rel), stop - first), dtype=wp.float64)
+        if out is None:
+            out = wp.empty((len(points_rel), stop - first), dtype=wp.float64)
         wp.launch(
             mvc.mean_value_coordinates,
             dim=len(points_rel),
@@ -68,7 +74,8 @@ def mean_value_coordinates(cage: Cage, points: np.ndarray, device=None) -> np.nd
     return _mvc_on_device(cage, centre, points - centre, slice(None), device).numpy()
 
 
-def boundary_field(grid: Grid, cage: Cage, device=None, handles: slice = slice(None)) -> wp.array:
+def boundary_field(grid: Grid, cage: Cage, device=None, handles: slice = slice(None),
+                   complement: bool = False) -> wp.array:
     """The packed (q, G) field of every handle at every active node, from mean value coordinates.
 
     Parameters
@@ -77,14 +84,38 @@ def boundary_field(grid: Grid, cage: Cage, device=None, handles: slice = slice(N
     cage : Cage
     device : None | str
     handles : slice, the handles (columns) to compute, e.g. ``slice(0, 32)`` for a chunk; all by default
+    complement : bool
+        Append :data:`COMPLEMENT_COLUMNS` columns that stand for the rest of the cage: the sums over the handles
+        outside ``handles`` of w_l and of (c_l - grid.centre) w_l. The chunk and these four columns reproduce
+        constants and linear functions like the whole cage does, so a chunked solve can run the same identity
+        check (``solve_biharmonic(..., chunk=handles)``) at the cost of four columns.
 
     Returns
     -------
-    wp.array2d of vec4f, shape (grid.n_active, handles): known data at ring and band rows, the starting
+    wp.array2d of vec4f, shape (grid.n_active, handles [+ 4]): known data at ring and band rows, the starting
     guess at interior rows. Band rows carry G = 0 (never read).
+
+    Examples
+    --------
+    >>> field = boundary_field(grid, cage, handles=slice(0, 32), complement=True)  # doctest: +SKIP
+    >>> field.shape[1]                                                             # doctest: +SKIP
+    36
     """
     device = resolve_device(device)
-    values = _mvc_on_device(cage, grid.centre, grid.node_positions(), handles, device)
+    first, stop, _ = handles.indices(cage.n_handles)
+    n_columns = stop - first + (COMPLEMENT_COLUMNS if complement else 0)
+    positions = grid.node_positions()
+    values = wp.empty((grid.n_active, n_columns), dtype=wp.float64, device=device)
+    _mvc_on_device(cage, grid.centre, positions, handles, device, out=values[:, 0 : stop - first])
+    if complement:
+        wp.launch(
+            mvc.complement_columns,
+            dim=grid.n_active,
+            inputs=[wp.array(positions, dtype=wp.vec3d, device=device),
+                    wp.array(cage.vertices[first:stop] - grid.centre, dtype=wp.vec3d, device=device)],
+            outputs=[values],
+            device=device,
+        )
     arrays = grid.device_arrays(device)
     field = wp.empty(values.shape, dtype=wp.vec4f, device=device)
     wp.launch(

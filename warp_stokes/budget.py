@@ -15,11 +15,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .boundary import COMPLEMENT_COLUMNS
 from .device import available_memory, resolve_device  # noqa: F401 (re-exported)
 from .errors import ResolutionError
 from .grid import Grid
 
-__all__ = ["MemoryEstimate", "estimate_memory", "available_memory", "plan_chunks"]
+__all__ = ["MemoryEstimate", "estimate_memory", "available_memory", "plan_chunks", "chunk_columns"]
 
 VEC4 = 16
 #: coarse level size over the next finer one (measured 0.15-0.19 on the real cages at n = 64-96)
@@ -85,22 +86,39 @@ def plan_chunks(estimate: MemoryEstimate, n_handles: int, budget: int, resolutio
                 name: str = "the cage") -> list[slice]:
     """Split the handles into chunks that fit the budget (one chunk when all fit).
 
+    A chunk's field carries :data:`~warp_stokes.boundary.COMPLEMENT_COLUMNS` more columns than it has handles
+    (the rest of the cage, for the solver's identity check), which the chunk sizes leave room for.
+
     Raises
     ------
     ResolutionError
-        When not even one handle fits; the message names a resolution that would fit (memory grows with the
-        cube of the resolution).
+        When not even one handle (with the complement columns) fits; the message names a resolution that would
+        fit (memory grows with the cube of the resolution).
+
+    Examples
+    --------
+    >>> plan_chunks(MemoryEstimate(per_handle=100, shared=1000), 10, budget=1800, resolution=64)
+    [slice(0, 4, None), slice(4, 8, None), slice(8, 10, None)]
     """
     room = budget - estimate.shared
-    per_chunk = int(room // estimate.per_handle) if room > 0 else 0
+    columns = int(room // estimate.per_handle) if room > 0 else 0
+    if columns >= n_handles:
+        return [slice(0, n_handles)]
+    per_chunk = columns - COMPLEMENT_COLUMNS
     if per_chunk < 1:
-        need = estimate.total(1)
+        need = estimate.total(1 + COMPLEMENT_COLUMNS)
         fits = int(resolution * (budget / need) ** (1.0 / 3.0) * 0.95)
         raise ResolutionError(
-            f"{name}: resolution {resolution} needs at least {need / 2**30:.2f} GiB for one handle at a time, "
-            f"but the memory budget is {budget / 2**30:.2f} GiB; resolution {max(fits, 8)} or less would fit"
+            f"{name}: resolution {resolution} needs at least {need / 2**30:.2f} GiB to solve one handle at a time "
+            f"(with the {COMPLEMENT_COLUMNS} columns that check it), but the memory budget is "
+            f"{budget / 2**30:.2f} GiB; resolution {max(fits, 8)} or less would fit"
         )
-    per_chunk = min(per_chunk, n_handles)
     n_chunks = -(-n_handles // per_chunk)
     size = -(-n_handles // n_chunks)  # balanced chunks
     return [slice(s, min(s + size, n_handles)) for s in range(0, n_handles, size)]
+
+
+def chunk_columns(chunks: list[slice]) -> int:
+    """Columns of the largest chunk's field: its handles, plus the complement columns when there are chunks."""
+    largest = max(c.stop - c.start for c in chunks)
+    return largest + (COMPLEMENT_COLUMNS if len(chunks) > 1 else 0)

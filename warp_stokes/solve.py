@@ -17,6 +17,11 @@ float32): the solve ends when it is <= tol and the identity check passes (it all
 floor, measured on the starting field, when that is larger). Otherwise, or when the identity check stalls at the
 float32 floor, CG restarts from the recomputed residual with a tighter tolerance. Checked against a direct
 float64 solve in tests/test_solve.py.
+
+Chunks. When the handles are solved a chunk at a time (memory), the chunk's field carries four more columns
+that stand for the rest of the cage (``boundary_field(..., complement=True)``): the sums over the other handles
+of w_l and (c_l - centre) w_l, which are biharmonic too. Chunk and complement reproduce 1 and x exactly, so
+the same identity check, and the same stopping rule, apply to each chunk.
 """
 
 from __future__ import annotations
@@ -28,6 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
+from .boundary import COMPLEMENT_COLUMNS
 from .device import resolve_device
 from .grid import Grid
 from .kernels import cg, checks
@@ -85,6 +91,7 @@ def solve_biharmonic(
     preconditioner: str | Multigrid = "multigrid",
     device=None,
     callback=None,
+    chunk: slice | None = None,
 ) -> SolveReport:
     """Solve the compact 19-point coupled scheme in place, for all handles in one batched CG.
 
@@ -102,7 +109,7 @@ def solve_biharmonic(
         ``f`` at interior nodes; the value equation's right-hand side is ``h**4 / 2 * f``. Zero by default
         (Stokes coordinates); used by manufactured-solution tests.
     handles : (handles, 3) array, optional
-        Cage vertices (absolute positions) when the columns are all the cage coordinates: enables the identity
+        Cage vertices (absolute positions) when the columns are the cage coordinates: enables the identity
         check.
     preconditioner : "multigrid" | "jacobi" | Multigrid
         The V-cycle of :class:`warp_stokes.multigrid.Multigrid` (built here unless given), or the inverse
@@ -112,6 +119,10 @@ def solve_biharmonic(
         ``callback(iteration, field)`` is called with the starting field (iteration 0) and after every CG
         iteration, with ``field`` holding the current iterate: to record convergence histories. It must not
         modify the field.
+    chunk : slice, optional
+        With ``handles``, when the columns are a chunk of the cage coordinates, ``handles[chunk]``, followed by
+        the four columns of the rest of the cage (``boundary_field(..., handles=chunk, complement=True)``):
+        the identity check then runs on the chunk as on the whole cage.
 
     Returns
     -------
@@ -171,7 +182,7 @@ def solve_biharmonic(
             apply_operator(grid, field, ap, device=device)
             wp.launch(cg.residual, dim=(n, n_cols), inputs=[rhs, ap], outputs=[r])
 
-        deviation = _identity_check(grid, field, handles, device)
+        deviation = _identity_check(grid, field, handles, device, chunk)
 
         # scale: ||b_h||_M with b = rhs - A_IK x_K = r0 + A_II x0
         apply_operator(grid, field, p, n_rows=n, device=device)
@@ -277,15 +288,29 @@ def solve_biharmonic(
     )
 
 
-def _identity_check(grid: Grid, field: wp.array, handles, device):
+def _identity_check(grid: Grid, field: wp.array, handles, device, chunk: slice | None = None):
     """A function returning the largest deviation from partition of unity and linear precision at the
-    interior nodes (0 when ``handles`` is None)."""
+    interior nodes (0 when ``handles`` is None), over the columns of ``field``: the cage coordinates of all
+    ``handles``, or of ``handles[chunk]`` followed by the four complement columns."""
     if handles is None:
         return lambda: 0.0
     handles = np.asarray(handles, dtype=np.float64)
     scale = float(np.linalg.norm(handles.max(axis=0) - handles.min(axis=0)))
+    first, stop, _ = (chunk or slice(None)).indices(len(handles))
+    columns = np.zeros((stop - first, 4))
+    columns[:, 0] = 1.0
+    columns[:, 1:] = handles[first:stop] - grid.centre
+    if chunk is not None:
+        # the rest of the cage: sum of w_l (counts towards 1) and of (c_l - centre) w_l (towards x)
+        columns = np.concatenate([columns, np.eye(COMPLEMENT_COLUMNS)])
+    if field.shape[1] != len(columns):
+        raise ValueError(
+            f"the field has {field.shape[1]} columns; the identity check expects {len(columns)} "
+            + (f"({stop - first} handles of the chunk and {COMPLEMENT_COLUMNS} for the rest of the cage)"
+               if chunk is not None else "(one per handle)")
+        )
     positions = wp.array(grid.node_positions(np.arange(grid.n_interior)), dtype=wp.vec3d, device=device)
-    cage = wp.array(handles - grid.centre, dtype=wp.vec3d, device=device)
+    columns = wp.array(columns, dtype=wp.vec4d, device=device)
     out = wp.zeros(1, dtype=float, device=device)
 
     def deviation() -> float:
@@ -293,7 +318,7 @@ def _identity_check(grid: Grid, field: wp.array, handles, device):
         wp.launch(
             checks.identity_deviation,
             dim=grid.n_interior,
-            inputs=[field, positions, cage, wp.float64(scale)],
+            inputs=[field, positions, columns, wp.float64(scale)],
             outputs=[out],
             device=device,
         )
