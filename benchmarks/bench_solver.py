@@ -154,8 +154,9 @@ def convergence_history(ws, grid, cage, vertices, device, iterations=20):
             "residual_at_end": report.residual}
 
 
-def one(name, n, device):
-    """Measure one (pair, resolution) in this process; returns a dict."""
+def one(name, n, device, memory_budget=None):
+    """Measure one (pair, resolution) in this process; returns a dict. ``memory_budget`` (bytes) applies to the
+    timed bind (and its warm-up): a budget below what all handles need makes it solve in chunks."""
     import warp as wp
 
     import warp_stokes as ws
@@ -163,10 +164,11 @@ def one(name, n, device):
     warnings.simplefilter("ignore")
     mesh, cage = pair(name)
     dev = ws.resolve_device(device)
-    ws.bind(mesh, cage, resolution=n, device=device)  # warm-up at the same size: compile and load every kernel
+    # warm-up at the same size: compile and load every kernel
+    ws.bind(mesh, cage, resolution=n, device=device, memory_budget=memory_budget)
     out = {"pair": name, "n": n, "device": ws.device_name(device)}
     t = time.perf_counter()
-    b = ws.bind(mesh, cage, resolution=n, device=device)
+    b = ws.bind(mesh, cage, resolution=n, device=device, memory_budget=memory_budget)
     out["wall"] = time.perf_counter() - t
     s = b.stats
     out.update({k: s[k] for k in ("handles", "interior_nodes", "iterations", "restarts", "identity_error",
@@ -251,16 +253,20 @@ def main(argv=None):
     p.add_argument("--resolutions", nargs="+", type=int, default=[32, 64, 96, 128, 192, 256])
     p.add_argument("--pairs", nargs="+", default=list(PAIRS))
     p.add_argument("--out", default=None, help="write the markdown table (and a .json of all figures) here")
+    p.add_argument("--memory-budget", type=float, default=None, metavar="GIB",
+                   help="memory budget of the timed binds (GiB): below what all handles need, they solve in chunks")
     p.add_argument("--one", nargs=2, metavar=("PAIR", "N"), help=argparse.SUPPRESS)
     args = p.parse_args(argv)
+    budget = None if args.memory_budget is None else int(args.memory_budget * 2**30)
     if args.one:
-        print("RESULT " + json.dumps(one(args.one[0], int(args.one[1]), args.device)), flush=True)
+        print("RESULT " + json.dumps(one(args.one[0], int(args.one[1]), args.device, budget)), flush=True)
         return 0
     rows = []
     for name in args.pairs:
         for n in args.resolutions:
             t = time.perf_counter()
-            proc = subprocess.run([sys.executable, __file__, "--device", args.device, "--one", name, str(n)],
+            extra = [] if args.memory_budget is None else ["--memory-budget", str(args.memory_budget)]
+            proc = subprocess.run([sys.executable, __file__, "--device", args.device, "--one", name, str(n)] + extra,
                                   capture_output=True, text=True)
             found = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
             if proc.returncode or not found:
