@@ -279,42 +279,75 @@ def tile_bricks(grid, bi, bj, L):
     return bricks
 
 
-def main_forms():
+class Case:
+    """One (cage, resolution): the grid, the starting field's interior block x, and the package kernel's
+    float64-sum result on it (the reference every variant is compared with)."""
+
+    def __init__(self, cage, n, device):
+        self.n, self.device = n, device
+        self.grid = ws.voxelize(cage, n, device=device)
+        self.n_handles = cage.n_handles
+        self.n_int = self.grid.n_interior
+        self.x = ws.boundary_field(self.grid, cage, device=device)[0 : self.n_int]
+        self.arrays = self.grid.device_arrays(device)
+        self.groups = -(-self.n_handles // 32)
+        ref = wp.empty(self.x.shape, dtype=wp.vec4f, device=device)
+        ws.apply_operator(self.grid, self.x, ref, n_rows=self.n_int, device=device)
+        self.reference = ref.numpy()
+
+    def measure(self, variants, copy, only=None):
+        """Time each launch(y) and print a table row: bandwidth at 32 bytes per (interior node, handle)."""
+        for name, launch in variants.items():
+            if only and not re.search(only, name):
+                continue
+            y = wp.full(self.x.shape, wp.vec4f(np.nan), dtype=wp.vec4f, device=self.device)
+            try:
+                seconds = time_kernel(wp, self.device, lambda: launch(y))
+            except Exception as e:  # noqa: BLE001 (a variant that does not launch is a result too)
+                print(f"| {self.n} | {self.n_handles} | {self.n_int} | {name} | failed: {str(e)[:200]} |", flush=True)
+                continue
+            yn = y.numpy()
+            diff = float(np.abs(yn - self.reference).max()) if np.isfinite(yn).all() else float("nan")
+            gbs = 32 * self.n_int * self.n_handles / seconds / 1e9
+            print(f"| {self.n} | {self.n_handles} | {self.n_int} | {name} | {seconds * 1e3:.3f} | {gbs:.0f} | "
+                  f"{gbs / copy:.0%} | {diff:.1e} |", flush=True)
+
+
+def start(only=False):
+    """Parse the mode's arguments, measure the copy, load the pair and print the table head."""
     p = argparse.ArgumentParser()
     p.add_argument("--pair", default="ogre")
     p.add_argument("--resolutions", nargs="+", type=int, default=[128, 256])
     p.add_argument("--device", default="cuda:0")
-    p.add_argument("--only", default=None, help="regular expression: run the variants whose name matches")
+    if only:
+        p.add_argument("--only", default=None, help="regular expression: run the variants whose name matches")
     args = p.parse_args(sys.argv[2:])
     warnings.simplefilter("ignore")
     device = ws.resolve_device(args.device)
     copy = copy_bandwidth(wp, device) / 1e9 if device.is_cuda else float("nan")
-    mesh, cage = pair(args.pair)
+    _, cage = pair(args.pair)
     cage = ws.check_cage(cage)
-    print(f"device {ws.device_name(device)}, copy {copy:.0f} GB/s", flush=True)
+    print(f"device {ws.device_name(device)}, copy {copy:.0f} GB/s, pair {args.pair}", flush=True)
     print("| n | handles | interior | variant | ms | GB/s | of copy | max diff |")
     print("|---|---|---|---|---|---|---|---|", flush=True)
+    return args, device, copy, cage
+
+
+def main_forms():
+    args, device, copy, cage = start(only=True)
     walks = {}
     for n in args.resolutions:
-        grid = ws.voxelize(cage, n, device=device)
-        nh = cage.n_handles
-        field = ws.boundary_field(grid, cage, device=device)
-        n_int = grid.n_interior
-        x = field[0:n_int]
-        arrays = grid.device_arrays(device)
-        ref = wp.empty(x.shape, dtype=wp.vec4f, device=device)
-        ws.apply_operator(grid, x, ref, n_rows=n_int, device=device)
-        refn = ref.numpy()
-        groups = -(-nh // 32)
+        case = Case(cage, n, device)
+        grid, x, arrays, n_int, groups = case.grid, case.x, case.arrays, case.n_int, case.groups
         V = {}
-        V["package f32"] = (lambda y: ws.apply_operator(grid, x, y, n_rows=n_int, device=device, precise=False), None)
-        V["package f64"] = (lambda y: ws.apply_operator(grid, x, y, n_rows=n_int, device=device), None)
+        V["package f32"] = lambda y: ws.apply_operator(grid, x, y, n_rows=n_int, device=device, precise=False)
+        V["package f64"] = lambda y: ws.apply_operator(grid, x, y, n_rows=n_int, device=device)
         for bd in (128, 512):
             lines = arrays["lines"]
             V[f"package f32 bd{bd}"] = (lambda y, bd=bd: wp.launch(
                 stencil.apply_operator_fast, dim=(groups, lines.shape[0], 32),
                 inputs=[x, arrays["index"], arrays["active_ijk"], lines, n_int], outputs=[y], device=device,
-                block_dim=bd), None)
+                block_dim=bd))
         longest = int(np.argmax(grid.shape))
         for W, L, gs in [(2, 128, True), (2, 128, False), (longest, 128, True), (longest, 64, True), (longest, 256, True)]:
             key = (W, gs)
@@ -324,7 +357,7 @@ def main_forms():
             V[f"walk axis{W} L{L}{'' if gs else ' lean'} ({items.shape[0]} lines)"] = (
                 lambda y, items=items, kern=walks[key]: wp.launch(
                     kern, dim=(groups, items.shape[0], 32),
-                    inputs=[x, arrays["index"], items, n_int, n_int], outputs=[y], device=device), None)
+                    inputs=[x, arrays["index"], items, n_int, n_int], outputs=[y], device=device))
         if (2, True) not in walks:
             walks[(2, True)] = walk_kernel(2)
         for bi, bj, L in [(2, 4, 64), (4, 2, 64), (4, 4, 64), (1, 8, 64), (8, 1, 64)]:
@@ -333,32 +366,17 @@ def main_forms():
             bd = 32 * bi * bj
             V[f"lockstep {bi}x{bj} L{L}"] = (lambda y, items=items, bd=bd: wp.launch(
                 walks[(2, True)], dim=(groups, items.shape[0], 32),
-                inputs=[x, arrays["index"], items, n_int, n_int], outputs=[y], device=device, block_dim=bd), None)
+                inputs=[x, arrays["index"], items, n_int, n_int], outputs=[y], device=device, block_dim=bd))
         for bi, bj, L in [(2, 4, 64), (4, 4, 64), (4, 4, 32), (8, 4, 64), (4, 8, 64)]:
             try:
                 kern = tile_kernel(bi, bj)
                 bricks = wp.array(tile_bricks(grid, bi, bj, L), dtype=wp.vec4i, device=device)
                 V[f"tiles {bi}x{bj} L{L}"] = (lambda y, kern=kern, bricks=bricks, bd=32 * bi * bj: wp.launch_tiled(
                     kern, dim=(bricks.shape[0], groups), inputs=[x, arrays["index"], bricks, n_int, n_int],
-                    outputs=[y], device=device, block_dim=bd), None)
+                    outputs=[y], device=device, block_dim=bd))
             except Exception as e:  # noqa: BLE001
                 print("tile kernel failed to build:", bi, bj, e, flush=True)
-        for name, (launch, _) in V.items():
-            if args.only and not re.search(args.only, name):
-                continue
-            y = wp.full(x.shape, wp.vec4f(np.nan), dtype=wp.vec4f, device=device)
-            try:
-                seconds = time_kernel(wp, device, lambda: launch(y))
-            except Exception as e:  # noqa: BLE001
-                print(f"| {n} | {nh} | {n_int} | {name} | failed: {str(e)[:200]} |", flush=True)
-                continue
-            yn = y.numpy()
-            diff = float(np.abs(yn - refn).max()) if np.isfinite(yn).all() else float("nan")
-            gbs = 32 * n_int * nh / seconds / 1e9
-            print(f"| {n} | {nh} | {n_int} | {name} | {seconds * 1e3:.3f} | {gbs:.0f} | {gbs / copy:.0%} | {diff:.1e} |",
-                  flush=True)
-
-
+        case.measure(V, copy, args.only)
 
 
 def brick_lines(grid, bi, bj, L):
@@ -392,31 +410,11 @@ def pair_brick_items(grid, bi, bp, L):
 
 
 def main_bricks():
-    p = argparse.ArgumentParser()
-    p.add_argument("--pair", default="ogre")
-    p.add_argument("--resolutions", nargs="+", type=int, default=[128, 256])
-    p.add_argument("--device", default="cuda:0")
-    args = p.parse_args(sys.argv[2:])
-    warnings.simplefilter("ignore")
     import stencil_variants as sv
-    device = ws.resolve_device(args.device)
-    copy = copy_bandwidth(wp, device) / 1e9 if device.is_cuda else float("nan")
-    mesh, cage = pair(args.pair)
-    cage = ws.check_cage(cage)
-    print(f"device {ws.device_name(device)}, copy {copy:.0f} GB/s, pair {args.pair}", flush=True)
-    print("| n | handles | interior | variant | ms | GB/s | of copy | max diff |")
-    print("|---|---|---|---|---|---|---|---|", flush=True)
+    args, device, copy, cage = start()
     for n in args.resolutions:
-        grid = ws.voxelize(cage, n, device=device)
-        nh = cage.n_handles
-        field = ws.boundary_field(grid, cage, device=device)
-        n_int = grid.n_interior
-        x = field[0:n_int]
-        arrays = grid.device_arrays(device)
-        ref = wp.empty(x.shape, dtype=wp.vec4f, device=device)
-        ws.apply_operator(grid, x, ref, n_rows=n_int, device=device)
-        refn = ref.numpy()
-        groups = -(-nh // 32)
+        case = Case(cage, n, device)
+        grid, x, arrays, n_int, groups = case.grid, case.x, case.arrays, case.n_int, case.groups
         V = {"package f32": lambda y: ws.apply_operator(grid, x, y, n_rows=n_int, device=device, precise=False)}
         configs = [(1, 8, 128, 256), (1, 8, 64, 256), (2, 4, 64, 256), (2, 4, 128, 256), (4, 2, 64, 256),
                    (2, 2, 64, 128), (2, 2, 128, 128), (1, 4, 128, 128), (4, 4, 64, 512), (2, 8, 64, 512),
@@ -435,14 +433,7 @@ def main_bricks():
             V[f"pairs brick {bi}x{bp}p L{L} bd{bd}"] = (lambda y, items=items, bd=bd: wp.launch(
                 sv.apply_pairs, dim=(groups, items.shape[0], 32), inputs=[x, arrays["index"], items, n_int],
                 outputs=[y], device=device, block_dim=bd))
-        for name, launch in V.items():
-            y = wp.full(x.shape, wp.vec4f(np.nan), dtype=wp.vec4f, device=device)
-            seconds = time_kernel(wp, device, lambda: launch(y))
-            yn = y.numpy()
-            diff = float(np.abs(yn - refn).max()) if np.isfinite(yn).all() else float("nan")
-            gbs = 32 * n_int * nh / seconds / 1e9
-            print(f"| {n} | {nh} | {n_int} | {name} | {seconds * 1e3:.3f} | {gbs:.0f} | {gbs / copy:.0%} | {diff:.1e} |",
-                  flush=True)
+        case.measure(V, copy)
 
 
 def rekernel(kernel, **options):
@@ -451,20 +442,8 @@ def rekernel(kernel, **options):
 
 
 def main_regs():
-    p = argparse.ArgumentParser()
-    p.add_argument("--pair", default="ogre")
-    p.add_argument("--resolutions", nargs="+", type=int, default=[128, 256])
-    p.add_argument("--device", default="cuda:0")
-    args = p.parse_args(sys.argv[2:])
-    warnings.simplefilter("ignore")
     import stencil_variants as sv
-    device = ws.resolve_device(args.device)
-    copy = copy_bandwidth(wp, device) / 1e9 if device.is_cuda else float("nan")
-    mesh, cage = pair(args.pair)
-    cage = ws.check_cage(cage)
-    print(f"device {ws.device_name(device)}, copy {copy:.0f} GB/s, pair {args.pair}", flush=True)
-    print("| n | handles | interior | variant | ms | GB/s | of copy | max diff |")
-    print("|---|---|---|---|---|---|---|---|", flush=True)
+    args, device, copy, cage = start()
     kernels = {"package f32": (stencil.apply_operator_fast, 256)}
     for regs in (48, 56, 64, 72):
         kernels[f"f32 maxreg{regs}"] = (rekernel(stencil.apply_operator_fast, cuda_max_registers=regs), 256)
@@ -476,16 +455,8 @@ def main_regs():
     pairs_k = {"pairs": sv.apply_pairs, "pairs maxreg64": rekernel(sv.apply_pairs, cuda_max_registers=64),
                "pairs maxreg72": rekernel(sv.apply_pairs, cuda_max_registers=72)}
     for n in args.resolutions:
-        grid = ws.voxelize(cage, n, device=device)
-        nh = cage.n_handles
-        field = ws.boundary_field(grid, cage, device=device)
-        n_int = grid.n_interior
-        x = field[0:n_int]
-        arrays = grid.device_arrays(device)
-        ref = wp.empty(x.shape, dtype=wp.vec4f, device=device)
-        ws.apply_operator(grid, x, ref, n_rows=n_int, device=device)
-        refn = ref.numpy()
-        groups = -(-nh // 32)
+        case = Case(cage, n, device)
+        grid, x, arrays, n_int, groups = case.grid, case.x, case.arrays, case.n_int, case.groups
         V = {}
         for L in (64, 128):
             lines = wp.array(grid.interior_lines(L), dtype=wp.vec2i, device=device)
@@ -499,14 +470,7 @@ def main_regs():
                 V[f"{name} L{L}"] = (lambda y, items=items, kern=kern: wp.launch(
                     kern, dim=(groups, items.shape[0], 32), inputs=[x, arrays["index"], items, n_int],
                     outputs=[y], device=device))
-        for name, launch in V.items():
-            y = wp.full(x.shape, wp.vec4f(np.nan), dtype=wp.vec4f, device=device)
-            seconds = time_kernel(wp, device, lambda: launch(y))
-            yn = y.numpy()
-            diff = float(np.abs(yn - refn).max()) if np.isfinite(yn).all() else float("nan")
-            gbs = 32 * n_int * nh / seconds / 1e9
-            print(f"| {n} | {nh} | {n_int} | {name} | {seconds * 1e3:.3f} | {gbs:.0f} | {gbs / copy:.0%} | {diff:.1e} |",
-                  flush=True)
+        case.measure(V, copy)
 
 
 def main_profile():
