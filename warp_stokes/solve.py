@@ -140,10 +140,12 @@ def solve_biharmonic(
     n, n_cols = grid.n_interior, field.shape[1]
     setup_seconds = 0.0
     with wp.ScopedDevice(device):
+        deviation = _identity_check(grid, field, handles, device, chunk)  # first: it checks the columns
         if preconditioner == "multigrid":
+            setup_start = time.perf_counter()
             preconditioner = Multigrid(grid, device=device)
             wp.synchronize_device(device)
-            setup_seconds = time.perf_counter() - start
+            setup_seconds = time.perf_counter() - setup_start
         if isinstance(preconditioner, Multigrid):
             precondition = preconditioner.apply
             default_iterations = 200
@@ -181,8 +183,6 @@ def solve_biharmonic(
         def true_residual():
             apply_operator(grid, field, ap, device=device)
             wp.launch(cg.residual, dim=(n, n_cols), inputs=[rhs, ap], outputs=[r])
-
-        deviation = _identity_check(grid, field, handles, device, chunk)
 
         # scale: ||b_h||_M with b = rhs - A_IK x_K = r0 + A_II x0
         apply_operator(grid, field, p, n_rows=n, device=device)
