@@ -26,21 +26,20 @@ EPS_ANGLE = 1e-10
 COMPLEMENT_COLUMNS = 4
 
 
-def _mvc_on_device(cage: Cage, centre: np.ndarray, points_rel: np.ndarray, handles: slice, device,
+def _mvc_on_device(cage: Cage, centre: np.ndarray, pts: wp.array, handles: slice, device,
                    out: wp.array | None = None) -> wp.array:
-    """MVC of the handles in `handles` at the points (relative to `centre`), into `out` (points, handles) or a
-    new float64 array."""
+    """MVC of the handles in `handles` at the points `pts` (vec3d on `device`, relative to `centre`), into
+    `out` (points, handles) or a new float64 array."""
     cage_rel = cage.vertices - centre
     first, stop, _ = handles.indices(cage.n_handles)
     with wp.ScopedDevice(device):
-        pts = wp.array(points_rel, dtype=wp.vec3d)
         verts = wp.array(cage_rel, dtype=wp.vec3d)
         tris = wp.array(cage.faces.astype(np.int32), dtype=wp.vec3i)
         if out is None:
-            out = wp.empty((len(points_rel), stop - first), dtype=wp.float64)
+            out = wp.empty((pts.shape[0], stop - first), dtype=wp.float64)
         wp.launch(
             mvc.mean_value_coordinates,
-            dim=len(points_rel),
+            dim=pts.shape[0],
             inputs=[pts, verts, tris, wp.float64(1e-12 * cage.diagonal), wp.float64(EPS_ANGLE), first],
             outputs=[out],
         )
@@ -71,7 +70,8 @@ def mean_value_coordinates(cage: Cage, points: np.ndarray, device=None) -> np.nd
     if len(points) == 0:
         return np.zeros((0, len(cage.vertices)))
     centre = 0.5 * (cage.vertices.min(axis=0) + cage.vertices.max(axis=0))
-    return _mvc_on_device(cage, centre, points - centre, slice(None), device).numpy()
+    pts = wp.array(points - centre, dtype=wp.vec3d, device=device)
+    return _mvc_on_device(cage, centre, pts, slice(None), device).numpy()
 
 
 def boundary_field(grid: Grid, cage: Cage, device=None, handles: slice = slice(None),
@@ -104,15 +104,14 @@ def boundary_field(grid: Grid, cage: Cage, device=None, handles: slice = slice(N
     device = resolve_device(device)
     first, stop, _ = handles.indices(cage.n_handles)
     n_columns = stop - first + (COMPLEMENT_COLUMNS if complement else 0)
-    positions = grid.node_positions()
+    positions = wp.array(grid.node_positions(), dtype=wp.vec3d, device=device)
     values = wp.empty((grid.n_active, n_columns), dtype=wp.float64, device=device)
     _mvc_on_device(cage, grid.centre, positions, handles, device, out=values[:, 0 : stop - first])
     if complement:
         wp.launch(
             mvc.complement_columns,
             dim=grid.n_active,
-            inputs=[wp.array(positions, dtype=wp.vec3d, device=device),
-                    wp.array(cage.vertices[first:stop] - grid.centre, dtype=wp.vec3d, device=device)],
+            inputs=[positions, wp.array(cage.vertices[first:stop] - grid.centre, dtype=wp.vec3d, device=device)],
             outputs=[values],
             device=device,
         )
