@@ -4,12 +4,15 @@
 
 Bytes counted: 32 per (interior node, handle): the packed (q, G) read once and the result written once.
 Variants (all read and write the package's (node row, handle) vec4 layout, handles innermost):
-  package      warp_stokes.apply_operator (float64 sums, used for residuals): one thread per (handle, z line of at
-               most LINE_LENGTH interior nodes), the planes below / at / above the node kept in registers;
-               launched (handle groups of 32, lines, 32) so that a block's warps walk neighbouring lines
+  package      warp_stokes.apply_operator (float64 sums, used for residuals): one thread per (handle, patch of
+               2 x 2 columns, at most PATCH_LENGTH planes along z), each plane loaded once (16 rows for 4
+               nodes) and reduced to per-column terms; launched (handle groups of 32, patches, 32) in blocks
+               of 128
   package f32  the same kernel with float32 sums (used in CG and smoothing steps)
-  lines L      the float32 kernel with lines cut at L nodes
-  lean L       the same walk keeping only the components each neighbour contributes (stencil_variants.py)
+  patches L    the float32 kernel with runs cut at L planes
+  lines L      the package kernel until the fourth session: one thread per (handle, z line of at most L
+               interior nodes), three whole planes (9 loads each) in registers (stencil_variants.py)
+  lean L       the line walk keeping only the components each neighbour contributes (stencil_variants.py)
   pairs L      one thread walks two neighbouring columns: 12 loads per plane for 2 nodes (stencil_variants.py)
   gather f64   one thread per (node, handle), 18 neighbour rows looked up in the 3D index grid, float64 sums
                (the package kernel before the line form)
@@ -199,10 +202,17 @@ def main(argv=None):
             "package f32": lambda y: ws.apply_operator(grid, x, y, n_rows=n_int, device=device, precise=False),
         }
         groups32 = (n_handles + stencil.GROUP - 1) // stencil.GROUP
+        for length in (32, 128):
+            patches = wp.array(grid.interior_patches((stencil.PATCH_I, stencil.PATCH_J), length), dtype=wp.vec4i,
+                               device=device)
+            variants[f"patches {length}"] = lambda y, patches=patches: wp.launch(
+                stencil.apply_operator_fast, dim=(groups32, patches.shape[0], stencil.GROUP),
+                inputs=[x, arrays["index"], patches, n_int], outputs=[y], device=device,
+                block_dim=stencil.BLOCK_DIM)
         for length in (32, 64, 128, 256):
-            lines = wp.array(grid.interior_lines(length), dtype=wp.vec2i, device=device)
+            lines = wp.array(sv.interior_lines(grid, length), dtype=wp.vec2i, device=device)
             variants[f"lines {length}"] = lambda y, lines=lines: wp.launch(
-                stencil.apply_operator_fast, dim=(groups32, lines.shape[0], stencil.GROUP),
+                sv.apply_lines, dim=(groups32, lines.shape[0], 32),
                 inputs=[x, arrays["index"], arrays["active_ijk"], lines, n_int], outputs=[y], device=device)
             variants[f"lean {length}"] = lambda y, lines=lines: wp.launch(
                 sv.apply_lean, dim=(groups32, lines.shape[0], 32),

@@ -1,20 +1,22 @@
 """Experiments on the stencil kernel's form, measured on an H100 (benchmarks/RESULTS.md, "What limits the stencil").
 
 None of these kernels is used by the package; they record what was tried and measured against its kernel
-(``warp_stokes.kernels.stencil``, float32 sums unless named f64). Every variant's output is compared with the
-package kernel's (float64 sums) in the "max diff" column. Modes, from the repository root:
+(``warp_stokes.kernels.stencil``, float32 sums unless named f64): until the fourth session the line walk now
+kept as ``lines`` in stencil_variants.py, since then the 2 x 2 patch walk that the ``patches`` mode found.
+Every variant's output is compared with the package kernel's (float64 sums) in the "max diff" column. Modes,
+from the repository root:
 
     python benchmarks/stencil_experiments.py forms  --pair ogre --resolutions 128 256
         walk    the line walk along any axis (generic: bounds-checked loads, vec3i steps), lines cut at L
         lockstep  bricks of bi x bj columns walking their common z range, one line per column, padded
         tiles   shared-memory planes (Warp tiles, tile_scatter_masked): a block = 32 handles x bi x bj columns
     python benchmarks/stencil_experiments.py bricks --pair ogre --resolutions 128 256
-        the package kernel with its lines cut at absolute multiples of L and ordered by bricks of bi x bj
+        the line walk with its lines cut at absolute multiples of L and ordered by bricks of bi x bj
         columns (a block's consecutive lines form a patch), launched with block_dim threads; and the "pairs"
         variant of stencil_variants.py in the same order
     python benchmarks/stencil_experiments.py regs   --pair ogre --resolutions 128 256
-        the package kernel (and pairs) compiled with register caps (cuda_max_registers) and other block sizes
-    ncu --clock-control none -k regex:"apply_operator|apply_tiles|walk" --launch-skip 7 --launch-count 7 \
+        the line walk (and pairs) compiled with register caps (cuda_max_registers) and other block sizes
+    ncu --clock-control none -k regex:"apply_operator|apply_tiles|walk" --launch-skip 8 --launch-count 8 \
         --section SpeedOfLight --section MemoryWorkloadAnalysis --section Occupancy --section LaunchStats \
         --section WarpStateStats python benchmarks/stencil_experiments.py profile --pair ogre --resolutions 256
         each form launched once after a warm-up launch, for Nsight Compute
@@ -33,13 +35,13 @@ import numpy as np
 import warp as wp
 
 import warp_stokes as ws
-from warp_stokes.kernels import stencil
 
 if os.environ.get("CPU_BLOCKS"):
     wp.config.enable_cpu_blocks = True
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_solver import copy_bandwidth, pair, time_kernel  # noqa: E402
+import stencil_variants as sv  # noqa: E402
 
 
 @wp.func
@@ -71,7 +73,7 @@ def walk_kernel(W, grid_stride=True, prefetch=False):
     @wp.func
     def load(field: wp.array2d(dtype=wp.vec4f), index: wp.array3d(dtype=wp.int32), n_rows: int, p: wp.vec3i,
              h: int):
-        pl = stencil.Plane()
+        pl = sv.Plane()
         pl.centre = at(field, index, n_rows, p, h)
         pl.xp = at(field, index, n_rows, p + eu, h)
         pl.xm = at(field, index, n_rows, p - eu, h)
@@ -82,7 +84,7 @@ def walk_kernel(W, grid_stride=True, prefetch=False):
         return pl
 
     @wp.func
-    def combine(below: stencil.Plane, mid: stencil.Plane, above: stencil.Plane):
+    def combine(below: sv.Plane, mid: sv.Plane, above: sv.Plane):
         c = mid.centre
         xp = mid.xp
         xm = mid.xm
@@ -290,10 +292,18 @@ class Case:
         self.n_int = self.grid.n_interior
         self.x = ws.boundary_field(self.grid, cage, device=device)[0 : self.n_int]
         self.arrays = self.grid.device_arrays(device)
+        self.lines = wp.array(sv.interior_lines(self.grid), dtype=wp.vec2i, device=device)
         self.groups = -(-self.n_handles // 32)
         ref = wp.empty(self.x.shape, dtype=wp.vec4f, device=device)
         ws.apply_operator(self.grid, self.x, ref, n_rows=self.n_int, device=device)
         self.reference = ref.numpy()
+
+    def line_walk(self, block_dim=256, kernel=None):
+        """A launch of the line walk (the package kernel until the fourth session) over lines of 128."""
+        kernel = kernel or sv.apply_lines
+        return lambda y: wp.launch(kernel, dim=(self.groups, self.lines.shape[0], 32),
+                                   inputs=[self.x, self.arrays["index"], self.arrays["active_ijk"], self.lines,
+                                           self.n_int], outputs=[y], device=self.device, block_dim=block_dim)
 
     def measure(self, variants, copy, only=None):
         """Time each launch(y) and print a table row: bandwidth at 32 bytes per (interior node, handle)."""
@@ -342,12 +352,8 @@ def main_forms():
         V = {}
         V["package f32"] = lambda y: ws.apply_operator(grid, x, y, n_rows=n_int, device=device, precise=False)
         V["package f64"] = lambda y: ws.apply_operator(grid, x, y, n_rows=n_int, device=device)
-        for bd in (128, 512):
-            lines = arrays["lines"]
-            V[f"package f32 bd{bd}"] = (lambda y, bd=bd: wp.launch(
-                stencil.apply_operator_fast, dim=(groups, lines.shape[0], 32),
-                inputs=[x, arrays["index"], arrays["active_ijk"], lines, n_int], outputs=[y], device=device,
-                block_dim=bd))
+        for bd in (256, 128, 512):
+            V[f"lines f32 bd{bd}"] = case.line_walk(bd)
         longest = int(np.argmax(grid.shape))
         for W, L, gs in [(2, 128, True), (2, 128, False), (longest, 128, True), (longest, 64, True), (longest, 256, True)]:
             key = (W, gs)
@@ -395,7 +401,6 @@ def brick_lines(grid, bi, bj, L):
 
 def pair_brick_items(grid, bi, bp, L):
     """sv.pair_items cut at absolute multiples of L and ordered by (i // bi, pair // bp, k // L)."""
-    import stencil_variants as sv
     items = sv.pair_items(grid, 100000).astype(np.int64)
     out = []
     for i, j, k, n in items:
@@ -410,18 +415,18 @@ def pair_brick_items(grid, bi, bp, L):
 
 
 def main_bricks():
-    import stencil_variants as sv
     args, device, copy, cage = start()
     for n in args.resolutions:
         case = Case(cage, n, device)
         grid, x, arrays, n_int, groups = case.grid, case.x, case.arrays, case.n_int, case.groups
-        V = {"package f32": lambda y: ws.apply_operator(grid, x, y, n_rows=n_int, device=device, precise=False)}
+        V = {"package f32": lambda y: ws.apply_operator(grid, x, y, n_rows=n_int, device=device, precise=False),
+             "lines f32": case.line_walk()}
         configs = [(1, 8, 128, 256), (1, 8, 64, 256), (2, 4, 64, 256), (2, 4, 128, 256), (4, 2, 64, 256),
                    (2, 2, 64, 128), (2, 2, 128, 128), (1, 4, 128, 128), (4, 4, 64, 512), (2, 8, 64, 512),
                    (2, 4, 32, 256), (2, 4, 64, 128), (4, 4, 64, 256)]
         for bi, bj, L, bd in configs:
             lines = wp.array(brick_lines(grid, bi, bj, L), dtype=wp.vec2i, device=device)
-            for kern, tag in ((stencil.apply_operator_fast, "f32"), (stencil.apply_operator, "f64")):
+            for kern, tag in ((sv.apply_lines, "f32"), (sv.apply_lines_f64, "f64")):
                 if tag == "f64" and (bi, bj, L, bd) not in [(2, 4, 64, 256), (2, 2, 64, 128), (2, 4, 128, 256)]:
                     continue
                 V[f"brick {bi}x{bj} L{L} bd{bd} {tag}"] = (lambda y, lines=lines, bd=bd, kern=kern: wp.launch(
@@ -442,16 +447,15 @@ def rekernel(kernel, **options):
 
 
 def main_regs():
-    import stencil_variants as sv
     args, device, copy, cage = start()
-    kernels = {"package f32": (stencil.apply_operator_fast, 256)}
+    kernels = {"lines f32": (sv.apply_lines, 256)}
     for regs in (48, 56, 64, 72):
-        kernels[f"f32 maxreg{regs}"] = (rekernel(stencil.apply_operator_fast, cuda_max_registers=regs), 256)
-    kernels["f32 maxreg64 bd128"] = (rekernel(stencil.apply_operator_fast, cuda_max_registers=64), 128)
-    kernels["f32 maxreg64 bd512"] = (rekernel(stencil.apply_operator_fast, cuda_max_registers=64), 512)
-    kernels["f64 package"] = (stencil.apply_operator, 256)
-    kernels["f64 maxreg64"] = (rekernel(stencil.apply_operator, cuda_max_registers=64), 256)
-    kernels["f64 maxreg72"] = (rekernel(stencil.apply_operator, cuda_max_registers=72), 256)
+        kernels[f"f32 maxreg{regs}"] = (rekernel(sv.apply_lines, cuda_max_registers=regs), 256)
+    kernels["f32 maxreg64 bd128"] = (rekernel(sv.apply_lines, cuda_max_registers=64), 128)
+    kernels["f32 maxreg64 bd512"] = (rekernel(sv.apply_lines, cuda_max_registers=64), 512)
+    kernels["lines f64"] = (sv.apply_lines_f64, 256)
+    kernels["f64 maxreg64"] = (rekernel(sv.apply_lines_f64, cuda_max_registers=64), 256)
+    kernels["f64 maxreg72"] = (rekernel(sv.apply_lines_f64, cuda_max_registers=72), 256)
     pairs_k = {"pairs": sv.apply_pairs, "pairs maxreg64": rekernel(sv.apply_pairs, cuda_max_registers=64),
                "pairs maxreg72": rekernel(sv.apply_pairs, cuda_max_registers=72)}
     for n in args.resolutions:
@@ -459,7 +463,7 @@ def main_regs():
         grid, x, arrays, n_int, groups = case.grid, case.x, case.arrays, case.n_int, case.groups
         V = {}
         for L in (64, 128):
-            lines = wp.array(grid.interior_lines(L), dtype=wp.vec2i, device=device)
+            lines = wp.array(sv.interior_lines(grid, L), dtype=wp.vec2i, device=device)
             for name, (kern, bd) in kernels.items():
                 V[f"{name} L{L}"] = (lambda y, kern=kern, bd=bd, lines=lines: wp.launch(
                     kern, dim=(groups, lines.shape[0], 32),
@@ -493,7 +497,7 @@ def main_profile():
 
     def lines_of(bi, bj, L, bd):
         lines = wp.array(brick_lines(grid, bi, bj, L), dtype=wp.vec2i, device=device)
-        return lambda: wp.launch(stencil.apply_operator_fast, dim=(groups, lines.shape[0], 32),
+        return lambda: wp.launch(sv.apply_lines, dim=(groups, lines.shape[0], 32),
                                  inputs=[x, arrays["index"], arrays["active_ijk"], lines, n_int], outputs=[y],
                                  device=device, block_dim=bd)
 
@@ -501,8 +505,11 @@ def main_profile():
     items = wp.array(brick_items(grid, 2, 4, 64)[0], dtype=wp.vec4i, device=device)
     tiles = tile_kernel(4, 4)
     bricks = wp.array(tile_bricks(grid, 4, 4, 64), dtype=wp.vec4i, device=device)
+    plain = wp.array(sv.interior_lines(grid), dtype=wp.vec2i, device=device)
     launches = [
         lambda: ws.apply_operator(grid, x, y, n_rows=n_int, device=device, precise=False),
+        lambda: wp.launch(sv.apply_lines, dim=(groups, plain.shape[0], 32),
+                          inputs=[x, arrays["index"], arrays["active_ijk"], plain, n_int], outputs=[y], device=device),
         lambda: wp.launch(walk, dim=(groups, items.shape[0], 32), inputs=[x, arrays["index"], items, n_int, n_int],
                           outputs=[y], device=device, block_dim=256),
         lambda: wp.launch_tiled(tiles, dim=(bricks.shape[0], groups), inputs=[x, arrays["index"], bricks, n_int, n_int],
@@ -514,8 +521,295 @@ def main_profile():
     wp.synchronize_device(device)
 
 
+# ------------------------------------------------------------------------------------------------------------
+# layout: the package's line walk over component planes instead of packed vec4 rows
+
+@wp.func
+def planes_rc(field: wp.array3d(dtype=wp.float32), row: int, c: int, h: int):
+    return field[row, c, h]
+
+
+@wp.func
+def planes_cr(field: wp.array3d(dtype=wp.float32), row: int, c: int, h: int):
+    return field[c, row, h]
+
+
+@wp.struct
+class Flat:
+    """A plane around a column as the stencil uses it: (q, G) at the column, (q, Gx) at +-x, (q, Gy) at +-y,
+    and the sum of q over the four diagonal neighbours."""
+
+    centre: wp.vec4f
+    x: wp.vec4f  # q(+x), Gx(+x), q(-x), Gx(-x)
+    y: wp.vec4f  # q(+y), Gy(+y), q(-y), Gy(-y)
+    corners: wp.float32
+
+
+def planar_kernel(get, scalar=wp.float32):
+    """The package's walk (lines along z, planes in registers) reading only the components each neighbour
+    contributes: 16 floats per new plane against 9 packed vec4 rows (36 floats' worth of sectors)."""
+
+    @wp.func
+    def pair_at(field: wp.array3d(dtype=wp.float32), index: wp.array3d(dtype=wp.int32), n_rows: int, i: int,
+                j: int, k: int, c: int, h: int):
+        row = index[i, j, k]
+        if row >= 0 and row < n_rows:
+            return wp.vec2f(get(field, row, 0, h), get(field, row, c, h))
+        return wp.vec2f()
+
+    @wp.func
+    def q_at(field: wp.array3d(dtype=wp.float32), index: wp.array3d(dtype=wp.int32), n_rows: int, i: int, j: int,
+             k: int, h: int):
+        row = index[i, j, k]
+        if row >= 0 and row < n_rows:
+            return get(field, row, 0, h)
+        return wp.float32(0.0)
+
+    @wp.func
+    def load(field: wp.array3d(dtype=wp.float32), index: wp.array3d(dtype=wp.int32), n_rows: int, i: int, j: int,
+             k: int, h: int):
+        p = Flat()
+        row = index[i, j, k]
+        if row >= 0 and row < n_rows:
+            p.centre = wp.vec4f(get(field, row, 0, h), get(field, row, 1, h), get(field, row, 2, h),
+                                get(field, row, 3, h))
+        xp = pair_at(field, index, n_rows, i + 1, j, k, 1, h)
+        xm = pair_at(field, index, n_rows, i - 1, j, k, 1, h)
+        yp = pair_at(field, index, n_rows, i, j + 1, k, 2, h)
+        ym = pair_at(field, index, n_rows, i, j - 1, k, 2, h)
+        p.x = wp.vec4f(xp[0], xp[1], xm[0], xm[1])
+        p.y = wp.vec4f(yp[0], yp[1], ym[0], ym[1])
+        p.corners = (q_at(field, index, n_rows, i + 1, j + 1, k, h) + q_at(field, index, n_rows, i + 1, j - 1, k, h)) + (
+            q_at(field, index, n_rows, i - 1, j + 1, k, h) + q_at(field, index, n_rows, i - 1, j - 1, k, h))
+        return p
+
+    @wp.func
+    def put(out: wp.array3d(dtype=wp.float32), row: int, c: int, h: int, v: scalar):
+        if wp.static(get is planes_rc):
+            out[row, c, h] = wp.float32(v)
+        else:
+            out[c, row, h] = wp.float32(v)
+
+    @wp.kernel(module="unique")
+    def apply_planar(field: wp.array3d(dtype=wp.float32), index: wp.array3d(dtype=wp.int32),
+                     interior_ijk: wp.array(dtype=wp.vec3i), lines: wp.array(dtype=wp.vec2i), n_rows: int,
+                     n_handles: int, out: wp.array3d(dtype=wp.float32)):
+        g, s, lane = wp.tid()
+        h = g * 32 + lane
+        if h >= n_handles:
+            return
+        line = lines[s]
+        start = line[0]
+        ijk = interior_ijk[start]
+        i = ijk[0]
+        j = ijk[1]
+        k = ijk[2]
+        below = load(field, index, n_rows, i, j, k - 1, h)
+        mid = load(field, index, n_rows, i, j, k, h)
+        three = scalar(3.0)
+        four = scalar(4.0)
+        for t in range(line[1]):
+            above = load(field, index, n_rows, i, j, k + t + 1, h)
+            edges = scalar(mid.corners) + (scalar(above.x[0]) + scalar(above.x[2])) + (
+                scalar(above.y[0]) + scalar(above.y[2]))
+            edges += (scalar(below.x[0]) + scalar(below.x[2])) + (scalar(below.y[0]) + scalar(below.y[2]))
+            faces = (scalar(mid.x[0]) + scalar(mid.x[2])) + (scalar(mid.y[0]) + scalar(mid.y[2])) + (
+                scalar(above.centre[0]) + scalar(below.centre[0]))
+            div = (scalar(mid.x[1]) - scalar(mid.x[3])) + (scalar(mid.y[1]) - scalar(mid.y[3])) + (
+                scalar(above.centre[3]) - scalar(below.centre[3]))
+            row = start + t
+            put(out, row, 0, h, scalar(48.0) * scalar(mid.centre[0]) - scalar(10.0) * faces + edges + three * div)
+            put(out, row, 1, h, scalar(mid.x[3]) + four * scalar(mid.centre[1]) + scalar(mid.x[1])
+                - three * (scalar(mid.x[0]) - scalar(mid.x[2])))
+            put(out, row, 2, h, scalar(mid.y[3]) + four * scalar(mid.centre[2]) + scalar(mid.y[1])
+                - three * (scalar(mid.y[0]) - scalar(mid.y[2])))
+            put(out, row, 3, h, scalar(below.centre[3]) + four * scalar(mid.centre[3]) + scalar(above.centre[3])
+                - three * (scalar(above.centre[0]) - scalar(below.centre[0])))
+            below = mid
+            mid = above
+
+    return apply_planar
+
+
+def main_layout():
+    """The walk over (rows, 4, H) and (4, rows, H) planes, handles padded to multiples of P."""
+    args, device, copy, cage = start(only=True)
+    kernels = {"rc": planar_kernel(planes_rc), "cr": planar_kernel(planes_cr),
+               "rc f64": planar_kernel(planes_rc, wp.float64)}
+    for n in args.resolutions:
+        case = Case(cage, n, device)
+        grid, x, arrays, n_int, groups = case.grid, case.x, case.arrays, case.n_int, case.groups
+        H = case.n_handles
+        xn = x.numpy()  # (rows, H, 4)
+        V = {"package f32": lambda y: ws.apply_operator(grid, x, y, n_rows=n_int, device=device, precise=False),
+             "package f64": lambda y: ws.apply_operator(grid, x, y, n_rows=n_int, device=device),
+             "lines f32": case.line_walk()}
+        case.measure(V, copy, args.only)
+        lines = case.lines
+        for name, kern in kernels.items():
+            rc = name.startswith("rc")
+            for pad in ((1, 8, 32) if name == "rc" else (1, 32)):
+                Hp = -(-H // pad) * pad
+                a = np.zeros((n_int, 4, Hp), np.float32)
+                a[:, :, :H] = xn.transpose(0, 2, 1)
+                if not rc:
+                    a = np.ascontiguousarray(a.transpose(1, 0, 2))
+                field = wp.array(a, dtype=wp.float32, device=device)
+                for bd in ((256, 128) if name == "rc" else (256,)):
+                    label = f"planes {name} pad{pad} bd{bd}"
+                    if args.only and not re.search(args.only, label):
+                        continue
+                    out = wp.full(a.shape, np.nan, dtype=wp.float32, device=device)
+
+                    def launch(kern=kern, field=field, out=out, bd=bd):
+                        wp.launch(kern, dim=(groups, lines.shape[0], 32),
+                                  inputs=[field, arrays["index"], arrays["active_ijk"], lines, n_int, H],
+                                  outputs=[out], device=device, block_dim=bd)
+
+                    seconds = time_kernel(wp, device, launch)
+                    o = out.numpy()
+                    o = (o if rc else o.transpose(1, 0, 2))[:, :, :H].transpose(0, 2, 1)
+                    diff = float(np.abs(o - case.reference).max()) if np.isfinite(o).all() else float("nan")
+                    gbs = 32 * n_int * H / seconds / 1e9
+                    print(f"| {n} | {H} | {n_int} | {label} | {seconds * 1e3:.3f} | {gbs:.0f} | {gbs / copy:.0%} | "
+                          f"{diff:.1e} |", flush=True)
+
+
+# ------------------------------------------------------------------------------------------------------------
+# patches: one thread walks a BI x BJ patch of columns along z, so a plane costs (BI + 2)(BJ + 2) loads for
+# BI * BJ nodes (9 per node for 1 x 1, 4 for 2 x 2); what a plane gives the nodes above and below it is reduced
+# when it is loaded (partial sums), so three planes' state is ~10 floats per column
+
+def patch_kernel(BI, BJ):
+    W = BJ + 2
+    R = (BI + 2) * W
+    C = BI * BJ
+    ring = wp.types.matrix(shape=(R, 4), dtype=wp.float32)
+    vecC = wp.types.vector(length=C, dtype=wp.float32)
+    vec4C = wp.types.matrix(shape=(C, 4), dtype=wp.float32)
+
+    @wp.struct
+    class Summary:
+        inplane: vec4C  # value and gradient equations' terms from this plane (gz: 4 Gz only)
+        s4: vecC  # q summed over the four face neighbours: edges of the nodes above and below
+        q: vecC
+        gz: vecC
+
+    @wp.func
+    def load(field: wp.array2d(dtype=wp.vec4f), index: wp.array3d(dtype=wp.int32), n_rows: int, i0: int, j0: int,
+             k: int, h: int):
+        m = ring()
+        for a in range(BI + 2):
+            for b in range(BJ + 2):
+                row = index[i0 - 1 + a, j0 - 1 + b, k]
+                if row >= 0 and row < n_rows:
+                    m[a * W + b] = field[row, h]
+        s = Summary()
+        for a in range(BI):
+            for b in range(BJ):
+                c = m[(a + 1) * W + b + 1]
+                xp = m[(a + 2) * W + b + 1]
+                xm = m[a * W + b + 1]
+                yp = m[(a + 1) * W + b + 2]
+                ym = m[(a + 1) * W + b]
+                corners = (m[(a + 2) * W + b + 2][0] + m[(a + 2) * W + b][0]) + (m[a * W + b + 2][0] + m[a * W + b][0])
+                s4 = (xp[0] + xm[0]) + (yp[0] + ym[0])
+                n = a * BJ + b
+                s.inplane[n] = wp.vec4f(
+                    48.0 * c[0] - 10.0 * s4 + corners + 3.0 * ((xp[1] - xm[1]) + (yp[2] - ym[2])),
+                    xm[1] + 4.0 * c[1] + xp[1] - 3.0 * (xp[0] - xm[0]),
+                    ym[2] + 4.0 * c[2] + yp[2] - 3.0 * (yp[0] - ym[0]),
+                    4.0 * c[3])
+                s.s4[n] = s4
+                s.q[n] = c[0]
+                s.gz[n] = c[3]
+        return s
+
+    @wp.kernel(module="unique")
+    def apply_patches(field: wp.array2d(dtype=wp.vec4f), index: wp.array3d(dtype=wp.int32),
+                      items: wp.array(dtype=wp.vec4i), n_rows: int, n_out: int, out: wp.array2d(dtype=wp.vec4f)):
+        g, s, lane = wp.tid()
+        h = g * 32 + lane
+        if h >= field.shape[1]:
+            return
+        item = items[s]
+        i0 = item[0]
+        j0 = item[1]
+        k0 = item[2]
+        below = load(field, index, n_rows, i0, j0, k0 - 1, h)
+        mid = load(field, index, n_rows, i0, j0, k0, h)
+        for t in range(item[3]):
+            k = k0 + t
+            above = load(field, index, n_rows, i0, j0, k + 1, h)
+            for a in range(BI):
+                for b in range(BJ):
+                    n = a * BJ + b
+                    row = index[i0 + a, j0 + b, k]
+                    if row >= 0 and row < n_out:
+                        p = mid.inplane[n]
+                        value = p[0] - 10.0 * (above.q[n] + below.q[n]) + (above.s4[n] + below.s4[n]) + 3.0 * (
+                            above.gz[n] - below.gz[n])
+                        gz = below.gz[n] + p[3] + above.gz[n] - 3.0 * (above.q[n] - below.q[n])
+                        out[row, h] = wp.vec4f(value, p[1], p[2], gz)
+            below = mid
+            mid = above
+
+    return apply_patches
+
+
+def patch_items(grid, bi, bj, max_length):
+    """(i0, j0, k0, length): runs along z where any column of the patch (i0 + [0, bi), j0 + [0, bj)) has
+    interior nodes, patches aligned to multiples of (bi, bj), runs cut at max_length."""
+    interior = np.zeros(grid.shape, dtype=bool)
+    interior[tuple(grid.active_ijk[: grid.n_interior].T)] = True
+    nx, ny, nz = grid.shape
+    px, py = -(-nx // bi) * bi, -(-ny // bj) * bj
+    padded = np.zeros((px, py, nz), bool)
+    padded[:nx, :ny] = interior
+    anyp = padded.reshape(px // bi, bi, py // bj, bj, nz).any(axis=(1, 3))
+    z = np.zeros(anyp.shape[:2] + (nz + 2,), np.int8)
+    z[:, :, 1:-1] = anyp
+    d = np.diff(z, axis=2)
+    si, sj, sk = np.nonzero(d == 1)
+    _, _, ek = np.nonzero(d == -1)
+    lengths = ek - sk
+    pieces = -(-lengths // max_length)
+    first = np.repeat(sk, pieces) + max_length * (np.arange(pieces.sum()) - np.repeat(np.cumsum(pieces) - pieces, pieces))
+    last = np.repeat(ek, pieces)
+    return np.stack([bi * np.repeat(si, pieces), bj * np.repeat(sj, pieces), first,
+                     np.minimum(first + max_length, last) - first], axis=1).astype(np.int32)
+
+
+def main_patches():
+    args, device, copy, cage = start(only=True)
+    shapes = [(1, 1), (1, 2), (2, 1), (2, 2), (1, 4), (2, 3), (3, 2)]
+    kernels = {}
+    for bi, bj in shapes:
+        try:
+            kernels[(bi, bj)] = patch_kernel(bi, bj)
+        except Exception as e:  # noqa: BLE001
+            print("patch kernel failed to build:", bi, bj, e, flush=True)
+    for n in args.resolutions:
+        case = Case(cage, n, device)
+        grid, x, arrays, n_int, groups = case.grid, case.x, case.arrays, case.n_int, case.groups
+        V = {"package f32": lambda y: ws.apply_operator(grid, x, y, n_rows=n_int, device=device, precise=False),
+             "package f64": lambda y: ws.apply_operator(grid, x, y, n_rows=n_int, device=device),
+             "lines f32": case.line_walk(), "lines f64": case.line_walk(kernel=sv.apply_lines_f64)}
+        for (bi, bj), kern in kernels.items():
+            for L in (64, 128):
+                items = wp.array(patch_items(grid, bi, bj, L), dtype=wp.vec4i, device=device)
+                nodes = int(items.numpy()[:, 3].sum()) * bi * bj
+                for bd in (128, 256):
+                    V[f"patch {bi}x{bj} L{L} bd{bd} ({nodes / n_int:.2f} walked/interior)"] = (
+                        lambda y, kern=kern, items=items, bd=bd: wp.launch(
+                            kern, dim=(groups, items.shape[0], 32), inputs=[x, arrays["index"], items, n_int, n_int],
+                            outputs=[y], device=device, block_dim=bd))
+        case.measure(V, copy, args.only)
+
+
 if __name__ == "__main__":
-    modes = {"forms": main_forms, "bricks": main_bricks, "regs": main_regs, "profile": main_profile}
+    modes = {"forms": main_forms, "bricks": main_bricks, "regs": main_regs, "profile": main_profile,
+             "layout": main_layout, "patches": main_patches}
     if len(sys.argv) < 2 or sys.argv[1] not in modes:
         sys.exit(f"usage: {sys.argv[0]} {{{','.join(modes)}}} [--pair P] [--resolutions N ...] [--device D]")
     modes[sys.argv[1]]()

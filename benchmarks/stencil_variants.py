@@ -1,6 +1,8 @@
-"""Experimental forms of the line stencil for bench_stencil.py (float32 sums, same layout as the package).
+"""Earlier forms of the stencil for bench_stencil.py and stencil_experiments.py (same layout as the package).
 
-lean   the package's line walk with only the components each neighbour contributes kept per plane
+lines  the package's kernel in sessions 2-3: one thread walks a z line of consecutive interior nodes (rows
+       start .. start + length - 1) for one handle, keeping three whole planes (9 loads each) in registers
+lean   the line walk with only the components each neighbour contributes kept per plane
        (16 floats instead of 24): fewer registers, the same loads
 pairs  one thread walks two neighbouring columns (i, j0) and (i, j0 + 1) for one handle: a plane is 12
        loads for 2 nodes instead of 9 for 1
@@ -10,6 +12,124 @@ import numpy as np
 import warp as wp
 
 from warp_stokes.kernels.stencil import node_value as value_at
+
+
+@wp.struct
+class Plane:
+    """What the stencil reads in one z plane around a column (i, j): (q, G) at the column and its four face
+    neighbours, and q at the four diagonal neighbours (+x+y, +x-y, -x+y, -x-y)."""
+
+    centre: wp.vec4f
+    xp: wp.vec4f
+    xm: wp.vec4f
+    yp: wp.vec4f
+    ym: wp.vec4f
+    corners: wp.vec4f
+
+
+@wp.func
+def load_plane(field: wp.array2d(dtype=wp.vec4f), index: wp.array3d(dtype=wp.int32), n_rows: int, i: int, j: int,
+               k: int, handle: int):
+    p = Plane()
+    p.centre = value_at(field, index, n_rows, i, j, k, handle)
+    p.xp = value_at(field, index, n_rows, i + 1, j, k, handle)
+    p.xm = value_at(field, index, n_rows, i - 1, j, k, handle)
+    p.yp = value_at(field, index, n_rows, i, j + 1, k, handle)
+    p.ym = value_at(field, index, n_rows, i, j - 1, k, handle)
+    p.corners = wp.vec4f(
+        value_at(field, index, n_rows, i + 1, j + 1, k, handle)[0],
+        value_at(field, index, n_rows, i + 1, j - 1, k, handle)[0],
+        value_at(field, index, n_rows, i - 1, j + 1, k, handle)[0],
+        value_at(field, index, n_rows, i - 1, j - 1, k, handle)[0],
+    )
+    return p
+
+
+def line_kernel(scalar):
+    """The package's operator in sessions 2-3, with sums in `scalar` (wp.float32 or wp.float64).
+
+    One thread walks a run of consecutive interior nodes along z (a "line", rows start .. start + length - 1)
+    for one handle, keeping the planes below, at and above the current node in registers: each step loads
+    one new plane (9 neighbours) instead of the 18 neighbours of the node: neighbours are shared through
+    registers rather than re-read from cache, which is what limited the one-thread-per-node form (31-35% of
+    the copy bandwidth on an H100 against 44-57% for this one with float32 sums, benchmarks/RESULTS.md)."""
+    vec4 = wp.types.vector(length=4, dtype=scalar)
+
+    @wp.func
+    def combine(below: Plane, mid: Plane, above: Plane):
+        c = vec4(mid.centre)
+        xp = vec4(mid.xp)
+        xm = vec4(mid.xm)
+        yp = vec4(mid.yp)
+        ym = vec4(mid.ym)
+        zp = vec4(above.centre)
+        zm = vec4(below.centre)
+        corners = vec4(mid.corners)
+        edges = (corners[0] + corners[1]) + (corners[2] + corners[3])
+        edges += (scalar(above.xp[0]) + scalar(above.xm[0])) + (scalar(above.yp[0]) + scalar(above.ym[0]))
+        edges += (scalar(below.xp[0]) + scalar(below.xm[0])) + (scalar(below.yp[0]) + scalar(below.ym[0]))
+        faces = xp[0] + xm[0] + yp[0] + ym[0] + zp[0] + zm[0]
+        divergence = (xp[1] - xm[1]) + (yp[2] - ym[2]) + (zp[3] - zm[3])
+        three = scalar(3.0)
+        four = scalar(4.0)
+        value = scalar(48.0) * c[0] - scalar(10.0) * faces + edges + three * divergence
+        gx = xm[1] + four * c[1] + xp[1] - three * (xp[0] - xm[0])
+        gy = ym[2] + four * c[2] + yp[2] - three * (yp[0] - ym[0])
+        gz = zm[3] + four * c[3] + zp[3] - three * (zp[0] - zm[0])
+        return wp.vec4f(wp.float32(value), wp.float32(gx), wp.float32(gy), wp.float32(gz))
+
+    @wp.func
+    def walk_line(field: wp.array2d(dtype=wp.vec4f), index: wp.array3d(dtype=wp.int32),
+                  interior_ijk: wp.array(dtype=wp.vec3i), line: wp.vec2i, n_rows: int, h: int,
+                  out: wp.array2d(dtype=wp.vec4f)):
+        start = line[0]
+        c = interior_ijk[start]
+        i = c[0]
+        j = c[1]
+        k = c[2]
+        below = load_plane(field, index, n_rows, i, j, k - 1, h)
+        mid = load_plane(field, index, n_rows, i, j, k, h)
+        for t in range(line[1]):
+            above = load_plane(field, index, n_rows, i, j, k + t + 1, h)
+            out[start + t, h] = combine(below, mid, above)
+            below = mid
+            mid = above
+
+    @wp.kernel(module="unique")
+    def apply_operator(
+        field: wp.array2d(dtype=wp.vec4f),
+        index: wp.array3d(dtype=wp.int32),
+        interior_ijk: wp.array(dtype=wp.vec3i),
+        lines: wp.array(dtype=wp.vec2i),
+        n_rows: int,
+        out: wp.array2d(dtype=wp.vec4f),
+    ):
+        # launch (handle groups, lines, 32): the warps of a block walk neighbouring lines for the same handles
+        g, s, lane = wp.tid()
+        h = g * 32 + lane
+        if h < out.shape[1]:
+            walk_line(field, index, interior_ijk, lines[s], n_rows, h, out)
+
+    return apply_operator
+
+
+apply_lines_f64 = line_kernel(wp.float64)
+apply_lines = line_kernel(wp.float32)
+
+
+def interior_lines(grid, max_length=128):
+    """Runs of consecutive interior nodes along z as (first row, length), cut at max_length (interior rows are
+    numbered with k fastest, so a run's rows are consecutive)."""
+    ijk = grid.active_ijk[: grid.n_interior].astype(np.int64)
+    new_run = np.ones(len(ijk), dtype=bool)
+    new_run[1:] = (ijk[1:, 0] != ijk[:-1, 0]) | (ijk[1:, 1] != ijk[:-1, 1]) | (ijk[1:, 2] != ijk[:-1, 2] + 1)
+    starts = np.flatnonzero(new_run)
+    ends = np.append(starts[1:], len(ijk))
+    pieces = -(-(ends - starts) // max_length)
+    first = np.repeat(starts, pieces)
+    first += max_length * (np.arange(pieces.sum()) - np.repeat(np.cumsum(pieces) - pieces, pieces))
+    lengths = np.minimum(first + max_length, np.repeat(ends, pieces)) - first
+    return np.stack([first, lengths], axis=1).astype(np.int32)
 
 
 @wp.struct

@@ -12,19 +12,6 @@ nodes come first, so row n < n_interior is interior node n.
 import warp as wp
 
 
-@wp.struct
-class Plane:
-    """What the stencil reads in one z plane around a column (i, j): (q, G) at the column and its four face
-    neighbours, and q at the four diagonal neighbours (+x+y, +x-y, -x+y, -x-y)."""
-
-    centre: wp.vec4f
-    xp: wp.vec4f
-    xm: wp.vec4f
-    yp: wp.vec4f
-    ym: wp.vec4f
-    corners: wp.vec4f
-
-
 @wp.func
 def node_value(field: wp.array2d(dtype=wp.vec4f), index: wp.array3d(dtype=wp.int32), n_rows: int, i: int, j: int,
                k: int, handle: int):
@@ -35,26 +22,14 @@ def node_value(field: wp.array2d(dtype=wp.vec4f), index: wp.array3d(dtype=wp.int
     return wp.vec4f()
 
 
-@wp.func
-def load_plane(field: wp.array2d(dtype=wp.vec4f), index: wp.array3d(dtype=wp.int32), n_rows: int, i: int, j: int,
-               k: int, handle: int):
-    p = Plane()
-    p.centre = node_value(field, index, n_rows, i, j, k, handle)
-    p.xp = node_value(field, index, n_rows, i + 1, j, k, handle)
-    p.xm = node_value(field, index, n_rows, i - 1, j, k, handle)
-    p.yp = node_value(field, index, n_rows, i, j + 1, k, handle)
-    p.ym = node_value(field, index, n_rows, i, j - 1, k, handle)
-    p.corners = wp.vec4f(
-        node_value(field, index, n_rows, i + 1, j + 1, k, handle)[0],
-        node_value(field, index, n_rows, i + 1, j - 1, k, handle)[0],
-        node_value(field, index, n_rows, i - 1, j + 1, k, handle)[0],
-        node_value(field, index, n_rows, i - 1, j - 1, k, handle)[0],
-    )
-    return p
-
-
-#: handles per thread group (one warp's worth): the launch is (ceil(handles / GROUP), lines, GROUP)
+#: handles per thread group (one warp's worth): the launch is (ceil(handles / GROUP), patches, GROUP)
 GROUP = 32
+#: columns (i, j) one thread walks along z: a plane costs (PATCH_I + 2)(PATCH_J + 2) row loads for
+#: PATCH_I * PATCH_J nodes (16 for 4 with 2 x 2, against 9 for 1 walking single columns)
+PATCH_I = 2
+PATCH_J = 2
+#: threads per block: four warps, i.e. four patches of the same 32 handles
+BLOCK_DIM = 128
 
 
 def operator_kernel(scalar):
@@ -63,72 +38,103 @@ def operator_kernel(scalar):
     Residuals of a nearly converged float32 field cancel to ~1e-7 of their terms: a float32 sum would stall
     the solver there, so residuals use float64 sums. Krylov and smoothing applications only need float32.
 
-    One thread walks a run of consecutive interior nodes along z (a "line", rows start .. start + length - 1)
-    for one handle, keeping the planes below, at and above the current node in registers: each step loads
-    one new plane (9 neighbours) instead of the 18 neighbours of the node: neighbours are shared through
-    registers rather than re-read from cache, which is what limited the one-thread-per-node form (31-35% of
-    the copy bandwidth on an H100 against 44-57% for this one with float32 sums, benchmarks/RESULTS.md)."""
+    One thread walks a patch of PATCH_I x PATCH_J columns along z for one handle (an item (i0, j0, k0, length)
+    of `Grid.interior_patches`). Each z plane is loaded once, from the (PATCH_I + 2) x (PATCH_J + 2) rows
+    around the patch, and reduced at once to what each column's nodes need from it: the in-plane part of its
+    own equations, and for the nodes above and below, q, G_z and the sum of q over the four face neighbours
+    (their edge terms). The planes below, at and above a node then take ~10 values per column in registers.
+    Against one thread per column with three whole planes in registers this halves the loads per node (4
+    instead of 9) and the registers: the kernel is bound by L2 bandwidth (Nsight Compute, RESULTS.md), so the
+    loads that miss L1 are what counts."""
+    W = PATCH_J + 2
+    RING = (PATCH_I + 2) * W
+    COLUMNS = PATCH_I * PATCH_J
+    ring = wp.types.matrix(shape=(RING, 4), dtype=wp.float32)
+    per_column = wp.types.vector(length=COLUMNS, dtype=scalar)
+    per_column4 = wp.types.matrix(shape=(COLUMNS, 4), dtype=scalar)
     vec4 = wp.types.vector(length=4, dtype=scalar)
 
-    @wp.func
-    def combine(below: Plane, mid: Plane, above: Plane):
-        c = vec4(mid.centre)
-        xp = vec4(mid.xp)
-        xm = vec4(mid.xm)
-        yp = vec4(mid.yp)
-        ym = vec4(mid.ym)
-        zp = vec4(above.centre)
-        zm = vec4(below.centre)
-        corners = vec4(mid.corners)
-        edges = (corners[0] + corners[1]) + (corners[2] + corners[3])
-        edges += (scalar(above.xp[0]) + scalar(above.xm[0])) + (scalar(above.yp[0]) + scalar(above.ym[0]))
-        edges += (scalar(below.xp[0]) + scalar(below.xm[0])) + (scalar(below.yp[0]) + scalar(below.ym[0]))
-        faces = xp[0] + xm[0] + yp[0] + ym[0] + zp[0] + zm[0]
-        divergence = (xp[1] - xm[1]) + (yp[2] - ym[2]) + (zp[3] - zm[3])
-        three = scalar(3.0)
-        four = scalar(4.0)
-        value = scalar(48.0) * c[0] - scalar(10.0) * faces + edges + three * divergence
-        gx = xm[1] + four * c[1] + xp[1] - three * (xp[0] - xm[0])
-        gy = ym[2] + four * c[2] + yp[2] - three * (yp[0] - ym[0])
-        gz = zm[3] + four * c[3] + zp[3] - three * (zp[0] - zm[0])
-        return wp.vec4f(wp.float32(value), wp.float32(gx), wp.float32(gy), wp.float32(gz))
+    @wp.struct
+    class PlaneTerms:
+        inplane: per_column4  # each column's value and gradient equations from this plane (G_z: 4 G_z only)
+        faces: per_column  # q summed over the column's four face neighbours in this plane
+        q: per_column
+        gz: per_column
 
     @wp.func
-    def walk_line(field: wp.array2d(dtype=wp.vec4f), index: wp.array3d(dtype=wp.int32),
-                  interior_ijk: wp.array(dtype=wp.vec3i), line: wp.vec2i, n_rows: int, h: int,
-                  out: wp.array2d(dtype=wp.vec4f)):
-        start = line[0]
-        c = interior_ijk[start]
-        i = c[0]
-        j = c[1]
-        k = c[2]
-        below = load_plane(field, index, n_rows, i, j, k - 1, h)
-        mid = load_plane(field, index, n_rows, i, j, k, h)
-        for t in range(line[1]):
-            above = load_plane(field, index, n_rows, i, j, k + t + 1, h)
-            out[start + t, h] = combine(below, mid, above)
-            below = mid
-            mid = above
+    def plane_terms(field: wp.array2d(dtype=wp.vec4f), index: wp.array3d(dtype=wp.int32), n_rows: int, i0: int,
+                    j0: int, k: int, h: int):
+        m = ring()
+        for a in range(PATCH_I + 2):
+            for b in range(PATCH_J + 2):
+                m[a * W + b] = node_value(field, index, n_rows, i0 - 1 + a, j0 - 1 + b, k, h)
+        t = PlaneTerms()
+        three = scalar(3.0)
+        four = scalar(4.0)
+        for a in range(PATCH_I):
+            for b in range(PATCH_J):
+                centre = (a + 1) * W + b + 1
+                c = vec4(m[centre])
+                xp = vec4(m[centre + W])
+                xm = vec4(m[centre - W])
+                yp = vec4(m[centre + 1])
+                ym = vec4(m[centre - 1])
+                corners = (scalar(m[centre + W + 1][0]) + scalar(m[centre + W - 1][0])) + (
+                    scalar(m[centre - W + 1][0]) + scalar(m[centre - W - 1][0]))
+                faces = (xp[0] + xm[0]) + (yp[0] + ym[0])
+                n = a * PATCH_J + b
+                t.inplane[n] = vec4(
+                    scalar(48.0) * c[0] - scalar(10.0) * faces + corners + three * ((xp[1] - xm[1]) + (yp[2] - ym[2])),
+                    xm[1] + four * c[1] + xp[1] - three * (xp[0] - xm[0]),
+                    ym[2] + four * c[2] + yp[2] - three * (yp[0] - ym[0]),
+                    four * c[3],
+                )
+                t.faces[n] = faces
+                t.q[n] = c[0]
+                t.gz[n] = c[3]
+        return t
 
     @wp.kernel(module="unique")
     def apply_operator(
         field: wp.array2d(dtype=wp.vec4f),
         index: wp.array3d(dtype=wp.int32),
-        interior_ijk: wp.array(dtype=wp.vec3i),
-        lines: wp.array(dtype=wp.vec2i),
+        patches: wp.array(dtype=wp.vec4i),
         n_rows: int,
         out: wp.array2d(dtype=wp.vec4f),
     ):
-        # out = A field at the interior nodes; launch (handle groups, lines, GROUP). Rows of `field` at or
+        # out = A field at the interior nodes; launch (handle groups, patches, GROUP). Rows of `field` at or
         # beyond `n_rows` read as zero: with n_rows = n_interior this is the interior block A_II (Krylov
         # vectors); with all active rows it includes the known ring data (residuals).
         # Handles are innermost so a warp reads 32 consecutive handles of one row (512 coalesced bytes), and
-        # the group is outermost so the warps of a block walk neighbouring lines for the same handles: the
-        # y neighbours one warp loads are the rows its neighbour warps load, still in L1.
+        # the group is outermost so the warps of a block walk neighbouring patches for the same handles: the
+        # rows one warp loads around its patch are rows its neighbour warps load, still in L1.
         g, s, lane = wp.tid()
         h = g * GROUP + lane
-        if h < out.shape[1]:
-            walk_line(field, index, interior_ijk, lines[s], n_rows, h, out)
+        if h >= out.shape[1]:
+            return
+        patch = patches[s]
+        i0 = patch[0]
+        j0 = patch[1]
+        k0 = patch[2]
+        three = scalar(3.0)
+        below = plane_terms(field, index, n_rows, i0, j0, k0 - 1, h)
+        mid = plane_terms(field, index, n_rows, i0, j0, k0, h)
+        for t in range(patch[3]):
+            k = k0 + t
+            above = plane_terms(field, index, n_rows, i0, j0, k + 1, h)
+            for a in range(PATCH_I):
+                for b in range(PATCH_J):
+                    # a patch also covers ring, band and outside nodes next to the interior: no equation there
+                    row = index[i0 + a, j0 + b, k]
+                    if row >= 0 and row < out.shape[0]:
+                        n = a * PATCH_J + b
+                        p = mid.inplane[n]
+                        value = p[0] - scalar(10.0) * (above.q[n] + below.q[n]) + (above.faces[n] + below.faces[n])
+                        value += three * (above.gz[n] - below.gz[n])
+                        gz = below.gz[n] + p[3] + above.gz[n] - three * (above.q[n] - below.q[n])
+                        out[row, h] = wp.vec4f(wp.float32(value), wp.float32(p[1]), wp.float32(p[2]), wp.float32(gz))
+            below = mid
+            mid = above
 
     return apply_operator
 

@@ -84,21 +84,31 @@ def test_classify_points(arm_cage):
     assert distance[0] > 9 * arm_cage.diagonal and distance[1] < 1e-5 * arm_cage.diagonal
 
 
-@pytest.mark.parametrize("max_length", [1, 3, 32])
-def test_interior_lines_cover_each_interior_row_once(arm_cage, max_length):
+@pytest.mark.parametrize("patch,max_length", [((2, 2), 1), ((2, 2), 64), ((1, 1), 5), ((3, 2), 1000)])
+def test_interior_patches_cover_each_interior_node_once(arm_cage, patch, max_length):
     grid = ws.voxelize(arm_cage, 24, device="cpu")
-    lines = grid.interior_lines(max_length)
-    assert lines.dtype == np.int32 and (lines[:, 1] >= 1).all() and (lines[:, 1] <= max_length).all()
-    rows = np.concatenate([np.arange(s, s + n) for s, n in lines])
-    np.testing.assert_array_equal(rows, np.arange(grid.n_interior))
-    # within a line the nodes are z neighbours of one column
-    ijk = grid.active_ijk
-    for s, n in lines:
-        run = ijk[s : s + n]
-        assert (run[:, :2] == run[0, :2]).all() and (np.diff(run[:, 2]) == 1).all()
-    if max_length == 32:  # runs are split only where they must be: each line ends at a run's end or a full piece
-        ends = lines[:, 0] + lines[:, 1]
-        last = ijk[ends[:-1] - 1]
-        nxt = ijk[ends[:-1]]
-        continues = (last[:, :2] == nxt[:, :2]).all(axis=1) & (nxt[:, 2] == last[:, 2] + 1)
-        assert (lines[:-1, 1][continues] == max_length).all()
+    items = grid.interior_patches(patch, max_length)
+    assert items.dtype == np.int32 and items.shape[1] == 4
+    i0, j0, k0, length = items.T
+    assert (length >= 1).all() and (length <= max_length).all()
+    assert (i0 % patch[0] == 0).all() and (j0 % patch[1] == 0).all()
+    # every node an item walks, counted: each interior node exactly once
+    covered = np.zeros(grid.shape, dtype=np.int64)
+    for i, j, k, n in items:
+        covered[i : i + patch[0], j : j + patch[1], k : k + n] += 1
+    interior = np.zeros(grid.shape, dtype=bool)
+    interior[tuple(grid.active_ijk[: grid.n_interior].T)] = True
+    assert covered.max() == 1 and covered[interior].min() == 1
+    # and an item's every plane holds an interior node of its patch (no empty planes walked)
+    for i, j, k, n in items:
+        assert interior[i : i + patch[0], j : j + patch[1], k : k + n].any(axis=(0, 1)).all()
+    # runs are split only where they must be: pieces of max_length, then the rest
+    if max_length == 64:
+        whole = grid.interior_patches(patch, 10**6)
+        assert whole[:, 3].sum() == length.sum() and len(items) == np.sum(-(-whole[:, 3] // max_length))
+
+
+def test_interior_patches_reject_empty_shapes(arm_cage):
+    grid = ws.voxelize(arm_cage, 16, device="cpu")
+    with pytest.raises(ValueError, match="must be positive"):
+        grid.interior_patches((0, 2))

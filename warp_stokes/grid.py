@@ -11,9 +11,10 @@ from .cage import Cage
 from .device import available_memory, resolve_device
 from .errors import ResolutionError
 from .kernels import labels as L
+from .kernels import stencil
 from .kernels import voxel
 
-__all__ = ["Grid", "voxelize", "grid_from_mask", "classify_points", "MARGIN", "BAND_WIDTH", "LINE_LENGTH"]
+__all__ = ["Grid", "voxelize", "grid_from_mask", "classify_points", "MARGIN", "BAND_WIDTH", "PATCH_LENGTH"]
 
 #: nodes of known data kept outside the interior (max-norm distance): the ring plus a sampling band, so that
 #: trilinear sampling of vertices slightly outside the cage reads only known corners
@@ -23,9 +24,9 @@ BAND_WIDTH = 3
 MARGIN = BAND_WIDTH + 1
 #: accuracy of Warp's fast winding number (dipole expansion used beyond this many cluster radii)
 WINDING_ACCURACY = 2.0
-#: the stencil kernel walks runs of consecutive interior nodes along z, split into pieces of at most this many
-#: nodes so that short and long runs balance across threads (benchmarks/RESULTS.md)
-LINE_LENGTH = 128
+#: the stencil kernel walks patches of columns along z in pieces of at most this many planes, so that short
+#: and long runs balance across threads (64 and 128 measured within 2 points, benchmarks/RESULTS.md)
+PATCH_LENGTH = 64
 
 
 @dataclass
@@ -72,37 +73,57 @@ class Grid:
         ijk = self.active_ijk if rows is None else self.active_ijk[rows]
         return self.origin + self.spacing * ijk.astype(np.float64)
 
-    def interior_lines(self, max_length: int = LINE_LENGTH) -> np.ndarray:
-        """Runs of consecutive interior nodes along z, as (first row, length) pairs of at most ``max_length``
-        nodes; interior rows are numbered with k fastest, so a run's rows are consecutive.
+    def interior_patches(self, patch: tuple = (2, 2), max_length: int = PATCH_LENGTH) -> np.ndarray:
+        """Runs along z of patches of columns that hold interior nodes: the work items of the stencil kernel.
+
+        Columns are grouped into patches of ``patch`` = (pi, pj) columns, aligned to multiples of (pi, pj); a
+        run is a range of z over which at least one column of its patch is interior, cut into pieces of at most
+        ``max_length`` planes.
 
         Parameters
         ----------
+        patch : (int, int), columns per patch along x and y
         max_length : int, longer runs are split
 
         Returns
         -------
-        (L, 2) int32 array; the runs cover rows 0 .. n_interior - 1 once each, in order
+        (P, 4) int32 array of (i0, j0, k0, length): the patch's first column and first plane, and its planes.
+        Every interior node lies in exactly one item; an item may also cover non-interior nodes.
+
+        Examples
+        --------
+        >>> grid.interior_patches((2, 2), 64)[:, 3].max() <= 64  # doctest: +SKIP
+        True
         """
-        ijk = self.active_ijk[: self.n_interior].astype(np.int64)
-        new_run = np.ones(len(ijk), dtype=bool)
-        new_run[1:] = (ijk[1:, 0] != ijk[:-1, 0]) | (ijk[1:, 1] != ijk[:-1, 1]) | (ijk[1:, 2] != ijk[:-1, 2] + 1)
-        starts = np.flatnonzero(new_run)
-        ends = np.append(starts[1:], len(ijk))
-        pieces = -(-(ends - starts) // max_length)
-        first = np.repeat(starts, pieces)
-        first += max_length * (np.arange(pieces.sum()) - np.repeat(np.cumsum(pieces) - pieces, pieces))
-        lengths = np.minimum(first + max_length, np.repeat(ends, pieces)) - first
-        return np.stack([first, lengths], axis=1).astype(np.int32)
+        pi, pj = (int(p) for p in patch)
+        if pi < 1 or pj < 1 or max_length < 1:
+            raise ValueError(f"patch {patch} and max_length {max_length} must be positive")
+        interior = np.zeros(self.shape, dtype=bool)
+        interior[tuple(self.active_ijk[: self.n_interior].T)] = True
+        nx, ny, nz = self.shape
+        px, py = -(-nx // pi) * pi, -(-ny // pj) * pj
+        padded = np.zeros((px, py, nz), dtype=bool)
+        padded[:nx, :ny] = interior
+        occupied = padded.reshape(px // pi, pi, py // pj, pj, nz).any(axis=(1, 3))
+        edges = np.diff(np.pad(occupied, ((0, 0), (0, 0), (1, 1))).astype(np.int8), axis=2)
+        si, sj, sk = np.nonzero(edges == 1)
+        ek = np.nonzero(edges == -1)[2]  # the same (i, j) order: each run's end follows its start
+        pieces = -(-(ek - sk) // max_length)
+        piece = np.arange(pieces.sum()) - np.repeat(np.cumsum(pieces) - pieces, pieces)
+        first = np.repeat(sk, pieces) + max_length * piece
+        lengths = np.minimum(first + max_length, np.repeat(ek, pieces)) - first
+        return np.stack([pi * np.repeat(si, pieces), pj * np.repeat(sj, pieces), first, lengths],
+                        axis=1).astype(np.int32)
 
     def device_arrays(self, device) -> dict:
-        """``index``, ``active_ijk`` and the interior ``lines`` on ``device`` (uploaded once per device)."""
+        """``index``, ``active_ijk`` and the stencil's ``patches`` on ``device`` (uploaded once per device)."""
         d = resolve_device(device)
         if d.alias not in self._device_arrays:
             self._device_arrays[d.alias] = {
                 "index": wp.array(self.index, dtype=wp.int32, device=d),
                 "active_ijk": wp.array(self.active_ijk, dtype=wp.vec3i, device=d),
-                "lines": wp.array(self.interior_lines(), dtype=wp.vec2i, device=d),
+                "patches": wp.array(self.interior_patches((stencil.PATCH_I, stencil.PATCH_J)), dtype=wp.vec4i,
+                                    device=d),
             }
         return self._device_arrays[d.alias]
 

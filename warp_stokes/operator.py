@@ -36,12 +36,13 @@ def apply_operator(grid: Grid, field: wp.array, out: wp.array, n_rows: int | Non
     device = resolve_device(device)
     arrays = grid.device_arrays(device)
     n_rows = field.shape[0] if n_rows is None else n_rows
-    lines = arrays["lines"]
+    patches = arrays["patches"]
     groups = -(-field.shape[1] // stencil.GROUP)
     wp.launch(
         stencil.apply_operator if precise else stencil.apply_operator_fast,
-        dim=(groups, lines.shape[0], stencil.GROUP),
-        inputs=[field, arrays["index"], arrays["active_ijk"], lines, int(n_rows)],
+        dim=(groups, patches.shape[0], stencil.GROUP),
+        inputs=[field, arrays["index"], patches, int(n_rows)],
         outputs=[out],
         device=device,
+        block_dim=stencil.BLOCK_DIM,
     )
