@@ -807,9 +807,34 @@ def main_patches():
         case.measure(V, copy, args.only)
 
 
+def main_patch_regs():
+    """The package's patch kernel (float32 and float64 sums) with register caps, block sizes and run lengths."""
+    from warp_stokes.kernels import stencil
+
+    args, device, copy, cage = start(only=True)
+    kernels = {"f32": stencil.apply_operator_fast, "f64": stencil.apply_operator}
+    for tag, kern in list(kernels.items()):
+        for regs in (64, 80, 96):
+            kernels[f"{tag} maxreg{regs}"] = rekernel(kern, cuda_max_registers=regs)
+    for n in args.resolutions:
+        case = Case(cage, n, device)
+        grid, x, arrays, n_int, groups = case.grid, case.x, case.arrays, case.n_int, case.groups
+        V = {}
+        for L in (32, 64, 128):
+            items = wp.array(grid.interior_patches((stencil.PATCH_I, stencil.PATCH_J), L), dtype=wp.vec4i,
+                             device=device)
+            for name, kern in kernels.items():
+                for bd in (128, 256):
+                    V[f"patches {name} L{L} bd{bd}"] = (lambda y, kern=kern, items=items, bd=bd: wp.launch(
+                        kern, dim=(groups, items.shape[0], 32), inputs=[x, arrays["index"], items, n_int],
+                        outputs=[y], device=device, block_dim=bd))
+        case.measure(V, copy, args.only)
+
+
 if __name__ == "__main__":
     modes = {"forms": main_forms, "bricks": main_bricks, "regs": main_regs, "profile": main_profile,
-             "layout": main_layout, "patches": main_patches}
+             "layout": main_layout, "patches": main_patches,
+             "patch_regs": main_patch_regs}
     if len(sys.argv) < 2 or sys.argv[1] not in modes:
         sys.exit(f"usage: {sys.argv[0]} {{{','.join(modes)}}} [--pair P] [--resolutions N ...] [--device D]")
     modes[sys.argv[1]]()

@@ -51,15 +51,20 @@ def operator_kernel(scalar):
     COLUMNS = PATCH_I * PATCH_J
     ring = wp.types.matrix(shape=(RING, 4), dtype=wp.float32)
     per_column = wp.types.vector(length=COLUMNS, dtype=scalar)
-    per_column4 = wp.types.matrix(shape=(COLUMNS, 4), dtype=scalar)
+    per_column32 = wp.types.vector(length=COLUMNS, dtype=wp.float32)
     vec4 = wp.types.vector(length=4, dtype=scalar)
 
     @wp.struct
     class PlaneTerms:
-        inplane: per_column4  # each column's value and gradient equations from this plane (G_z: 4 G_z only)
-        faces: per_column  # q summed over the column's four face neighbours in this plane
-        q: per_column
-        gz: per_column
+        # per column of the patch; only the value equation's sums need `scalar`: the x and y gradient
+        # equations are complete within the plane (rounded to float32 here as they would be on output), and
+        # q, G_z are float32 data
+        value: per_column  # the in-plane part of the value equation
+        faces: per_column  # q summed over the four face neighbours in this plane (edges of the nodes above, below)
+        gx: per_column32
+        gy: per_column32
+        q: per_column32
+        gz: per_column32
 
     @wp.func
     def plane_terms(field: wp.array2d(dtype=wp.vec4f), index: wp.array3d(dtype=wp.int32), n_rows: int, i0: int,
@@ -83,15 +88,13 @@ def operator_kernel(scalar):
                     scalar(m[centre - W + 1][0]) + scalar(m[centre - W - 1][0]))
                 faces = (xp[0] + xm[0]) + (yp[0] + ym[0])
                 n = a * PATCH_J + b
-                t.inplane[n] = vec4(
-                    scalar(48.0) * c[0] - scalar(10.0) * faces + corners + three * ((xp[1] - xm[1]) + (yp[2] - ym[2])),
-                    xm[1] + four * c[1] + xp[1] - three * (xp[0] - xm[0]),
-                    ym[2] + four * c[2] + yp[2] - three * (yp[0] - ym[0]),
-                    four * c[3],
-                )
+                t.value[n] = scalar(48.0) * c[0] - scalar(10.0) * faces + corners + three * (
+                    (xp[1] - xm[1]) + (yp[2] - ym[2]))
                 t.faces[n] = faces
-                t.q[n] = c[0]
-                t.gz[n] = c[3]
+                t.gx[n] = wp.float32(xm[1] + four * c[1] + xp[1] - three * (xp[0] - xm[0]))
+                t.gy[n] = wp.float32(ym[2] + four * c[2] + yp[2] - three * (yp[0] - ym[0]))
+                t.q[n] = m[centre][0]
+                t.gz[n] = m[centre][3]
         return t
 
     @wp.kernel(module="unique")
@@ -117,6 +120,7 @@ def operator_kernel(scalar):
         j0 = patch[1]
         k0 = patch[2]
         three = scalar(3.0)
+        four = scalar(4.0)
         below = plane_terms(field, index, n_rows, i0, j0, k0 - 1, h)
         mid = plane_terms(field, index, n_rows, i0, j0, k0, h)
         for t in range(patch[3]):
@@ -128,11 +132,14 @@ def operator_kernel(scalar):
                     row = index[i0 + a, j0 + b, k]
                     if row >= 0 and row < out.shape[0]:
                         n = a * PATCH_J + b
-                        p = mid.inplane[n]
-                        value = p[0] - scalar(10.0) * (above.q[n] + below.q[n]) + (above.faces[n] + below.faces[n])
-                        value += three * (above.gz[n] - below.gz[n])
-                        gz = below.gz[n] + p[3] + above.gz[n] - three * (above.q[n] - below.q[n])
-                        out[row, h] = wp.vec4f(wp.float32(value), wp.float32(p[1]), wp.float32(p[2]), wp.float32(gz))
+                        q_up = scalar(above.q[n])
+                        q_down = scalar(below.q[n])
+                        gz_up = scalar(above.gz[n])
+                        gz_down = scalar(below.gz[n])
+                        value = mid.value[n] - scalar(10.0) * (q_up + q_down) + (above.faces[n] + below.faces[n])
+                        value += three * (gz_up - gz_down)
+                        gz = gz_down + four * scalar(mid.gz[n]) + gz_up - three * (q_up - q_down)
+                        out[row, h] = wp.vec4f(wp.float32(value), mid.gx[n], mid.gy[n], wp.float32(gz))
             below = mid
             mid = above
 
