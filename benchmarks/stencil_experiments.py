@@ -579,8 +579,9 @@ def planar_kernel(get, scalar=wp.float32):
         ym = pair_at(field, index, n_rows, i, j - 1, k, 2, h)
         p.x = wp.vec4f(xp[0], xp[1], xm[0], xm[1])
         p.y = wp.vec4f(yp[0], yp[1], ym[0], ym[1])
-        p.corners = (q_at(field, index, n_rows, i + 1, j + 1, k, h) + q_at(field, index, n_rows, i + 1, j - 1, k, h)) + (
-            q_at(field, index, n_rows, i - 1, j + 1, k, h) + q_at(field, index, n_rows, i - 1, j - 1, k, h))
+        up = q_at(field, index, n_rows, i + 1, j + 1, k, h) + q_at(field, index, n_rows, i + 1, j - 1, k, h)
+        down = q_at(field, index, n_rows, i - 1, j + 1, k, h) + q_at(field, index, n_rows, i - 1, j - 1, k, h)
+        p.corners = up + down
         return p
 
     @wp.func
@@ -757,29 +758,6 @@ def patch_kernel(BI, BJ):
     return apply_patches
 
 
-def patch_items(grid, bi, bj, max_length):
-    """(i0, j0, k0, length): runs along z where any column of the patch (i0 + [0, bi), j0 + [0, bj)) has
-    interior nodes, patches aligned to multiples of (bi, bj), runs cut at max_length."""
-    interior = np.zeros(grid.shape, dtype=bool)
-    interior[tuple(grid.active_ijk[: grid.n_interior].T)] = True
-    nx, ny, nz = grid.shape
-    px, py = -(-nx // bi) * bi, -(-ny // bj) * bj
-    padded = np.zeros((px, py, nz), bool)
-    padded[:nx, :ny] = interior
-    anyp = padded.reshape(px // bi, bi, py // bj, bj, nz).any(axis=(1, 3))
-    z = np.zeros(anyp.shape[:2] + (nz + 2,), np.int8)
-    z[:, :, 1:-1] = anyp
-    d = np.diff(z, axis=2)
-    si, sj, sk = np.nonzero(d == 1)
-    _, _, ek = np.nonzero(d == -1)
-    lengths = ek - sk
-    pieces = -(-lengths // max_length)
-    first = np.repeat(sk, pieces) + max_length * (np.arange(pieces.sum()) - np.repeat(np.cumsum(pieces) - pieces, pieces))
-    last = np.repeat(ek, pieces)
-    return np.stack([bi * np.repeat(si, pieces), bj * np.repeat(sj, pieces), first,
-                     np.minimum(first + max_length, last) - first], axis=1).astype(np.int32)
-
-
 def main_patches():
     args, device, copy, cage = start(only=True)
     shapes = [(1, 1), (1, 2), (2, 1), (2, 2), (1, 4), (2, 3), (3, 2)]
@@ -797,7 +775,7 @@ def main_patches():
              "lines f32": case.line_walk(), "lines f64": case.line_walk(kernel=sv.apply_lines_f64)}
         for (bi, bj), kern in kernels.items():
             for L in (64, 128):
-                items = wp.array(patch_items(grid, bi, bj, L), dtype=wp.vec4i, device=device)
+                items = wp.array(grid.interior_patches((bi, bj), L), dtype=wp.vec4i, device=device)
                 nodes = int(items.numpy()[:, 3].sum()) * bi * bj
                 for bd in (128, 256):
                     V[f"patch {bi}x{bj} L{L} bd{bd} ({nodes / n_int:.2f} walked/interior)"] = (

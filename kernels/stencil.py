@@ -42,10 +42,11 @@ def operator_kernel(scalar):
     of `Grid.interior_patches`). Each z plane is loaded once, from the (PATCH_I + 2) x (PATCH_J + 2) rows
     around the patch, and reduced at once to what each column's nodes need from it: the in-plane part of its
     own equations, and for the nodes above and below, q, G_z and the sum of q over the four face neighbours
-    (their edge terms). The planes below, at and above a node then take ~10 values per column in registers.
-    Against one thread per column with three whole planes in registers this halves the loads per node (4
-    instead of 9) and the registers: the kernel is bound by L2 bandwidth (Nsight Compute, RESULTS.md), so the
-    loads that miss L1 are what counts."""
+    (their edge terms): six values per column and plane, three planes in registers. Against one thread per
+    column keeping three whole planes (the form before, bound by L2 bandwidth) this more than halves the rows
+    loaded per interior node (4.4-4.9 against 9.3-10.1 on the real cages, runs included), and the loads that
+    miss L1 are what limited it (benchmarks/RESULTS.md: 60-65% of the copy bandwidth at n = 256 on an H100,
+    against 54-55%)."""
     W = PATCH_J + 2
     RING = (PATCH_I + 2) * W
     COLUMNS = PATCH_I * PATCH_J

@@ -25,7 +25,7 @@ MARGIN = BAND_WIDTH + 1
 #: accuracy of Warp's fast winding number (dipole expansion used beyond this many cluster radii)
 WINDING_ACCURACY = 2.0
 #: the stencil kernel walks patches of columns along z in pieces of at most this many planes, so that short
-#: and long runs balance across threads (64 and 128 measured within 2 points, benchmarks/RESULTS.md)
+#: and long runs balance across threads (64 was the most even of 32, 64 and 128 on an H100, benchmarks/RESULTS.md)
 PATCH_LENGTH = 64
 
 
@@ -73,7 +73,8 @@ class Grid:
         ijk = self.active_ijk if rows is None else self.active_ijk[rows]
         return self.origin + self.spacing * ijk.astype(np.float64)
 
-    def interior_patches(self, patch: tuple = (2, 2), max_length: int = PATCH_LENGTH) -> np.ndarray:
+    def interior_patches(self, patch: tuple = (stencil.PATCH_I, stencil.PATCH_J),
+                         max_length: int = PATCH_LENGTH) -> np.ndarray:
         """Runs along z of patches of columns that hold interior nodes: the work items of the stencil kernel.
 
         Columns are grouped into patches of ``patch`` = (pi, pj) columns, aligned to multiples of (pi, pj); a
@@ -122,8 +123,7 @@ class Grid:
             self._device_arrays[d.alias] = {
                 "index": wp.array(self.index, dtype=wp.int32, device=d),
                 "active_ijk": wp.array(self.active_ijk, dtype=wp.vec3i, device=d),
-                "patches": wp.array(self.interior_patches((stencil.PATCH_I, stencil.PATCH_J)), dtype=wp.vec4i,
-                                    device=d),
+                "patches": wp.array(self.interior_patches(), dtype=wp.vec4i, device=d),
             }
         return self._device_arrays[d.alias]
 
