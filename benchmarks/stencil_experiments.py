@@ -35,6 +35,7 @@ import numpy as np
 import warp as wp
 
 import warp_stokes as ws
+from warp_stokes.kernels import stencil
 
 if os.environ.get("CPU_BLOCKS"):
     wp.config.enable_cpu_blocks = True
@@ -677,85 +678,9 @@ def main_layout():
 
 
 # ------------------------------------------------------------------------------------------------------------
-# patches: one thread walks a BI x BJ patch of columns along z, so a plane costs (BI + 2)(BJ + 2) loads for
-# BI * BJ nodes (9 per node for 1 x 1, 4 for 2 x 2); what a plane gives the nodes above and below it is reduced
-# when it is loaded (partial sums), so three planes' state is ~10 floats per column
-
-def patch_kernel(BI, BJ):
-    W = BJ + 2
-    R = (BI + 2) * W
-    C = BI * BJ
-    ring = wp.types.matrix(shape=(R, 4), dtype=wp.float32)
-    vecC = wp.types.vector(length=C, dtype=wp.float32)
-    vec4C = wp.types.matrix(shape=(C, 4), dtype=wp.float32)
-
-    @wp.struct
-    class Summary:
-        inplane: vec4C  # value and gradient equations' terms from this plane (gz: 4 Gz only)
-        s4: vecC  # q summed over the four face neighbours: edges of the nodes above and below
-        q: vecC
-        gz: vecC
-
-    @wp.func
-    def load(field: wp.array2d(dtype=wp.vec4f), index: wp.array3d(dtype=wp.int32), n_rows: int, i0: int, j0: int,
-             k: int, h: int):
-        m = ring()
-        for a in range(BI + 2):
-            for b in range(BJ + 2):
-                row = index[i0 - 1 + a, j0 - 1 + b, k]
-                if row >= 0 and row < n_rows:
-                    m[a * W + b] = field[row, h]
-        s = Summary()
-        for a in range(BI):
-            for b in range(BJ):
-                c = m[(a + 1) * W + b + 1]
-                xp = m[(a + 2) * W + b + 1]
-                xm = m[a * W + b + 1]
-                yp = m[(a + 1) * W + b + 2]
-                ym = m[(a + 1) * W + b]
-                corners = (m[(a + 2) * W + b + 2][0] + m[(a + 2) * W + b][0]) + (m[a * W + b + 2][0] + m[a * W + b][0])
-                s4 = (xp[0] + xm[0]) + (yp[0] + ym[0])
-                n = a * BJ + b
-                s.inplane[n] = wp.vec4f(
-                    48.0 * c[0] - 10.0 * s4 + corners + 3.0 * ((xp[1] - xm[1]) + (yp[2] - ym[2])),
-                    xm[1] + 4.0 * c[1] + xp[1] - 3.0 * (xp[0] - xm[0]),
-                    ym[2] + 4.0 * c[2] + yp[2] - 3.0 * (yp[0] - ym[0]),
-                    4.0 * c[3])
-                s.s4[n] = s4
-                s.q[n] = c[0]
-                s.gz[n] = c[3]
-        return s
-
-    @wp.kernel(module="unique")
-    def apply_patches(field: wp.array2d(dtype=wp.vec4f), index: wp.array3d(dtype=wp.int32),
-                      items: wp.array(dtype=wp.vec4i), n_rows: int, n_out: int, out: wp.array2d(dtype=wp.vec4f)):
-        g, s, lane = wp.tid()
-        h = g * 32 + lane
-        if h >= field.shape[1]:
-            return
-        item = items[s]
-        i0 = item[0]
-        j0 = item[1]
-        k0 = item[2]
-        below = load(field, index, n_rows, i0, j0, k0 - 1, h)
-        mid = load(field, index, n_rows, i0, j0, k0, h)
-        for t in range(item[3]):
-            k = k0 + t
-            above = load(field, index, n_rows, i0, j0, k + 1, h)
-            for a in range(BI):
-                for b in range(BJ):
-                    n = a * BJ + b
-                    row = index[i0 + a, j0 + b, k]
-                    if row >= 0 and row < n_out:
-                        p = mid.inplane[n]
-                        value = p[0] - 10.0 * (above.q[n] + below.q[n]) + (above.s4[n] + below.s4[n]) + 3.0 * (
-                            above.gz[n] - below.gz[n])
-                        gz = below.gz[n] + p[3] + above.gz[n] - 3.0 * (above.q[n] - below.q[n])
-                        out[row, h] = wp.vec4f(value, p[1], p[2], gz)
-            below = mid
-            mid = above
-
-    return apply_patches
+# patches: one thread walks a BI x BJ patch of columns along z, each plane loaded once ((BI + 2)(BJ + 2) rows for
+# BI * BJ nodes) and reduced to per-column terms: the package kernel (kernels/stencil.py) for any patch shape.
+# Its first form kept all four equations' plane terms in the sum type; RESULTS.md's shape table is from that form.
 
 
 def main_patches():
@@ -764,7 +689,7 @@ def main_patches():
     kernels = {}
     for bi, bj in shapes:
         try:
-            kernels[(bi, bj)] = patch_kernel(bi, bj)
+            kernels[(bi, bj)] = stencil.operator_kernel(wp.float32, (bi, bj))
         except Exception as e:  # noqa: BLE001
             print("patch kernel failed to build:", bi, bj, e, flush=True)
     for n in args.resolutions:
@@ -780,15 +705,13 @@ def main_patches():
                 for bd in (128, 256):
                     V[f"patch {bi}x{bj} L{L} bd{bd} ({nodes / n_int:.2f} walked/interior)"] = (
                         lambda y, kern=kern, items=items, bd=bd: wp.launch(
-                            kern, dim=(groups, items.shape[0], 32), inputs=[x, arrays["index"], items, n_int, n_int],
+                            kern, dim=(groups, items.shape[0], 32), inputs=[x, arrays["index"], items, n_int],
                             outputs=[y], device=device, block_dim=bd))
         case.measure(V, copy, args.only)
 
 
 def main_patch_regs():
     """The package's patch kernel (float32 and float64 sums) with register caps, block sizes and run lengths."""
-    from warp_stokes.kernels import stencil
-
     args, device, copy, cage = start(only=True)
     kernels = {"f32": stencil.apply_operator_fast, "f64": stencil.apply_operator}
     for tag, kern in list(kernels.items()):

@@ -32,14 +32,14 @@ PATCH_J = 2
 BLOCK_DIM = 128
 
 
-def operator_kernel(scalar):
-    """The batched operator with sums in `scalar` (wp.float32 or wp.float64).
+def operator_kernel(scalar, patch=(PATCH_I, PATCH_J)):
+    """The batched operator with sums in `scalar` (wp.float32 or wp.float64), walking patches of `patch` columns.
 
     Residuals of a nearly converged float32 field cancel to ~1e-7 of their terms: a float32 sum would stall
     the solver there, so residuals use float64 sums. Krylov and smoothing applications only need float32.
 
-    One thread walks a patch of PATCH_I x PATCH_J columns along z for one handle (an item (i0, j0, k0, length)
-    of `Grid.interior_patches`). Each z plane is loaded once, from the (PATCH_I + 2) x (PATCH_J + 2) rows
+    One thread walks a patch of PI x PJ columns along z for one handle (an item (i0, j0, k0, length) of
+    `Grid.interior_patches(patch)`). Each z plane is loaded once, from the (PI + 2) x (PJ + 2) rows
     around the patch, and reduced at once to what each column's nodes need from it: the in-plane part of its
     own equations, and for the nodes above and below, q, G_z and the sum of q over the four face neighbours
     (their edge terms): six values per column and plane, three planes in registers. Against one thread per
@@ -47,9 +47,10 @@ def operator_kernel(scalar):
     loaded per interior node (4.4-4.9 against 9.3-10.1 on the real cages, runs included), and the loads that
     miss L1 are what limited it (benchmarks/RESULTS.md: 60-65% of the copy bandwidth at n = 256 on an H100,
     against 54-55%)."""
-    W = PATCH_J + 2
-    RING = (PATCH_I + 2) * W
-    COLUMNS = PATCH_I * PATCH_J
+    PI, PJ = patch
+    W = PJ + 2
+    RING = (PI + 2) * W
+    COLUMNS = PI * PJ
     ring = wp.types.matrix(shape=(RING, 4), dtype=wp.float32)
     per_column = wp.types.vector(length=COLUMNS, dtype=scalar)
     per_column32 = wp.types.vector(length=COLUMNS, dtype=wp.float32)
@@ -71,14 +72,14 @@ def operator_kernel(scalar):
     def plane_terms(field: wp.array2d(dtype=wp.vec4f), index: wp.array3d(dtype=wp.int32), n_rows: int, i0: int,
                     j0: int, k: int, h: int):
         m = ring()
-        for a in range(PATCH_I + 2):
-            for b in range(PATCH_J + 2):
+        for a in range(PI + 2):
+            for b in range(PJ + 2):
                 m[a * W + b] = node_value(field, index, n_rows, i0 - 1 + a, j0 - 1 + b, k, h)
         t = PlaneTerms()
         three = scalar(3.0)
         four = scalar(4.0)
-        for a in range(PATCH_I):
-            for b in range(PATCH_J):
+        for a in range(PI):
+            for b in range(PJ):
                 centre = (a + 1) * W + b + 1
                 c = vec4(m[centre])
                 xp = vec4(m[centre + W])
@@ -88,7 +89,7 @@ def operator_kernel(scalar):
                 corners = (scalar(m[centre + W + 1][0]) + scalar(m[centre + W - 1][0])) + (
                     scalar(m[centre - W + 1][0]) + scalar(m[centre - W - 1][0]))
                 faces = (xp[0] + xm[0]) + (yp[0] + ym[0])
-                n = a * PATCH_J + b
+                n = a * PJ + b
                 t.value[n] = scalar(48.0) * c[0] - scalar(10.0) * faces + corners + three * (
                     (xp[1] - xm[1]) + (yp[2] - ym[2]))
                 t.faces[n] = faces
@@ -127,12 +128,12 @@ def operator_kernel(scalar):
         for t in range(patch[3]):
             k = k0 + t
             above = plane_terms(field, index, n_rows, i0, j0, k + 1, h)
-            for a in range(PATCH_I):
-                for b in range(PATCH_J):
+            for a in range(PI):
+                for b in range(PJ):
                     # a patch also covers ring, band and outside nodes next to the interior: no equation there
                     row = index[i0 + a, j0 + b, k]
                     if row >= 0 and row < out.shape[0]:
-                        n = a * PATCH_J + b
+                        n = a * PJ + b
                         q_up = scalar(above.q[n])
                         q_down = scalar(below.q[n])
                         gz_up = scalar(above.gz[n])
