@@ -29,6 +29,13 @@ def residual(
 
 
 @wp.kernel
+def negate(a: wp.array2d(dtype=wp.vec4f), out: wp.array2d(dtype=wp.vec4f)):
+    """out = -a (out may alias a)."""
+    n, h = wp.tid()
+    out[n, h] = -a[n, h]
+
+
+@wp.kernel
 def add_columns(a: wp.array2d(dtype=wp.vec4f), b: wp.array2d(dtype=wp.vec4f), out: wp.array2d(dtype=wp.vec4f)):
     """out = a + b."""
     n, h = wp.tid()

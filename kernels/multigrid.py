@@ -1,87 +1,96 @@
 """Kernels of the geometric multigrid preconditioner for the compact coupled scheme.
 
 Levels are sets of nodes on lattices of spacing 2^l h. A level's unknowns are rows of (node, handle) arrays of
-vec4 (q, G) with G = (level spacing) grad q. The fine operator is applied matrix-free (stencil.py); coarse
-operators are Galerkin products P^T A P stored as 4x4-block sparse matrices (warp.sparse BSR, compact rows).
+vec4 (q, G) with G = (level spacing) grad q. Every operator is a block stencil on its lattice, applied and
+formed without general sparse matrices (whose 32-bit offsets overflow on large grids):
+
+- the fine operator is the 19-point stencil (stencil.py), here only needed as blocks inside the Galerkin product;
+- coarse operators are Galerkin products P^T A P; on a lattice they couple a node to its 27 neighbours within one
+  lattice step, stored as (nodes, 27) mat44 blocks, neighbour o = (di, dj, dk) at slot 9 (di + 1) + 3 (dj + 1)
+  + dk + 1;
+- the prolongation P is the cubic Hermite interpolation from the coarse lattice; its block for a fine node and one
+  of its parents depends only on the node's parities and on which parent it is: a table of 8 x 8 blocks.
+
+A row lookup `node_row(index, n_rows, p)` gives -1 for lattice points off the lattice, without a row, or with a
+row >= n_rows: with the grid's index and n_rows = n_interior the fine level's unknowns are the interior nodes.
 """
 
 import warp as wp
 
-# ---------------------------------------------------------------------------------------------------------------
-# fine operator as blocks (input of the Galerkin product)
+NEIGHBOURS = wp.constant(27)
+CENTRE = wp.constant(13)
 
 
 @wp.func
-def face_block(axis: int, sign: float):
-    """Coupling of a node's (q, G) equations to (q, G) of its face neighbour p + sign e_axis."""
-    m = wp.mat44f()
-    m[0, 0] = -10.0
-    m[0, 1 + axis] = 3.0 * sign
-    m[1 + axis, 1 + axis] = 1.0
-    m[1 + axis, 0] = -3.0 * sign
+def neighbour_offset(slot: int):
+    """(di, dj, dk) in {-1, 0, 1}^3 of neighbour slot 0..26."""
+    return wp.vec3i(slot // 9 - 1, (slot // 3) % 3 - 1, slot % 3 - 1)
+
+
+@wp.func
+def neighbour_slot(d: wp.vec3i):
+    return 9 * (d[0] + 1) + 3 * (d[1] + 1) + d[2] + 1
+
+
+@wp.func
+def node_row(index: wp.array3d(dtype=wp.int32), n_rows: int, p: wp.vec3i):
+    """Row of lattice point p, or -1 when it is off the lattice or has no row below n_rows."""
+    if p[0] < 0 or p[1] < 0 or p[2] < 0:
+        return -1
+    if p[0] >= index.shape[0] or p[1] >= index.shape[1] or p[2] >= index.shape[2]:
+        return -1
+    row = int(index[p[0], p[1], p[2]])
+    if row >= n_rows:
+        return -1
+    return row
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# the fine operator's blocks
+
+
+@wp.func
+def fine_block(d: wp.vec3i):
+    """Block of the 19-point operator coupling a node's (q, G) equations to (q, G) of its neighbour p + d."""
+    m = wp.mat44d()
+    steps = wp.abs(d[0]) + wp.abs(d[1]) + wp.abs(d[2])
+    if steps == 0:
+        m[0, 0] = wp.float64(48.0)
+        m[1, 1] = wp.float64(4.0)
+        m[2, 2] = wp.float64(4.0)
+        m[3, 3] = wp.float64(4.0)
+    elif steps == 1:
+        # value eq: -10 q + 3 sign G_a; gradient eq along a: G_a - 3 sign q
+        axis = int(0)
+        sign = wp.float64(0.0)
+        for a in range(3):
+            if d[a] != 0:
+                axis = a
+                sign = wp.float64(d[a])
+        m[0, 0] = wp.float64(-10.0)
+        m[0, 1 + axis] = wp.float64(3.0) * sign
+        m[1 + axis, 1 + axis] = wp.float64(1.0)
+        m[1 + axis, 0] = wp.float64(-3.0) * sign
+    elif steps == 2:
+        m[0, 0] = wp.float64(1.0)
     return m
 
 
-@wp.func
-def neighbour_triplet(
-    index: wp.array3d(dtype=wp.int32),
-    n_interior: int,
-    row: int,
-    nb: wp.vec3i,
-    block: wp.mat44f,
-    slot: int,
-    rows: wp.array(dtype=int),
-    cols: wp.array(dtype=int),
-    blocks: wp.array(dtype=wp.mat44f),
-):
-    """Triplet `slot`: (row, neighbour's row, block), or -1 indices when the neighbour is known data."""
-    col = int(index[nb[0], nb[1], nb[2]])
-    if col >= n_interior:
-        col = -1
-    rows[slot] = wp.where(col >= 0, row, -1)
-    cols[slot] = col
-    blocks[slot] = block
-
-
 @wp.kernel
-def fine_operator_triplets(
-    interior_ijk: wp.array(dtype=wp.vec3i),
+def stencil_blocks(
+    ijk: wp.array(dtype=wp.vec3i),
     index: wp.array3d(dtype=wp.int32),
-    n_interior: int,
-    rows: wp.array(dtype=int),
-    cols: wp.array(dtype=int),
-    blocks: wp.array(dtype=wp.mat44f),
+    n_rows: int,
+    blocks: wp.array2d(dtype=wp.mat44f),
 ):
-    """The 19 blocks of each interior row of A_II: 19 triplet slots per node, -1 where the neighbour is known."""
-    n = wp.tid()
-    c = interior_ijk[n]
-    base = 19 * n
-    centre = wp.mat44f()
-    centre[0, 0] = 48.0
-    centre[1, 1] = 4.0
-    centre[2, 2] = 4.0
-    centre[3, 3] = 4.0
-    rows[base] = n
-    cols[base] = n
-    blocks[base] = centre
-    slot = base + 1
-    for axis in range(3):
-        for side in range(2):
-            e = wp.vec3i(0, 0, 0)
-            e[axis] = 2 * side - 1
-            neighbour_triplet(index, n_interior, n, c + e, face_block(axis, float(2 * side - 1)), slot, rows, cols,
-                              blocks)
-            slot += 1
-    edge = wp.mat44f()
-    edge[0, 0] = 1.0
-    for a in range(3):
-        for sa in range(2):
-            for sb in range(2):
-                e = wp.vec3i(0, 0, 0)
-                e[a] = 2 * sa - 1
-                e[(a + 1) % 3] = 2 * sb - 1
-                neighbour_triplet(index, n_interior, n, c + e, edge, slot, rows, cols, blocks)
-                slot += 1
+    """The 19-point operator of the unknowns as (rows, 27) blocks, zero where the neighbour is not an unknown:
+    only for small levels (a coarsest level that is the fine one, inspection); launch (rows, 27)."""
+    m, o = wp.tid()
+    d = neighbour_offset(o)
+    b = wp.mat44f()
+    if node_row(index, n_rows, ijk[m] + d) >= 0:
+        b = wp.mat44f(fine_block(d))
+    blocks[m, o] = b
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -91,21 +100,16 @@ def fine_operator_triplets(
 @wp.kernel
 def coarse_coverage(
     fine_index: wp.array3d(dtype=wp.int32),
+    n_fine: int,
     coarse_count: wp.array3d(dtype=wp.int32),
 ):
     """Number of fine unknown nodes among the 27 fine nodes f with |f - 2c| <= 1 around coarse node c."""
     i, j, k = wp.tid()
+    centre = wp.vec3i(2 * i, 2 * j, 2 * k)
     count = int(0)
-    for di in range(-1, 2):
-        for dj in range(-1, 2):
-            for dk in range(-1, 2):
-                fi = 2 * i + di
-                fj = 2 * j + dj
-                fk = 2 * k + dk
-                if fi >= 0 and fj >= 0 and fk >= 0:
-                    if fi < fine_index.shape[0] and fj < fine_index.shape[1] and fk < fine_index.shape[2]:
-                        if fine_index[fi, fj, fk] >= 0:
-                            count += 1
+    for s in range(27):
+        if node_row(fine_index, n_fine, centre + neighbour_offset(s)) >= 0:
+            count += 1
     coarse_count[i, j, k] = count
 
 
@@ -116,60 +120,135 @@ def hermite_1d(axis: int, parity: int, side: int):
     parity 0: the fine node sits on the parent (identity). parity 1: it is the edge midpoint between the parents
     side 0 (left) and side 1 (right): cubic Hermite value (q0+q1)/2 + (G0-G1)/8 and slope 1.5(q1-q0) -
     (G0+G1)/4 along the axis, linear averages of the transverse gradients."""
-    m = wp.mat44f()
+    m = wp.mat44d()
     if parity == 0:
-        m = wp.identity(n=4, dtype=wp.float32)
+        m = wp.identity(n=4, dtype=wp.float64)
     else:
-        sign = float(2 * side - 1)  # -1 left, +1 right
+        sign = wp.float64(2 * side - 1)  # -1 left, +1 right
         a = 1 + axis
-        m[0, 0] = 0.5
-        m[0, a] = -0.125 * sign
-        m[a, 0] = 1.5 * sign
-        m[a, a] = -0.25
+        m[0, 0] = wp.float64(0.5)
+        m[0, a] = wp.float64(-0.125) * sign
+        m[a, 0] = wp.float64(1.5) * sign
+        m[a, a] = wp.float64(-0.25)
         for b in range(3):
             if b != axis:
-                m[1 + b, 1 + b] = 0.5
+                m[1 + b, 1 + b] = wp.float64(0.5)
     return m
+
+
+@wp.kernel
+def hermite_table(table: wp.array(dtype=wp.mat44d)):
+    """table[8 parity + side]: P's block for a fine node of parities (px, py, pz) = bits of `parity` and its
+    parent on sides (sx, sy, sz) = bits of `side` (side 1 only along odd axes; other entries are zero).
+    The tensor product applies x, then y, then z, and rescales G to fine units at the end."""
+    t = wp.tid()
+    parity = t // 8
+    side = t % 8
+    m = wp.mat44d()
+    if (side & ~parity) == 0:
+        to_fine = wp.mat44d()
+        to_fine[0, 0] = wp.float64(1.0)
+        to_fine[1, 1] = wp.float64(0.5)
+        to_fine[2, 2] = wp.float64(0.5)
+        to_fine[3, 3] = wp.float64(0.5)
+        hx = hermite_1d(0, parity & 1, side & 1)
+        hy = hermite_1d(1, (parity >> 1) & 1, (side >> 1) & 1)
+        hz = hermite_1d(2, (parity >> 2) & 1, (side >> 2) & 1)
+        m = to_fine * (hz * (hy * hx))
+    table[t] = m
+
+
+@wp.func
+def parent_entry(d: wp.vec3i):
+    """Table entry of P's block for the fine node 2c + d (d in {-1, 0, 1}^3) and its parent c."""
+    parity = int(0)
+    side = int(0)
+    for a in range(3):
+        if d[a] != 0:
+            parity = parity | (1 << a)
+        if d[a] < 0:  # the fine node lies before its parent: the parent is on its right
+            side = side | (1 << a)
+    return 8 * parity + side
 
 
 @wp.kernel
 def prolongation_triplets(
     fine_ijk: wp.array(dtype=wp.vec3i),
     coarse_index: wp.array3d(dtype=wp.int32),
+    n_coarse: int,
+    table: wp.array(dtype=wp.mat44d),
     rows: wp.array(dtype=int),
     cols: wp.array(dtype=int),
     blocks: wp.array(dtype=wp.mat44f),
 ):
-    """P's blocks for each fine unknown: 8 triplet slots (parents), -1 where a parent does not exist or is
-    not kept. The tensor product applies x, then y, then z, and rescales G to fine units at the end."""
+    """P's blocks for each fine unknown as 8 triplet slots (parents), -1 where a parent does not exist or is not
+    kept: P as a matrix, for inspection and tests (the V-cycle applies P and P^T with the kernels below)."""
     n = wp.tid()
     f = fine_ijk[n]
-    px = f[0] % 2
-    py = f[1] % 2
-    pz = f[2] % 2
-    to_fine = wp.mat44f()
-    to_fine[0, 0] = 1.0
-    to_fine[1, 1] = 0.5
-    to_fine[2, 2] = 0.5
-    to_fine[3, 3] = 0.5
     for slot in range(8):
-        sx = slot & 1
-        sy = (slot >> 1) & 1
-        sz = (slot >> 2) & 1
         col = int(-1)
-        # a parity-0 axis has one parent: only side 0 is used
-        if (px == 1 or sx == 0) and (py == 1 or sy == 0) and (pz == 1 or sz == 0):
-            ci = (f[0] - px) // 2 + sx
-            cj = (f[1] - py) // 2 + sy
-            ck = (f[2] - pz) // 2 + sz
-            if ci < coarse_index.shape[0] and cj < coarse_index.shape[1] and ck < coarse_index.shape[2]:
-                col = int(coarse_index[ci, cj, ck])
+        d = wp.vec3i()
+        ok = bool(True)
+        for a in range(3):
+            s = (slot >> a) & 1
+            if f[a] % 2 == 0:
+                ok = ok and s == 0
+            else:
+                d[a] = 1 - 2 * s  # side 0: the parent is at (f - 1) / 2, so f = 2c + 1
+        if ok:
+            col = node_row(coarse_index, n_coarse, wp.vec3i((f[0] - d[0]) // 2, (f[1] - d[1]) // 2,
+                                                             (f[2] - d[2]) // 2))
         m = wp.mat44f()
         if col >= 0:
-            m = to_fine * (hermite_1d(2, pz, sz) * (hermite_1d(1, py, sy) * hermite_1d(0, px, sx)))
+            m = wp.mat44f(table[parent_entry(d)])
         rows[8 * n + slot] = wp.where(col >= 0, n, -1)
         cols[8 * n + slot] = col
         blocks[8 * n + slot] = m
+
+
+@wp.kernel
+def galerkin_blocks(
+    coarse_ijk: wp.array(dtype=wp.vec3i),
+    coarse_index: wp.array3d(dtype=wp.int32),
+    n_coarse: int,
+    fine_index: wp.array3d(dtype=wp.int32),
+    n_fine: int,
+    fine_blocks: wp.array2d(dtype=wp.mat44f),
+    fine_is_stencil: int,
+    table: wp.array(dtype=wp.mat44d),
+    blocks: wp.array2d(dtype=wp.mat44f),
+):
+    """blocks[m, o] = (P^T A P)[c, c + o] for coarse node c = coarse_ijk[m] and neighbour slot o; launch
+    (coarse nodes, 27). A is the 19-point stencil (fine_is_stencil = 1) or a 27-point block stencil
+    `fine_blocks`; sums in float64.
+
+    (P^T A P)[c, c'] = sum over the fine unknowns f around c (|f - 2c| <= 1) of P[f, c]^T (A P)[f, c'], with
+    (A P)[f, c'] = sum over A's neighbours g of f that lie around c' (|g - 2c'| <= 1) of A[f, g] P[g, c']."""
+    m, o = wp.tid()
+    c = coarse_ijk[m]
+    other = c + neighbour_offset(o)
+    acc = wp.mat44d()
+    if node_row(coarse_index, n_coarse, other) >= 0:
+        for s in range(27):
+            ds = neighbour_offset(s)
+            f = 2 * c + ds
+            row_f = node_row(fine_index, n_fine, f)
+            if row_f >= 0:
+                ap = wp.mat44d()
+                for t in range(27):
+                    dt = neighbour_offset(t)
+                    g = f + dt
+                    e = g - 2 * other
+                    if wp.abs(e[0]) <= 1 and wp.abs(e[1]) <= 1 and wp.abs(e[2]) <= 1:
+                        if node_row(fine_index, n_fine, g) >= 0:
+                            a = wp.mat44d()
+                            if fine_is_stencil != 0:
+                                a = fine_block(dt)
+                            else:
+                                a = wp.mat44d(fine_blocks[row_f, t])
+                            ap += a * table[parent_entry(e)]
+                acc += wp.transpose(table[parent_entry(ds)]) * ap
+    blocks[m, o] = wp.mat44f(acc)
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -177,30 +256,87 @@ def prolongation_triplets(
 
 
 @wp.kernel
-def bsr_apply(
-    offsets: wp.array(dtype=int),
-    columns: wp.array(dtype=int),
-    blocks: wp.array(dtype=wp.mat44f),
+def stencil_apply(
+    blocks: wp.array2d(dtype=wp.mat44f),
+    ijk: wp.array(dtype=wp.vec3i),
+    index: wp.array3d(dtype=wp.int32),
     x: wp.array2d(dtype=wp.vec4f),
-    alpha: float,
-    beta: float,
-    y: wp.array2d(dtype=wp.vec4f),
+    out: wp.array2d(dtype=wp.vec4f),
 ):
-    """y = alpha A x + beta y for a compact 4x4-block sparse A, every handle a column; launch (rows, handles)."""
-    row, h = wp.tid()
+    """out = A x for a 27-point block stencil A, every handle a column; launch (rows, handles)."""
+    n, h = wp.tid()
+    c = ijk[n]
     acc = wp.vec4f(0.0)
-    for k in range(offsets[row], offsets[row + 1]):
-        acc += blocks[k] * x[columns[k], h]
-    if beta == 0.0:
-        y[row, h] = alpha * acc
-    else:
-        y[row, h] = alpha * acc + beta * y[row, h]
+    for o in range(27):
+        col = node_row(index, x.shape[0], c + neighbour_offset(o))
+        if col >= 0:
+            acc += blocks[n, o] * x[col, h]
+    out[n, h] = acc
 
 
 @wp.kernel
-def invert_blocks(blocks: wp.array(dtype=wp.mat44f), inverse: wp.array(dtype=wp.mat44f)):
+def restrict(
+    table: wp.array(dtype=wp.mat44d),
+    coarse_ijk: wp.array(dtype=wp.vec3i),
+    fine_index: wp.array3d(dtype=wp.int32),
+    n_fine: int,
+    r: wp.array2d(dtype=wp.vec4f),
+    b: wp.array2d(dtype=wp.vec4f),
+):
+    """b = P^T r: each coarse node gathers from the fine unknowns around it; launch (coarse rows, handles)."""
+    m, h = wp.tid()
+    c = coarse_ijk[m]
+    acc = wp.vec4f(0.0)
+    for s in range(27):
+        d = neighbour_offset(s)
+        row = node_row(fine_index, n_fine, 2 * c + d)
+        if row >= 0:
+            acc += wp.transpose(wp.mat44f(table[parent_entry(d)])) * r[row, h]
+    b[m, h] = acc
+
+
+@wp.kernel
+def prolong_add(
+    table: wp.array(dtype=wp.mat44d),
+    fine_ijk: wp.array(dtype=wp.vec3i),
+    coarse_index: wp.array3d(dtype=wp.int32),
+    xc: wp.array2d(dtype=wp.vec4f),
+    x: wp.array2d(dtype=wp.vec4f),
+):
+    """x += P xc: each fine unknown gathers from its kept parents; launch (fine rows, handles)."""
+    n, h = wp.tid()
+    f = fine_ijk[n]
+    acc = wp.vec4f(0.0)
+    for slot in range(8):
+        d = wp.vec3i()
+        ok = bool(True)
+        for a in range(3):
+            s = (slot >> a) & 1
+            if f[a] % 2 == 0:
+                ok = ok and s == 0
+            else:
+                d[a] = 1 - 2 * s
+        if ok:
+            col = node_row(coarse_index, xc.shape[0], wp.vec3i((f[0] - d[0]) // 2, (f[1] - d[1]) // 2,
+                                                                (f[2] - d[2]) // 2))
+            if col >= 0:
+                acc += wp.mat44f(table[parent_entry(d)]) * xc[col, h]
+    x[n, h] = x[n, h] + acc
+
+
+@wp.kernel
+def diagonal_inverse(blocks: wp.array2d(dtype=wp.mat44f), inverse: wp.array(dtype=wp.mat44f)):
+    """Inverses of the centre blocks of a 27-point block stencil."""
     i = wp.tid()
-    inverse[i] = wp.inverse(blocks[i])
+    inverse[i] = wp.inverse(blocks[i, CENTRE])
+
+
+@wp.func
+def diagonal_block(inv_diag: wp.array(dtype=wp.mat44f), n: int):
+    """D^-1 of row n; a single block stands for every row (the fine stencil's diagonal is constant)."""
+    if inv_diag.shape[0] == 1:
+        return inv_diag[0]
+    return inv_diag[n]
 
 
 @wp.kernel
@@ -213,7 +349,7 @@ def chebyshev_start(
 ):
     """d = scale D^-1 r; x += d."""
     n, h = wp.tid()
-    v = scale * (inv_diag[n] * r[n, h])
+    v = scale * (diagonal_block(inv_diag, n) * r[n, h])
     d[n, h] = v
     x[n, h] = x[n, h] + v
 
@@ -229,7 +365,7 @@ def chebyshev_step(
 ):
     """d = a d + b D^-1 r; x += d."""
     n, h = wp.tid()
-    v = a * d[n, h] + b * (inv_diag[n] * r[n, h])
+    v = a * d[n, h] + b * (diagonal_block(inv_diag, n) * r[n, h])
     d[n, h] = v
     x[n, h] = x[n, h] + v
 

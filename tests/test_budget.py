@@ -50,9 +50,9 @@ def test_chunked_and_unchunked_solves_give_the_same_weights(arm_cage):
         warnings.simplefilter("ignore")
         whole = ws.bind(EXAMPLE / "arm.obj", arm_cage, resolution=24, device="cpu")
         grid = ws.voxelize(arm_cage, 24, device="cpu")
-        estimate = ws.estimate_memory(grid, whole.n_vertices)
+        estimate = ws.estimate_memory(grid, whole.n_vertices, levels=ws.coarsen(grid, "cpu"), device="cpu")
         # room for 24 columns: 20 of the 58 handles at a time and the 4 columns of the rest of the cage
-        budget = estimate.shared + 24 * estimate.per_handle
+        budget = estimate.total(24)
         chunked = ws.bind(EXAMPLE / "arm.obj", arm_cage, resolution=24, device="cpu", memory_budget=budget)
     assert whole.stats["chunks"] == 1 and chunked.stats["chunks"] == 3
     assert chunked.stats["memory_estimate_bytes"] <= budget < whole.stats["memory_estimate_bytes"]
@@ -85,4 +85,5 @@ def test_an_impossible_budget_fails_at_once_naming_a_resolution_that_fits(arm_ca
     assert 8 <= suggested < 64
     grid = ws.voxelize(arm_cage, suggested, device="cpu")
     # the suggestion does fit: one handle with the complement columns of a chunked solve
-    assert ws.estimate_memory(grid, 2089).total(1 + ws.COMPLEMENT_COLUMNS) <= 8 * 2**20
+    estimate = ws.estimate_memory(grid, 2089, levels=ws.coarsen(grid, "cpu"), device="cpu")
+    assert estimate.total(1 + ws.COMPLEMENT_COLUMNS) <= 8 * 2**20

@@ -9,11 +9,11 @@ import warp_stokes as ws
 from conftest import box_cage
 
 
-def to_scipy(M):
-    off = M.offsets.numpy()[: M.nrow + 1]
-    cols = M.columns.numpy()[: off[-1]]
-    vals = M.values.numpy()[: off[-1]].astype(np.float64)
-    return sp.bsr_matrix((vals, cols, off), shape=(4 * M.nrow, 4 * M.ncol)).tocsr()
+def to_scipy(triplets, n_rows, n_cols):
+    rows, cols, blocks = triplets
+    r = (4 * rows[:, None, None] + np.arange(4)[None, :, None]).repeat(4, axis=2)
+    c = (4 * cols[:, None, None] + np.arange(4)[None, None, :]).repeat(4, axis=1)
+    return sp.csr_matrix((blocks.astype(np.float64).ravel(), (r.ravel(), c.ravel())), shape=(4 * n_rows, 4 * n_cols))
 
 
 @pytest.fixture(scope="module")
@@ -30,18 +30,40 @@ def test_levels_shrink_and_coarse_operators_are_galerkin_products(arm_hierarchy)
     from reference import assemble
 
     fine = assemble(grid.labels == 1)[0]  # the reference's independent assembly of A_II
-    P = to_scipy(mg.levels[0].P)
-    A1 = to_scipy(mg.levels[1].A)
-    np.testing.assert_allclose(A1.toarray(), (P.T @ fine @ P).toarray(), atol=1e-3)
-    for lev in mg.levels[1:]:
-        A = to_scipy(lev.A)
-        assert abs(A - A.T).max() < 1e-4 * abs(A).max()
+    n = mg.level_sizes
+    assert abs(to_scipy(mg.operator_triplets(0), n[0], n[0]) - fine).max() == 0
+    # every coarse level against P^T A P of the level above, formed with scipy from the reference matrix
+    A = fine
+    for depth in range(1, len(n)):
+        P = to_scipy(mg.prolongation_triplets(depth - 1), n[depth - 1], n[depth])
+        expected = (P.T @ A @ P).tocsr()
+        A = to_scipy(mg.operator_triplets(depth), n[depth], n[depth])
+        assert abs(A - expected).max() <= 2e-6 * abs(expected).max(), depth
+        assert abs(A - A.T).max() <= 2e-6 * abs(A).max()
         # the Galerkin stencil of the coarse levels: 27 neighbours at most, all within one lattice step
-        off = lev.A.offsets.numpy()[: lev.n + 1]
-        cols = lev.A.columns.numpy()[: off[-1]]
-        rows = np.repeat(np.arange(lev.n), np.diff(off))
+        rows, cols, _ = mg.operator_triplets(depth)
+        lev = mg.levels[depth]
         assert np.abs(lev.ijk[rows] - lev.ijk[cols]).max() <= 1
-        assert np.diff(off).max() <= 27
+        assert np.bincount(rows).max() <= 27
+
+
+def test_hierarchy_memory_is_known_before_it_is_formed(arm_hierarchy):
+    grid, mg = arm_hierarchy
+    levels = ws.coarsen(grid, "cpu", coarsest_nodes=60)
+    assert [lev.n for lev in levels] == mg.level_sizes
+    # the planner's figure, from the level sizes alone, is what the formed hierarchy's arrays hold
+    assert ws.multigrid.hierarchy_bytes(levels) == mg.operator_bytes()
+
+
+def test_a_grid_beyond_the_row_limit_is_refused_naming_a_resolution_that_fits(arm_cage):
+    # the limit is 2**31 - 1 rows; lowered here so that a small grid meets it
+    limit = ws.voxelize(arm_cage, 24, device="cpu").n_active
+    with pytest.raises(ws.ResolutionError, match=r"resolution 32 gives [\d,]+ active grid nodes, more than the "
+                       r"[\d,]+ that 32-bit rows can number; resolution (\d+) or less would fit") as e:
+        ws.voxelize(arm_cage, 32, device="cpu", max_rows=limit)
+    suggested = int(str(e.value).split("resolution ")[-1].split(" or less")[0])
+    assert 8 <= suggested < 32
+    assert ws.voxelize(arm_cage, suggested, device="cpu", max_rows=limit).n_active <= limit
 
 
 def test_hermite_prolongation_is_exact_for_cubics_along_axes():
@@ -59,10 +81,11 @@ def test_hermite_prolongation_is_exact_for_cubics_along_axes():
     h = grid.spacing
     exact_fine = field(fine.ijk, h)
     coarse_values = field(coarse.ijk, 2 * h)
-    P = to_scipy(fine.P)
+    triplets = mg.prolongation_triplets(0)
+    P = to_scipy(triplets, fine.n, coarse.n)
     got = (P @ coarse_values.reshape(-1)).reshape(-1, 4)
     # fine nodes all of whose parents are coarse nodes (away from the masked boundary)
-    counts = np.diff(fine.P.offsets.numpy()[: fine.n + 1])
+    counts = np.bincount(triplets[0], minlength=fine.n)
     parity = fine.ijk % 2
     complete = counts == 2 ** parity.sum(1)
     assert complete.mean() > 0.5

@@ -21,7 +21,7 @@ from .errors import BindingError, WarpStokesError
 from .files import atomic_output
 from .budget import available_memory, chunk_columns, estimate_memory, plan_chunks
 from .grid import classify_points, voxelize
-from .multigrid import Multigrid
+from .multigrid import Multigrid, coarsen
 from .load import Surface, load_surface
 from .sample import sample_weights
 from .solve import solve_biharmonic
@@ -272,13 +272,15 @@ def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_i
 
     t = time.perf_counter()
     grid = voxelize(checked, resolution, device=device)
-    estimate = estimate_memory(grid, len(points), preconditioner=solver)
+    # the levels' sizes first (cheap), so that the plan counts the hierarchy before it is formed
+    levels = coarsen(grid, device) if solver == "multigrid" else None
+    estimate = estimate_memory(grid, len(points), preconditioner=solver, levels=levels, device=device)
     budget = available_memory(device) if memory_budget is None else int(memory_budget)
     chunks = plan_chunks(estimate, checked.n_handles, budget, resolution, name=checked.name)
     seconds["voxelize"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    preconditioner = Multigrid(grid, device=device) if solver == "multigrid" else "jacobi"
+    preconditioner = Multigrid(grid, device=device, levels=levels) if solver == "multigrid" else "jacobi"
     wp.synchronize_device(device)
     seconds["setup"] = time.perf_counter() - t
     seconds["boundary"] = seconds["solve"] = seconds["sample"] = 0.0

@@ -1,17 +1,27 @@
 """Memory budget of a bind: what the solve will allocate, estimated before allocating it, and handle chunks.
 
-Per handle, the arrays are known exactly once the grid is voxelised: the packed field (16 B per active node),
-the float64 MVC values while the boundary data is packed (8 B per active node), five CG vectors (16 B per
-interior node each: right-hand side, residual, preconditioned residual, direction, operator applied to it)
-and the multigrid work vectors (2 per fine node, 4 per coarse node). Shared by all handles: the grid's index
-arrays, the multigrid hierarchy and the transient assembled fine operator used to form the first Galerkin
-product (calibrated per fine node, see tests/test_budget.py and benchmarks/RESULTS.md).
+Every large allocation is known once the grid is voxelised and its multigrid levels are coarsened (sizes, not
+operators: :func:`warp_stokes.multigrid.coarsen`). Per column (a handle, or one of the four columns that stand for
+the rest of the cage in a chunk), in bytes, with N_a active, N_i interior nodes, N_l nodes of coarse level l, V
+mesh vertices:
+
+- the packed field (q, G): 16 N_a, for the whole chunk;
+- the multigrid's work vectors, kept from one chunk to the next: 32 N_i on the fine level, 64 N_l on coarse ones;
+- and the largest of what the stages add: the float64 MVC values while the boundary data is packed (8 N_a), the
+  CG vectors during the solve (residual, direction, and A p which the preconditioned residual then overwrites:
+  48 N_i), the sampled weights (4 V).
+
+Shared by all columns: the grid's node index (4 per lattice node), node coordinates (12 N_a) and stencil work
+items (16 per patch), the multigrid hierarchy (27 blocks of 64 B per coarse node, its diagonal, coordinates and
+lattice indices: :func:`warp_stokes.multigrid.hierarchy_bytes`), and per stage the node positions for the MVC
+(24 N_a) or the sampling's per-vertex arrays (80 V). On the CPU the grid's host arrays (labels and index, 5 per
+lattice node, and 12 N_a) live in the same memory and are counted too.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -19,18 +29,17 @@ from .boundary import COMPLEMENT_COLUMNS
 from .device import available_memory, resolve_device  # noqa: F401 (re-exported)
 from .errors import ResolutionError
 from .grid import Grid
+from .multigrid import COARSEST_NODES, hierarchy_bytes
 
 __all__ = ["MemoryEstimate", "estimate_memory", "available_memory", "plan_chunks", "chunk_columns"]
 
 VEC4 = 16
-#: coarse level size over the next finer one (measured 0.15-0.19 on the real cages at n = 64-96)
+#: coarse level size over the next finer one, used when the levels are not given (measured 0.15-0.19 on the
+#: real cages at n = 64-96; a bulky cage at n = 256: 0.13)
 COARSENING_RATIO = 0.19
-#: bytes per fine interior node held by the hierarchy and by the setup's transient fine operator and products:
-#: fine operator blocks (19 x 68 B) with their triplets (19 x 72 B), the prolongation and its transpose
-#: (3.3 blocks of 68 B each), the product A P (about 12 blocks), coarse operators (about 22 blocks per coarse
-#: node), inverse diagonal blocks (64 B per node per level)
-SETUP_BYTES_PER_NODE = 19 * 72 + 19 * 68 + 2 * 3.3 * 68 + 64
-HIERARCHY_BYTES_PER_NODE = 2 * 3.3 * 68 + 64 + (COARSENING_RATIO / (1 - COARSENING_RATIO)) * (27 * 68 + 64)
+#: bytes per coarse node held by the hierarchy (see warp_stokes.multigrid.COARSE_NODE_BYTES) and its lattice index
+#: (4 B per lattice node, about 8 lattice nodes per coarse node for a bulky cage; less for a thin one)
+COARSE_NODE_BYTES = 27 * 64 + 64 + 12 + 4 * 8
 
 
 @dataclass
@@ -39,25 +48,41 @@ class MemoryEstimate:
 
     Attributes
     ----------
-    per_handle : int, bytes that scale with the number of handles solved at once (per handle)
-    shared : int, bytes independent of the handles (grid arrays, multigrid hierarchy, setup transients)
+    per_handle : int, bytes per column of the stage that needs the most per column
+    shared : int, bytes independent of the columns (grid arrays, multigrid hierarchy, the largest stage's share)
+    stages : list of (shared, per_column) pairs, optional
+        What each stage adds to the arrays that live throughout; when given, :meth:`total` is exact: the largest
+        stage, rather than the larger share plus the larger per-column cost.
+    base : int, bytes that live throughout (only used with ``stages``)
+    fixed : int, bytes that a smaller resolution need not save (the largest dense inverse of a coarsest level)
     """
 
     per_handle: int
     shared: int
+    stages: list = field(default_factory=list)
+    base: int = 0
+    fixed: int = 0
 
-    def total(self, n_handles: int) -> int:
-        return int(self.shared + n_handles * self.per_handle)
+    def total(self, n_columns: int) -> int:
+        """Peak bytes with ``n_columns`` columns solved at once."""
+        if self.stages:
+            return int(self.base + max(s + n_columns * c for s, c in self.stages))
+        return int(self.shared + n_columns * self.per_handle)
 
 
-def estimate_memory(grid: Grid, n_vertices: int = 0, preconditioner: str = "multigrid") -> MemoryEstimate:
-    """Estimate the device memory of solving and sampling on ``grid``, before allocating it.
+def estimate_memory(grid: Grid, n_vertices: int = 0, preconditioner: str = "multigrid", levels=None,
+                    device=None) -> MemoryEstimate:
+    """Estimate the memory of solving and sampling on ``grid``, before allocating it.
 
     Parameters
     ----------
     grid : Grid
-    n_vertices : int, mesh vertices to sample (their weights are held on the device per handle)
+    n_vertices : int, mesh vertices to sample
     preconditioner : "multigrid" | "jacobi"
+    levels : list of multigrid levels (:func:`warp_stokes.multigrid.coarsen`), optional
+        Their sizes make the hierarchy's share exact; without them coarse levels are estimated from
+        ``COARSENING_RATIO``.
+    device : None | str, where the bind runs; on the CPU the grid's host arrays count too
 
     Returns
     -------
@@ -69,17 +94,42 @@ def estimate_memory(grid: Grid, n_vertices: int = 0, preconditioner: str = "mult
     >>> est.total(118) / 2**30                           # doctest: +SKIP
     1.9
     """
-    n_int, n_act = grid.n_interior, grid.n_active
-    coarse = n_int * COARSENING_RATIO / (1 - COARSENING_RATIO) if preconditioner == "multigrid" else 0.0
-    work = 2 * VEC4 * n_int + 4 * VEC4 * coarse if preconditioner == "multigrid" else 0
-    field = VEC4 * n_act
-    # the MVC values (8 B) exist while the field is packed, before the CG vectors are allocated
-    per_handle = field + max(8 * n_act, 5 * VEC4 * n_int + work) + 4 * n_vertices
+    n_int, n_act, n_v = grid.n_interior, grid.n_active, int(n_vertices)
     nodes = int(np.prod(grid.shape))
-    shared = 4 * nodes + 12 * n_act + 24 * n_int + 40 * n_vertices  # index, node lists, identity check, sampling
-    if preconditioner == "multigrid":
-        shared += 4 * nodes + max(SETUP_BYTES_PER_NODE, HIERARCHY_BYTES_PER_NODE) * n_int
-    return MemoryEstimate(per_handle=int(math.ceil(per_handle)), shared=int(math.ceil(shared)))
+    multigrid = preconditioner == "multigrid"
+    if not multigrid:
+        coarse, hierarchy, dense = 0.0, 0, 0
+    else:
+        if levels is None:  # coarsen by the typical ratio until the coarsest level's size
+            sizes = [float(n_int)]
+            while sizes[-1] > COARSEST_NODES:
+                sizes.append(sizes[-1] * COARSENING_RATIO)
+            coarse = sum(sizes[1:])
+            hierarchy = COARSE_NODE_BYTES * coarse + 4 * (4 * sizes[-1]) ** 2
+        else:
+            sizes = [lev.n for lev in levels]
+            coarse, hierarchy = float(sum(sizes[1:])), hierarchy_bytes(levels)
+        # the coarsest level's dense inverse (float32) does not shrink with the resolution: at most this
+        dense = 4 * (4 * COARSEST_NODES) ** 2
+    work = (2 * VEC4 * n_int + 4 * VEC4 * coarse) if multigrid else 0.0
+    patches = 16 * n_int / 16  # an item per 2 x 2 columns and up to 64 planes: fewer than one per 16 nodes
+    base = 4 * nodes + 12 * n_act + patches + hierarchy
+    if resolve_device(device).is_cpu:
+        base += 5 * nodes + 12 * n_act
+    field_bytes = VEC4 * n_act
+    stages = [
+        (24 * n_act, field_bytes + work + 8 * n_act),  # boundary data: positions, MVC values in float64
+        (0, field_bytes + work + 3 * VEC4 * n_int),  # solve: CG vectors
+        (80 * n_v, field_bytes + work + 4 * n_v),  # sampling: per-vertex cells and weights
+    ]
+    stages = [(int(math.ceil(s)), int(math.ceil(c))) for s, c in stages]
+    return MemoryEstimate(
+        per_handle=max(c for _, c in stages),
+        shared=int(math.ceil(base)) + max(s for s, _ in stages),
+        stages=stages,
+        base=int(math.ceil(base)),
+        fixed=int(dense),
+    )
 
 
 def plan_chunks(estimate: MemoryEstimate, n_handles: int, budget: int, resolution: int,
@@ -100,14 +150,20 @@ def plan_chunks(estimate: MemoryEstimate, n_handles: int, budget: int, resolutio
     >>> plan_chunks(MemoryEstimate(per_handle=100, shared=1000), 10, budget=1800, resolution=64)
     [slice(0, 4, None), slice(4, 8, None), slice(8, 10, None)]
     """
-    room = budget - estimate.shared
-    columns = int(room // estimate.per_handle) if room > 0 else 0
-    if columns >= n_handles:
+    if estimate.total(n_handles) <= budget:
         return [slice(0, n_handles)]
-    per_chunk = columns - COMPLEMENT_COLUMNS
+    # the most columns that fit (total() grows with the columns)
+    lo, hi = 0, n_handles
+    while lo < hi:
+        mid = (lo + hi + 1) // 2
+        lo, hi = (mid, hi) if estimate.total(mid) <= budget else (lo, mid - 1)
+    per_chunk = lo - COMPLEMENT_COLUMNS
     if per_chunk < 1:
         need = estimate.total(1 + COMPLEMENT_COLUMNS)
-        fits = int(resolution * (budget / need) ** (1.0 / 3.0) * 0.95)
+        # what grows with the resolution grows with its cube (interior) or square (ring, band, vertices' cells):
+        # scaling by the square root of the excess is safe for both
+        ratio = max(budget - estimate.fixed, 0) / max(need - estimate.fixed, 1)
+        fits = int(resolution * ratio ** 0.5)
         raise ResolutionError(
             f"{name}: resolution {resolution} needs at least {need / 2**30:.2f} GiB to solve one handle at a time "
             f"(with the {COMPLEMENT_COLUMNS} columns that check it), but the memory budget is "

@@ -14,7 +14,7 @@ from .kernels import labels as L
 from .kernels import stencil
 from .kernels import voxel
 
-__all__ = ["Grid", "voxelize", "grid_from_mask", "classify_points", "MARGIN", "BAND_WIDTH", "PATCH_LENGTH"]
+__all__ = ["Grid", "voxelize", "grid_from_mask", "classify_points", "MARGIN", "BAND_WIDTH", "PATCH_LENGTH", "MAX_ROWS"]
 
 #: nodes of known data kept outside the interior (max-norm distance): the ring plus a sampling band, so that
 #: trilinear sampling of vertices slightly outside the cage reads only known corners
@@ -24,6 +24,8 @@ BAND_WIDTH = 3
 MARGIN = BAND_WIDTH + 1
 #: accuracy of Warp's fast winding number (dipole expansion used beyond this many cluster radii)
 WINDING_ACCURACY = 2.0
+#: active nodes are numbered with 32-bit rows (index arrays, kernel row arguments): a grid with more is refused
+MAX_ROWS = 2**31 - 1
 #: the stencil kernel walks patches of columns along z in pieces of at most this many planes, so that short
 #: and long runs balance across threads (64 was the most even of 32, 64 and 128 on an H100, benchmarks/RESULTS.md)
 PATCH_LENGTH = 64
@@ -134,7 +136,7 @@ def _cage_mesh(cage: Cage, centre: np.ndarray, device) -> wp.Mesh:
     return wp.Mesh(points=points, indices=indices, support_winding_number=True)
 
 
-def voxelize(cage: Cage, resolution: int = 64, device=None) -> Grid:
+def voxelize(cage: Cage, resolution: int = 64, device=None, max_rows: int = MAX_ROWS) -> Grid:
     """Voxelise the inside of a cage: label grid nodes and number the active ones.
 
     Nodes whose generalised winding number exceeds 1/2 are interior (unknowns). Exterior nodes in the
@@ -149,6 +151,8 @@ def voxelize(cage: Cage, resolution: int = 64, device=None) -> Grid:
         Cells along the longest axis of the cage's bounding box (the grid adds ``MARGIN`` nodes per side).
     device : None | str
         Warp device; default CUDA when present, else CPU.
+    max_rows : int
+        Most active nodes a grid may have (rows are 32-bit); a lower value is for tests.
 
     Returns
     -------
@@ -157,7 +161,9 @@ def voxelize(cage: Cage, resolution: int = 64, device=None) -> Grid:
     Raises
     ------
     ResolutionError
-        When the resolution is not an integer in [8, 2048] or no node falls inside the cage.
+        When the resolution is not an integer in [8, 2048], the grid's dense arrays do not fit in memory, it has
+        more than ``max_rows`` active nodes, or no node falls inside the cage. The message names a resolution
+        that would work.
 
     Examples
     --------
@@ -200,7 +206,7 @@ def voxelize(cage: Cage, resolution: int = 64, device=None) -> Grid:
             inputs=[mesh.id, wp.vec3(*origin.astype(np.float32)), float(spacing), WINDING_ACCURACY, 1e-5 * spacing],
             outputs=[inside],
         )
-    grid = _number_nodes(inside, centre, origin, spacing, resolution, device)
+    grid = _number_nodes(inside, centre, origin, spacing, resolution, device, max_rows, cage.name)
     if grid.n_interior == 0:
         raise ResolutionError(
             f"{cage.name}: no grid node lies inside the cage at resolution {resolution} "
@@ -242,10 +248,11 @@ def grid_from_mask(interior, spacing: float = 1.0, origin=(0.0, 0.0, 0.0), devic
     device = resolve_device(device)
     inside = wp.array(interior.astype(np.int8), dtype=wp.int8, device=device)
     resolution = max(interior.shape) - 1 - 2 * MARGIN
-    return _number_nodes(inside, np.zeros(3), np.asarray(origin, dtype=np.float64), float(spacing), resolution, device)
+    return _number_nodes(inside, np.zeros(3), np.asarray(origin, dtype=np.float64), float(spacing), resolution, device,
+                         MAX_ROWS, "the interior mask")
 
 
-def _number_nodes(inside: wp.array, centre, origin, spacing, resolution, device) -> Grid:
+def _number_nodes(inside: wp.array, centre, origin, spacing, resolution, device, max_rows, name) -> Grid:
     """Mark the ring and band around the interior nodes of `inside`, and number the active nodes."""
     shape = inside.shape
     with wp.ScopedDevice(device):
@@ -255,6 +262,15 @@ def _number_nodes(inside: wp.array, centre, origin, spacing, resolution, device)
     flat = labels_np.ravel()
     rows = [np.flatnonzero(flat == lab) for lab in (L.INTERIOR, L.RING, L.BAND)]
     n_interior, n_ring, n_band = (len(r) for r in rows)
+    n_active = n_interior + n_ring + n_band
+    if n_active > max_rows:
+        # the band and ring grow with the square of the resolution, the interior with its cube: scaling by the
+        # square root of the excess is safe for both
+        fits = int(resolution * (max_rows / n_active) ** 0.5)
+        raise ResolutionError(
+            f"{name}: resolution {resolution} gives {n_active:,} active grid nodes, more than the {max_rows:,} "
+            f"that 32-bit rows can number; resolution {fits} or less would fit"
+        )
     order = np.concatenate(rows)
     active_ijk = np.stack(np.unravel_index(order, shape), axis=1).astype(np.int32)
     index = np.full(flat.shape, -1, dtype=np.int32)

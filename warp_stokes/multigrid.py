@@ -6,14 +6,17 @@ One V-cycle for all handles at once (every handle a column of the level arrays):
   where it covers at least 1/8 of the 27 finer nodes around it (otherwise thin features make coarse matrices
   singular);
 - prolongation: cubic Hermite, using the stored gradients (value at an edge midpoint (q0+q1)/2 + (G0-G1)/8),
-  applied axis by axis;
-- coarse operators: Galerkin products P^T A P (warp.sparse), so they stay symmetric positive definite;
+  applied axis by axis; its blocks form a table of 64 entries (the fine node's parities, which parent);
+- coarse operators: Galerkin products P^T A P, so they stay symmetric positive definite. On a lattice they are
+  27-point block stencils: formed by one kernel per level straight from the finer stencil (the fine operator is
+  never assembled) and stored as (nodes, 27) 4x4 blocks;
 - smoother: Chebyshev polynomial of degree 3 in D^-1 A (D the 4x4 diagonal blocks) on [lmax/30, 1.1 lmax], lmax
   from power iterations; it is a fixed polynomial, so the V-cycle is a symmetric preconditioner;
 - coarsest level: a dense inverse computed once in float64.
 
-The fine level is applied matrix-free (the 19-point stencil); its assembled blocks exist only while the first
-Galerkin product is formed.
+No general sparse matrix is involved: warp.sparse addresses block values with 32-bit offsets
+(`block * block_size` in int), which overflowed once the fine operator's 19 blocks of 16 per interior node passed
+2^31 scalars (8.5 M interior nodes, a bulky cage at n = 256). Every index here is a row of a level (< 2^31).
 """
 
 from __future__ import annotations
@@ -22,41 +25,89 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import warp as wp
-import warp.sparse as wps
 
 from .device import resolve_device
 from .grid import Grid
 from .kernels import cg, multigrid as mg
 from .operator import apply_operator
 
-__all__ = ["Multigrid", "SMOOTHER_DEGREE", "COARSEST_NODES"]
+__all__ = ["Multigrid", "coarsen", "hierarchy_bytes", "SMOOTHER_DEGREE", "COARSEST_NODES"]
 
 SMOOTHER_DEGREE = 3
 #: the Chebyshev interval is [lmax / SMOOTHING_RANGE, 1.1 lmax]: the upper part of the spectrum is smoothed
 SMOOTHING_RANGE = 30.0
-#: coarsen until a level has at most this many nodes; it is then inverted densely
-COARSEST_NODES = 400
+#: coarsen until a level has at most this many nodes; it is then inverted densely (512 x 512 floats at most:
+#: 1 MiB, and a cheap dense product on the CPU)
+COARSEST_NODES = 128
 POWER_ITERATIONS = 12
+#: device bytes per node of a coarse level: 27 blocks of the operator, the diagonal's inverse, its coordinates
+COARSE_NODE_BYTES = 27 * 64 + 64 + 12
 
 
 @dataclass
 class Level:
     n: int  # unknown nodes
     ijk: np.ndarray  # (n, 3) lattice coordinates at this level
-    index: wp.array  # lattice -> row or -1
-    A: wps.BsrMatrix | None = None  # None on the fine level (matrix-free)
-    inv_diag: wp.array | None = None  # (n,) mat44 inverses of the diagonal blocks
-    P: wps.BsrMatrix | None = None  # prolongation from the next level (n x n_next)
-    R: wps.BsrMatrix | None = None  # its transpose
+    index: wp.array  # lattice -> row (rows >= n are not unknowns of this level), or -1
+    ijk_device: wp.array | None = None  # ijk on the device
+    blocks: wp.array | None = None  # (n, 27) mat44f operator blocks; None on the fine level (the 19-point stencil)
+    inv_diag: wp.array | None = None  # (n,) mat44 inverses of the diagonal blocks ((1,) on the fine level)
     lmax: float = 0.0
     work: dict = field(default_factory=dict)
 
 
-def _compact(A: wps.BsrMatrix) -> wps.BsrMatrix:
-    """Compact rows without zero blocks: warp.sparse products can carry explicit zero blocks far outside the
-    Galerkin stencil (seen with Warp 1.19 on the CPU: 72% of a coarse operator's blocks), which would cost
-    bandwidth and memory in every coarse-level application."""
-    return wps.bsr_compress(A, prune_numerical_zeros=True)
+def coarsen(grid: Grid, device=None, coarsest_nodes: int = COARSEST_NODES) -> list[Level]:
+    """The nodes of every multigrid level, before any operator is formed (cheap: a pass over each lattice).
+
+    Parameters
+    ----------
+    grid : Grid
+    device : None | str
+    coarsest_nodes : int, coarsening stops at a level with at most this many nodes
+
+    Returns
+    -------
+    list of Level, finest first: the interior nodes of ``grid``, then the kept nodes of each coarser lattice
+
+    Examples
+    --------
+    >>> levels = coarsen(grid, device="cpu")    # doctest: +SKIP
+    >>> [lev.n for lev in levels]                # doctest: +SKIP
+    [23113, 3968, 785, 194]
+    """
+    device = resolve_device(device)
+    arrays = grid.device_arrays(device)
+    n0 = grid.n_interior
+    fine = Level(n=n0, ijk=grid.active_ijk[:n0], index=arrays["index"], ijk_device=arrays["active_ijk"][:n0])
+    levels = [fine]
+    shape = np.array(grid.shape)
+    with wp.ScopedDevice(device):
+        while levels[-1].n > coarsest_nodes:
+            lev = levels[-1]
+            coarse_shape = tuple(int(s) for s in shape // 2 + 1)
+            counts = wp.empty(coarse_shape, dtype=wp.int32)
+            wp.launch(mg.coarse_coverage, dim=coarse_shape, inputs=[lev.index, lev.n], outputs=[counts])
+            order = np.flatnonzero(counts.numpy().ravel() * 8 >= 27)
+            del counts
+            if len(order) == 0 or len(order) >= lev.n:
+                break
+            ijk = np.stack(np.unravel_index(order, coarse_shape), axis=1).astype(np.int32)
+            index = np.full(int(np.prod(coarse_shape)), -1, dtype=np.int32)
+            index[order] = np.arange(len(order), dtype=np.int32)
+            levels.append(Level(n=len(order), ijk=ijk, index=wp.array(index.reshape(coarse_shape), dtype=wp.int32),
+                                ijk_device=wp.array(ijk, dtype=wp.vec3i)))
+            shape = np.array(coarse_shape)
+    return levels
+
+
+def hierarchy_bytes(levels: list[Level]) -> int:
+    """Device bytes of the operators a :class:`Multigrid` forms on ``levels`` (coarse blocks, diagonals, node
+    coordinates, lattice indices, the coarsest level's dense inverse), shared by all handles."""
+    total = 64 * 128 + 64  # the prolongation's table (64 float64 blocks), the fine level's diagonal block
+    for lev in levels[1:]:
+        total += COARSE_NODE_BYTES * lev.n + 4 * lev.index.size
+    coarsest = 4 * levels[-1].n
+    return int(total + 4 * coarsest * coarsest)
 
 
 class Multigrid:
@@ -67,6 +118,9 @@ class Multigrid:
     grid : Grid
     device : None | str
     coarsest_nodes : int, size at which coarsening stops
+    levels : list of Level, optional
+        The output of :func:`coarsen` for this grid and device, when it was computed already (e.g. to plan
+        memory); computed here otherwise.
 
     Examples
     --------
@@ -74,81 +128,46 @@ class Multigrid:
     >>> mg.apply(residual, correction)              # doctest: +SKIP
     """
 
-    def __init__(self, grid: Grid, device=None, coarsest_nodes: int = COARSEST_NODES):
+    def __init__(self, grid: Grid, device=None, coarsest_nodes: int = COARSEST_NODES, levels=None):
         self.grid = grid
         self.device = resolve_device(device)
         with wp.ScopedDevice(self.device):
-            self.levels = self._build(coarsest_nodes)
+            self.table = wp.empty(64, dtype=wp.mat44d)
+            wp.launch(mg.hermite_table, dim=64, outputs=[self.table])
+            self.levels = levels if levels is not None else coarsen(grid, self.device, coarsest_nodes)
+            self._form_operators()
             self._estimate_eigenvalues()
 
     # -- setup ----------------------------------------------------------------------------------------------------
 
-    def _build(self, coarsest_nodes: int) -> list[Level]:
-        grid = self.grid
-        n0 = grid.n_interior
-        index0 = np.where(grid.index < n0, grid.index, -1).astype(np.int32)
-        ijk0 = grid.active_ijk[:n0]
-        fine = Level(n=n0, ijk=ijk0, index=wp.array(index0, dtype=wp.int32))
-        rows = wp.empty(19 * n0, dtype=int)
-        cols = wp.empty(19 * n0, dtype=int)
-        blocks = wp.empty(19 * n0, dtype=wp.mat44f)
-        wp.launch(mg.fine_operator_triplets, dim=n0, inputs=[wp.array(ijk0, dtype=wp.vec3i), fine.index, n0],
-                  outputs=[rows, cols, blocks])
-        A = wps.bsr_from_triplets(n0, n0, rows, cols, blocks)
-        del rows, cols, blocks
-        fine.inv_diag = self._inverse_diagonal(A, n0)
-        levels = [fine]
-        shape = np.array(index0.shape)
-        while levels[-1].n > coarsest_nodes:
-            lev = levels[-1]
-            coarse_shape = tuple(int(s) for s in shape // 2 + 1)
-            counts = wp.empty(coarse_shape, dtype=wp.int32)
-            wp.launch(mg.coarse_coverage, dim=coarse_shape, inputs=[lev.index], outputs=[counts])
-            keep = counts.numpy().ravel() * 8 >= 27
-            order = np.flatnonzero(keep)
-            if len(order) == 0 or len(order) >= lev.n:
-                break
-            ijk = np.stack(np.unravel_index(order, coarse_shape), axis=1).astype(np.int32)
-            index = np.full(int(np.prod(coarse_shape)), -1, dtype=np.int32)
-            index[order] = np.arange(len(order), dtype=np.int32)
-            coarse = Level(n=len(order), ijk=ijk, index=wp.array(index.reshape(coarse_shape), dtype=wp.int32))
-            rows = wp.empty(8 * lev.n, dtype=int)
-            cols = wp.empty(8 * lev.n, dtype=int)
-            blocks = wp.empty(8 * lev.n, dtype=wp.mat44f)
-            wp.launch(mg.prolongation_triplets, dim=lev.n, inputs=[wp.array(lev.ijk, dtype=wp.vec3i), coarse.index],
-                      outputs=[rows, cols, blocks])
-            lev.P = wps.bsr_from_triplets(lev.n, coarse.n, rows, cols, blocks)
-            del rows, cols, blocks
-            lev.R = _compact(wps.bsr_transposed(lev.P))
-            coarse.A = _compact(wps.bsr_mm(lev.R, _compact(wps.bsr_mm(A, lev.P))))
-            A = coarse.A
-            coarse.inv_diag = self._inverse_diagonal(A, coarse.n)
-            levels.append(coarse)
-            shape = np.array(coarse_shape)
-        last = levels[-1]
-        dense = self._to_dense(A, last.n)
+    def _form_operators(self) -> None:
+        fine = self.levels[0]
+        inv = np.diag([1.0 / 48.0, 0.25, 0.25, 0.25]).astype(np.float32)  # the stencil's constant diagonal
+        fine.inv_diag = wp.array(inv[None], dtype=wp.mat44f)
+        empty = wp.empty((0, 27), dtype=wp.mat44f)
+        for finer, coarse in zip(self.levels, self.levels[1:]):
+            coarse.blocks = wp.empty((coarse.n, 27), dtype=wp.mat44f)
+            wp.launch(
+                mg.galerkin_blocks,
+                dim=(coarse.n, 27),
+                inputs=[coarse.ijk_device, coarse.index, coarse.n, finer.index, finer.n,
+                        empty if finer.blocks is None else finer.blocks, int(finer.blocks is None), self.table],
+                outputs=[coarse.blocks],
+            )
+            coarse.inv_diag = wp.empty(coarse.n, dtype=wp.mat44f)
+            wp.launch(mg.diagonal_inverse, dim=coarse.n, inputs=[coarse.blocks], outputs=[coarse.inv_diag])
+        dense = self._dense(len(self.levels) - 1)
         try:
             inverse = np.linalg.inv(dense)
         except np.linalg.LinAlgError:
             inverse = np.linalg.pinv(dense)
         self.coarse_inverse = wp.array(inverse.astype(np.float32), dtype=wp.float32)
-        return levels
 
-    @staticmethod
-    def _inverse_diagonal(A: wps.BsrMatrix, n: int) -> wp.array:
-        diag = wps.bsr_get_diag(A)
-        inv = wp.empty(n, dtype=wp.mat44f)
-        wp.launch(mg.invert_blocks, dim=n, inputs=[diag], outputs=[inv])
-        return inv
-
-    @staticmethod
-    def _to_dense(A: wps.BsrMatrix, n: int) -> np.ndarray:
-        offsets = A.offsets.numpy()[: n + 1]
-        cols = A.columns.numpy()[: offsets[-1]]
-        vals = A.values.numpy()[: offsets[-1]].astype(np.float64)
+    def _dense(self, depth: int) -> np.ndarray:
+        rows, cols, blocks = self.operator_triplets(depth)
+        n = self.levels[depth].n
         dense = np.zeros((n, 4, n, 4))
-        rows = np.repeat(np.arange(n), np.diff(offsets))
-        np.add.at(dense, (rows, slice(None), cols, slice(None)), vals)
+        np.add.at(dense, (rows, slice(None), cols, slice(None)), blocks.astype(np.float64))
         return dense.reshape(4 * n, 4 * n)
 
     def _estimate_eigenvalues(self) -> None:
@@ -169,6 +188,47 @@ class Multigrid:
                 v, z = z, v
             lev.lmax = 1.1 * lam
 
+    # -- inspection -----------------------------------------------------------------------------------------------
+
+    def operator_triplets(self, depth: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The operator of level ``depth`` as (rows, cols, (nnz, 4, 4) blocks) on the host, zero blocks dropped
+        (level 0: the 19-point stencil of the interior nodes, A_II).
+
+        Examples
+        --------
+        >>> rows, cols, blocks = mg.operator_triplets(1)    # doctest: +SKIP
+        """
+        lev = self.levels[depth]
+        if lev.blocks is None:  # the fine level: the 19-point stencil, formed as blocks on demand
+            blocks = wp.empty((lev.n, 27), dtype=wp.mat44f, device=self.device)
+            wp.launch(mg.stencil_blocks, dim=blocks.shape, inputs=[lev.ijk_device, lev.index, lev.n],
+                      outputs=[blocks], device=self.device)
+            blocks = blocks.numpy()
+        else:
+            blocks = lev.blocks.numpy()
+        index = lev.index.numpy()
+        offsets = np.stack(np.meshgrid([-1, 0, 1], [-1, 0, 1], [-1, 0, 1], indexing="ij"), -1).reshape(27, 3)
+        nb = lev.ijk[:, None, :] + offsets[None]
+        inside = np.all((nb >= 0) & (nb < np.array(index.shape)), axis=2)
+        cols = np.full((lev.n, 27), -1)
+        cols[inside] = index[tuple(nb[inside].T)]
+        keep = (cols >= 0) & (cols < lev.n) & np.any(blocks != 0, axis=(2, 3))
+        rows = np.repeat(np.arange(lev.n)[:, None], 27, axis=1)
+        return rows[keep], cols[keep], blocks[keep]
+
+    def prolongation_triplets(self, depth: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The prolongation from level ``depth + 1`` to level ``depth`` as (rows, cols, (nnz, 4, 4) blocks)."""
+        fine, coarse = self.levels[depth], self.levels[depth + 1]
+        with wp.ScopedDevice(self.device):
+            rows = wp.empty(8 * fine.n, dtype=int)
+            cols = wp.empty(8 * fine.n, dtype=int)
+            blocks = wp.empty(8 * fine.n, dtype=wp.mat44f)
+            wp.launch(mg.prolongation_triplets, dim=fine.n,
+                      inputs=[fine.ijk_device, coarse.index, coarse.n, self.table], outputs=[rows, cols, blocks])
+        rows, cols, blocks = rows.numpy(), cols.numpy(), blocks.numpy()
+        keep = rows >= 0
+        return rows[keep], cols[keep], blocks[keep]
+
     # -- application ----------------------------------------------------------------------------------------------
 
     def _apply_A(self, depth: int, x: wp.array, out: wp.array) -> None:
@@ -176,8 +236,8 @@ class Multigrid:
         if depth == 0:
             apply_operator(self.grid, x, out, n_rows=lev.n, device=self.device, precise=False)
         else:
-            wp.launch(mg.bsr_apply, dim=x.shape,
-                      inputs=[lev.A.offsets, lev.A.columns, lev.A.values, x, 1.0, 0.0], outputs=[out])
+            wp.launch(mg.stencil_apply, dim=x.shape, inputs=[lev.blocks, lev.ijk_device, lev.index, x],
+                      outputs=[out])
 
     def _work(self, depth: int, n_cols: int) -> dict:
         lev = self.levels[depth]
@@ -223,18 +283,16 @@ class Multigrid:
         if depth == len(self.levels) - 1:
             wp.launch(mg.dense_apply, dim=b.shape, inputs=[self.coarse_inverse, b], outputs=[x])
             return
-        lev = self.levels[depth]
+        lev, coarse_level = self.levels[depth], self.levels[depth + 1]
         work = self._work(depth, n_cols)
         r, d = work["r"], work["d"]
         x.zero_()
         self._smooth(depth, b, x, r, d, x_is_zero=True, residual=True)
         coarse = self._work(depth + 1, n_cols)
-        R = lev.R
-        wp.launch(mg.bsr_apply, dim=coarse["b"].shape, inputs=[R.offsets, R.columns, R.values, r, 1.0, 0.0],
+        wp.launch(mg.restrict, dim=coarse["b"].shape, inputs=[self.table, coarse_level.ijk_device, lev.index, lev.n, r],
                   outputs=[coarse["b"]])
         self._cycle(depth + 1, coarse["b"], coarse["x"])
-        P = lev.P
-        wp.launch(mg.bsr_apply, dim=x.shape, inputs=[P.offsets, P.columns, P.values, coarse["x"], 1.0, 1.0],
+        wp.launch(mg.prolong_add, dim=x.shape, inputs=[self.table, lev.ijk_device, coarse_level.index, coarse["x"]],
                   outputs=[x])
         self._smooth(depth, b, x, r, d, x_is_zero=False, residual=False)
 
@@ -250,11 +308,10 @@ class Multigrid:
         return [lev.n for lev in self.levels]
 
     def operator_bytes(self) -> int:
-        """Bytes held by the hierarchy (coarse operators, transfer operators, diagonals, coarsest inverse)."""
-        total = self.coarse_inverse.capacity
-        for lev in self.levels:
-            for m in (lev.A, lev.P, lev.R):
-                if m is not None:
-                    total += m.values.capacity + m.columns.capacity + m.offsets.capacity
-            total += lev.inv_diag.capacity + lev.index.capacity
+        """Device bytes held by the hierarchy, counted from its arrays (coarse operators, diagonals, node
+        coordinates, lattice indices, the coarsest inverse); the fine level's index and coordinates are the
+        grid's, and its diagonal is one block."""
+        total = self.coarse_inverse.capacity + self.table.capacity + self.levels[0].inv_diag.capacity
+        for lev in self.levels[1:]:
+            total += lev.blocks.capacity + lev.inv_diag.capacity + lev.ijk_device.capacity + lev.index.capacity
         return int(total)

@@ -159,16 +159,18 @@ def solve_biharmonic(
             max_iterations = default_iterations
         chunks = _n_chunks(n, n_cols, device)
 
-        rhs = wp.zeros((n, n_cols), dtype=wp.vec4f)
+        rhs = None  # zero: Stokes coordinates have no source
         if source is not None:
             src = np.zeros((n, n_cols, 4), dtype=np.float32)
             src[..., 0] = 0.5 * grid.spacing**4 * np.asarray(source, dtype=np.float64).reshape(n, n_cols)
             rhs = wp.array(src, dtype=wp.vec4f)
         x = field[0:n]  # interior rows come first: a view, so the solve updates `field` in place
         r = wp.empty((n, n_cols), dtype=wp.vec4f)
-        z = wp.empty((n, n_cols), dtype=wp.vec4f)
         p = wp.empty((n, n_cols), dtype=wp.vec4f)
+        # A p is needed until x and r are updated, M r only after: they share storage (three vectors per column
+        # instead of four, see warp_stokes.budget)
         ap = wp.empty((n, n_cols), dtype=wp.vec4f)
+        z = ap
 
         def dots(a, b):
             out = wp.zeros(n_cols, dtype=wp.float64)
@@ -181,8 +183,11 @@ def solve_biharmonic(
             return dots(v, z)
 
         def true_residual():
-            apply_operator(grid, field, ap, device=device)
-            wp.launch(cg.residual, dim=(n, n_cols), inputs=[rhs, ap], outputs=[r])
+            apply_operator(grid, field, r, device=device)
+            if rhs is None:
+                wp.launch(cg.negate, dim=(n, n_cols), inputs=[r], outputs=[r])
+            else:
+                wp.launch(cg.residual, dim=(n, n_cols), inputs=[rhs, r], outputs=[r])
 
         # scale: ||b_h||_M with b = rhs - A_IK x_K = r0 + A_II x0
         apply_operator(grid, field, p, n_rows=n, device=device)
@@ -309,7 +314,7 @@ def _identity_check(grid: Grid, field: wp.array, handles, device, chunk: slice |
             + (f"({stop - first} handles of the chunk and {COMPLEMENT_COLUMNS} for the rest of the cage)"
                if chunk is not None else "(one per handle)")
         )
-    positions = wp.array(grid.node_positions(np.arange(grid.n_interior)), dtype=wp.vec3d, device=device)
+    ijk = grid.device_arrays(device)["active_ijk"]
     columns = wp.array(columns, dtype=wp.vec4d, device=device)
     out = wp.zeros(1, dtype=float, device=device)
 
@@ -318,7 +323,7 @@ def _identity_check(grid: Grid, field: wp.array, handles, device, chunk: slice |
         wp.launch(
             checks.identity_deviation,
             dim=grid.n_interior,
-            inputs=[field, positions, columns, wp.float64(scale)],
+            inputs=[field, ijk, wp.vec3d(*grid.origin), wp.float64(grid.spacing), columns, wp.float64(scale)],
             outputs=[out],
             device=device,
         )
