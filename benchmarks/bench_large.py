@@ -82,6 +82,8 @@ def run_case(name: str, resolution: int, folder: Path) -> dict:
         "boundary_s": s["seconds"]["boundary"], "peak_bytes": peak, "estimate_bytes": s["memory_estimate_bytes"],
         "pu": s["partition_of_unity_error"], "lp": s["linear_precision_error"],
         "identity_error": s["identity_error"], "min_weight": float(w.min()),
+        "chunk_iterations": s["chunk_iterations"], "chunk_rounds": s["chunk_rounds"],
+        "multigrid_seconds": s["multigrid_seconds"], "voxelize_s": s["seconds"]["voxelize"],
     }
 
 

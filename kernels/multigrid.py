@@ -206,6 +206,34 @@ def prolongation_triplets(
         blocks[8 * n + slot] = m
 
 
+@wp.func
+def stencil_times(d: wp.vec3i, p: wp.mat44d):
+    """fine_block(d) * p without the zeros: the centre scales rows, a face couples q and G along its axis, an
+    edge keeps the value row, a corner is zero."""
+    m = wp.mat44d()
+    steps = wp.abs(d[0]) + wp.abs(d[1]) + wp.abs(d[2])
+    if steps == 0:
+        for j in range(4):
+            m[0, j] = wp.float64(48.0) * p[0, j]
+            m[1, j] = wp.float64(4.0) * p[1, j]
+            m[2, j] = wp.float64(4.0) * p[2, j]
+            m[3, j] = wp.float64(4.0) * p[3, j]
+    elif steps == 1:
+        axis = int(0)
+        sign = wp.float64(0.0)
+        for a in range(3):
+            if d[a] != 0:
+                axis = a
+                sign = wp.float64(d[a])
+        for j in range(4):
+            m[0, j] = wp.float64(-10.0) * p[0, j] + wp.float64(3.0) * sign * p[1 + axis, j]
+            m[1 + axis, j] = p[1 + axis, j] - wp.float64(3.0) * sign * p[0, j]
+    elif steps == 2:
+        for j in range(4):
+            m[0, j] = p[0, j]
+    return m
+
+
 @wp.kernel
 def galerkin_blocks(
     coarse_ijk: wp.array(dtype=wp.vec3i),
@@ -218,37 +246,40 @@ def galerkin_blocks(
     table: wp.array(dtype=wp.mat44d),
     blocks: wp.array2d(dtype=wp.mat44f),
 ):
-    """blocks[m, o] = (P^T A P)[c, c + o] for coarse node c = coarse_ijk[m] and neighbour slot o; launch
-    (coarse nodes, 27). A is the 19-point stencil (fine_is_stencil = 1) or a 27-point block stencil
-    `fine_blocks`; sums in float64.
+    """blocks[m, o] = (P^T A P)[c, c + o] for coarse node c = coarse_ijk[m] and neighbour slot o >= 13 (the centre
+    and the 13 neighbours after it), and its transpose, the block of the pair's other row (A is symmetric);
+    launch (coarse nodes, 14) on zeroed `blocks`. A is the 19-point stencil (fine_is_stencil = 1) or a 27-point
+    block stencil `fine_blocks`; sums in float64.
 
     (P^T A P)[c, c'] = sum over the fine unknowns f around c (|f - 2c| <= 1) of P[f, c]^T (A P)[f, c'], with
     (A P)[f, c'] = sum over A's neighbours g of f that lie around c' (|g - 2c'| <= 1) of A[f, g] P[g, c']."""
-    m, o = wp.tid()
+    m, u = wp.tid()
+    o = CENTRE + u
     c = coarse_ijk[m]
     other = c + neighbour_offset(o)
+    row_other = node_row(coarse_index, n_coarse, other)
+    if row_other < 0:
+        return
     acc = wp.mat44d()
-    if node_row(coarse_index, n_coarse, other) >= 0:
-        for s in range(27):
-            ds = neighbour_offset(s)
-            f = 2 * c + ds
-            row_f = node_row(fine_index, n_fine, f)
-            if row_f >= 0:
-                ap = wp.mat44d()
-                for t in range(27):
-                    dt = neighbour_offset(t)
-                    g = f + dt
-                    e = g - 2 * other
-                    if wp.abs(e[0]) <= 1 and wp.abs(e[1]) <= 1 and wp.abs(e[2]) <= 1:
-                        if node_row(fine_index, n_fine, g) >= 0:
-                            a = wp.mat44d()
-                            if fine_is_stencil != 0:
-                                a = fine_block(dt)
-                            else:
-                                a = wp.mat44d(fine_blocks[row_f, t])
-                            ap += a * table[parent_entry(e)]
-                acc += wp.transpose(table[parent_entry(ds)]) * ap
+    for s in range(27):
+        ds = neighbour_offset(s)
+        f = 2 * c + ds
+        row_f = node_row(fine_index, n_fine, f)
+        if row_f >= 0:
+            ap = wp.mat44d()
+            for t in range(27):
+                dt = neighbour_offset(t)
+                e = f + dt - 2 * other
+                if wp.abs(e[0]) <= 1 and wp.abs(e[1]) <= 1 and wp.abs(e[2]) <= 1:
+                    if node_row(fine_index, n_fine, f + dt) >= 0:
+                        if fine_is_stencil != 0:
+                            ap += stencil_times(dt, table[parent_entry(e)])
+                        else:
+                            ap += wp.mat44d(fine_blocks[row_f, t]) * table[parent_entry(e)]
+            acc += wp.transpose(table[parent_entry(ds)]) * ap
     blocks[m, o] = wp.mat44f(acc)
+    if o != CENTRE:
+        blocks[row_other, NEIGHBOURS - 1 - o] = wp.mat44f(wp.transpose(acc))
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -368,6 +399,21 @@ def chebyshev_step(
     v = a * d[n, h] + b * (diagonal_block(inv_diag, n) * r[n, h])
     d[n, h] = v
     x[n, h] = x[n, h] + v
+
+
+@wp.kernel
+def random_column(seed: int, v: wp.array2d(dtype=wp.vec4f)):
+    """v[:, 0] = standard normal entries (the start of a power iteration)."""
+    n = wp.tid()
+    state = wp.rand_init(seed, n)
+    v[n, 0] = wp.vec4f(wp.randn(state), wp.randn(state), wp.randn(state), wp.randn(state))
+
+
+@wp.kernel
+def divide_column(v: wp.array2d(dtype=wp.vec4f), squared_norm: wp.array(dtype=wp.float64)):
+    """v[:, 0] /= sqrt(squared_norm[0]): normalised without a trip to the host."""
+    n = wp.tid()
+    v[n, 0] = v[n, 0] / wp.float32(wp.sqrt(squared_norm[0]))
 
 
 @wp.kernel

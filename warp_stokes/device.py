@@ -8,7 +8,7 @@ import warp as wp
 
 from .errors import WarpStokesError
 
-__all__ = ["resolve_device", "device_name", "available_memory"]
+__all__ = ["resolve_device", "device_name", "available_memory", "reduction_threads"]
 
 
 def resolve_device(device=None) -> wp.context.Device:
@@ -60,3 +60,11 @@ def available_memory(device=None) -> int:
         return int(0.5 * os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
     except (ValueError, OSError, AttributeError):
         return 8 << 30
+
+
+def reduction_threads(n_rows: int, n_cols: int, device) -> int:
+    """Threads per column for column reductions (``kernels.cg.column_dots``): enough to fill a GPU, few on the
+    CPU (its launches are serial)."""
+    if resolve_device(device).is_cuda:
+        return int(max(1, min(n_rows, -(-(1 << 17) // n_cols))))
+    return int(max(1, min(n_rows, 16)))

@@ -21,12 +21,13 @@ No general sparse matrix is involved: warp.sparse addresses block values with 32
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
 import warp as wp
 
-from .device import resolve_device
+from .device import reduction_threads, resolve_device
 from .grid import Grid
 from .kernels import cg, multigrid as mg
 from .operator import apply_operator
@@ -36,9 +37,9 @@ __all__ = ["Multigrid", "coarsen", "hierarchy_bytes", "SMOOTHER_DEGREE", "COARSE
 SMOOTHER_DEGREE = 3
 #: the Chebyshev interval is [lmax / SMOOTHING_RANGE, 1.1 lmax]: the upper part of the spectrum is smoothed
 SMOOTHING_RANGE = 30.0
-#: coarsen until a level has at most this many nodes; it is then inverted densely (512 x 512 floats at most:
-#: 1 MiB, and a cheap dense product on the CPU)
-COARSEST_NODES = 128
+#: coarsen until a level has at most this many nodes; it is then inverted densely (1600 x 1600 floats at most:
+#: 10 MiB). A lower limit adds a level below and costs CG iterations (one at n = 80 on a bulky cage, measured)
+COARSEST_NODES = 400
 POWER_ITERATIONS = 12
 #: device bytes per node of a coarse level: 27 blocks of the operator, the diagonal's inverse, its coordinates
 COARSE_NODE_BYTES = 27 * 64 + 64 + 12
@@ -131,6 +132,8 @@ class Multigrid:
     def __init__(self, grid: Grid, device=None, coarsest_nodes: int = COARSEST_NODES, levels=None):
         self.grid = grid
         self.device = resolve_device(device)
+        #: setup time by phase: Galerkin product per coarse level, the coarsest inverse, eigenvalue estimates
+        self.seconds = {"galerkin": [], "coarsest": 0.0, "eigenvalues": 0.0}
         with wp.ScopedDevice(self.device):
             self.table = wp.empty(64, dtype=wp.mat44d)
             wp.launch(mg.hermite_table, dim=64, outputs=[self.table])
@@ -146,22 +149,28 @@ class Multigrid:
         fine.inv_diag = wp.array(inv[None], dtype=wp.mat44f)
         empty = wp.empty((0, 27), dtype=wp.mat44f)
         for finer, coarse in zip(self.levels, self.levels[1:]):
-            coarse.blocks = wp.empty((coarse.n, 27), dtype=wp.mat44f)
+            start = time.perf_counter()
+            # each symmetric pair of blocks is formed once: the 14 slots from the centre on, and their transposes
+            coarse.blocks = wp.zeros((coarse.n, 27), dtype=wp.mat44f)
             wp.launch(
                 mg.galerkin_blocks,
-                dim=(coarse.n, 27),
+                dim=(coarse.n, 14),
                 inputs=[coarse.ijk_device, coarse.index, coarse.n, finer.index, finer.n,
                         empty if finer.blocks is None else finer.blocks, int(finer.blocks is None), self.table],
                 outputs=[coarse.blocks],
             )
             coarse.inv_diag = wp.empty(coarse.n, dtype=wp.mat44f)
             wp.launch(mg.diagonal_inverse, dim=coarse.n, inputs=[coarse.blocks], outputs=[coarse.inv_diag])
+            wp.synchronize_device()
+            self.seconds["galerkin"].append(time.perf_counter() - start)
+        start = time.perf_counter()
         dense = self._dense(len(self.levels) - 1)
         try:
             inverse = np.linalg.inv(dense)
         except np.linalg.LinAlgError:
             inverse = np.linalg.pinv(dense)
         self.coarse_inverse = wp.array(inverse.astype(np.float32), dtype=wp.float32)
+        self.seconds["coarsest"] = time.perf_counter() - start
 
     def _dense(self, depth: int) -> np.ndarray:
         rows, cols, blocks = self.operator_triplets(depth)
@@ -171,22 +180,28 @@ class Multigrid:
         return dense.reshape(4 * n, 4 * n)
 
     def _estimate_eigenvalues(self) -> None:
-        """lmax of D^-1 A per level (all but the coarsest) by power iteration on one random column."""
-        rng = np.random.default_rng(0)
+        """lmax of D^-1 A per level (all but the coarsest) by power iteration on one random column, on the
+        device: v <- D^-1 A v / |v|, and lmax = |D^-1 A v| for the last unit v."""
+        start = time.perf_counter()
         for depth, lev in enumerate(self.levels[:-1]):
-            v = wp.array(rng.standard_normal((lev.n, 1, 4)).astype(np.float32), dtype=wp.vec4f)
+            v = wp.empty((lev.n, 1), dtype=wp.vec4f)
+            wp.launch(mg.random_column, dim=lev.n, inputs=[depth], outputs=[v])
             av = wp.empty_like(v)
             z = wp.empty_like(v)
-            lam = 1.0
+            squared = wp.zeros(1, dtype=wp.float64)
+            threads = reduction_threads(lev.n, 1, self.device)
             for _ in range(POWER_ITERATIONS):
-                norm = float(np.linalg.norm(v.numpy()))
-                v = wp.array(v.numpy() / norm, dtype=wp.vec4f)
+                squared.zero_()
+                wp.launch(cg.column_dots, dim=(threads, 1), inputs=[v, v, threads], outputs=[squared])
+                wp.launch(mg.divide_column, dim=lev.n, inputs=[v, squared])
                 self._apply_A(depth, v, av)
-                zeros = wp.zeros_like(z)
-                wp.launch(mg.chebyshev_start, dim=(lev.n, 1), inputs=[av, lev.inv_diag, 1.0], outputs=[zeros, z])
-                lam = float(np.linalg.norm(z.numpy()))
+                z.zero_()
+                wp.launch(mg.chebyshev_start, dim=(lev.n, 1), inputs=[av, lev.inv_diag, 1.0], outputs=[z, av])
                 v, z = z, v
-            lev.lmax = 1.1 * lam
+            squared.zero_()
+            wp.launch(cg.column_dots, dim=(threads, 1), inputs=[v, v, threads], outputs=[squared])
+            lev.lmax = 1.1 * float(np.sqrt(squared.numpy()[0]))
+        self.seconds["eigenvalues"] = time.perf_counter() - start
 
     # -- inspection -----------------------------------------------------------------------------------------------
 

@@ -34,7 +34,7 @@ import numpy as np
 import warp as wp
 
 from .boundary import COMPLEMENT_COLUMNS
-from .device import resolve_device
+from .device import reduction_threads, resolve_device
 from .grid import Grid
 from .kernels import cg, checks
 from .multigrid import Multigrid
@@ -72,13 +72,6 @@ class SolveReport:
     seconds: float
     setup_seconds: float = 0.0
     rounds: list = None
-
-
-def _n_chunks(n_rows: int, n_cols: int, device) -> int:
-    """Threads per column for the reductions: enough to fill a GPU, few on the CPU (serial launches)."""
-    if device.is_cuda:
-        return int(max(1, min(n_rows, -(-(1 << 17) // n_cols))))
-    return int(max(1, min(n_rows, 16)))
 
 
 def solve_biharmonic(
@@ -157,7 +150,7 @@ def solve_biharmonic(
             raise ValueError(f"unknown preconditioner {preconditioner!r}: use 'multigrid' or 'jacobi'")
         if max_iterations is None:
             max_iterations = default_iterations
-        chunks = _n_chunks(n, n_cols, device)
+        chunks = reduction_threads(n, n_cols, device)
 
         rhs = None  # zero: Stokes coordinates have no source
         if source is not None:
