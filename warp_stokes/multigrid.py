@@ -255,14 +255,18 @@ class Multigrid:
                       outputs=[out])
 
     def _work(self, depth: int, n_cols: int) -> dict:
+        """The level's work vectors for ``n_cols`` columns: kept from one solve to the next (chunks), and only
+        reallocated for more columns, after the old ones are released (a smaller chunk uses their first columns),
+        so that the memory planner's figure holds."""
         lev = self.levels[depth]
-        if lev.work.get("n_cols") != n_cols:
+        if lev.work.get("n_cols", 0) < n_cols:
+            lev.work = {}
             shape = (lev.n, n_cols)
-            lev.work = {"n_cols": n_cols, "r": wp.empty(shape, dtype=wp.vec4f), "d": wp.empty(shape, dtype=wp.vec4f)}
-            if depth > 0:
-                lev.work["x"] = wp.empty(shape, dtype=wp.vec4f)
-                lev.work["b"] = wp.empty(shape, dtype=wp.vec4f)
-        return lev.work
+            names = ("r", "d") if depth == 0 else ("r", "d", "x", "b")
+            lev.work = {"n_cols": n_cols, **{name: wp.empty(shape, dtype=wp.vec4f) for name in names}}
+        if lev.work["n_cols"] == n_cols:
+            return lev.work
+        return {name: a[:, :n_cols] for name, a in lev.work.items() if name != "n_cols"}
 
     def _smooth(self, depth: int, b: wp.array, x: wp.array, r: wp.array, d: wp.array, x_is_zero: bool,
                 residual: bool) -> None:
