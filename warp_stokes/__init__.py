@@ -26,6 +26,7 @@ from .errors import BindingError, CageError, MeshError, ResolutionError, WarpSto
 from .load import Surface, load_surface  # noqa: E402
 from .cage import Cage, check_cage, signed_volume  # noqa: E402
 from .grid import Grid, voxelize, grid_from_mask, classify_points  # noqa: E402
+from .local_boundary import LocalData  # noqa: E402
 from .boundary import COMPLEMENT_COLUMNS, mean_value_coordinates, boundary_field  # noqa: E402
 from .multigrid import Multigrid, coarsen  # noqa: E402
 from .budget import MemoryEstimate, estimate_memory, available_memory, plan_chunks  # noqa: E402
@@ -42,7 +43,7 @@ __all__ = [
     "bind", "load_binding", "Binding",
     "load_surface", "Surface", "check_cage", "Cage", "signed_volume",
     "voxelize", "grid_from_mask", "Grid", "classify_points",
-    "mean_value_coordinates", "boundary_field", "COMPLEMENT_COLUMNS",
+    "mean_value_coordinates", "boundary_field", "COMPLEMENT_COLUMNS", "LocalData",
     "solve_biharmonic", "apply_operator", "SolveReport", "Multigrid", "coarsen",
     "sample_weights", "deform_vertices",
     "MemoryEstimate", "estimate_memory", "available_memory", "plan_chunks",

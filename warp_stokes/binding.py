@@ -23,6 +23,7 @@ from .budget import available_memory, chunk_columns, estimate_memory, plan_chunk
 from .grid import classify_points, voxelize
 from .multigrid import Multigrid, coarsen
 from .load import Surface, load_surface
+from .local_boundary import LocalData
 from .sample import sample_weights
 from .solve import solve_biharmonic
 
@@ -213,7 +214,7 @@ def _suggest_resolution(resolution: int, spacing: float, distances: np.ndarray) 
 
 
 def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_iterations: int | None = None,
-         solver: str = "multigrid", memory_budget: int | None = None) -> Binding:
+         solver: str = "multigrid", memory_budget: int | None = None, boundary="mvc") -> Binding:
     """Compute Stokes cage coordinates of a mesh's vertices with respect to a cage.
 
     Load -> voxelise (winding number) -> boundary data (mean value coordinates) -> batched solve of the
@@ -240,6 +241,9 @@ def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_i
     memory_budget : int, optional
         Bytes the bind may allocate on the device (default: 90% of a GPU's free memory, half the free RAM on
         the CPU). Handles are solved in chunks that fit it.
+    boundary : "mvc" | "local" | LocalData
+        The data at ring and band nodes (see :func:`warp_stokes.boundary_field`): mean value coordinates, or the
+        local data of :mod:`warp_stokes.local_boundary`.
 
     Returns
     -------
@@ -262,6 +266,8 @@ def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_i
         raise WarpStokesError(f"memory_budget must be a positive number of bytes, got {memory_budget!r}")
     if solver not in ("multigrid", "jacobi"):
         raise WarpStokesError(f"solver must be 'multigrid' or 'jacobi', got {solver!r}")
+    if not (boundary in ("mvc", "local") or isinstance(boundary, LocalData)):
+        raise WarpStokesError(f"boundary must be 'mvc', 'local' or a LocalData, got {boundary!r}")
     device = resolve_device(device)
     seconds = {}
     t = time.perf_counter()
@@ -291,7 +297,7 @@ def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_i
     for chunk in chunks:
         t = time.perf_counter()
         # a chunk carries the rest of the cage in four more columns, so that its solve is checked like a whole one
-        field = boundary_field(grid, checked, device=device, handles=chunk, complement=chunked)
+        field = boundary_field(grid, checked, device=device, handles=chunk, complement=chunked, data=boundary)
         wp.synchronize_device(device)
         seconds["boundary"] += time.perf_counter() - t
         report = solve_biharmonic(
@@ -366,7 +372,8 @@ def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_i
         "tol": float(tol),
         "max_iterations": max_iterations,
         "solver": solver,
-        "boundary": "mvc-central-difference",
+        "boundary": "mvc-central-difference" if boundary == "mvc" else str(
+            LocalData() if boundary == "local" else boundary),
         "sampling": "trilinear",
         "mesh": surface.name,
         "cage": checked.name,

@@ -16,6 +16,7 @@ from .cage import Cage
 from .device import resolve_device
 from .grid import Grid
 from .kernels import mvc, stencil
+from .local_boundary import LocalData, local_field
 
 __all__ = ["mean_value_coordinates", "boundary_field", "COMPLEMENT_COLUMNS"]
 
@@ -75,7 +76,7 @@ def mean_value_coordinates(cage: Cage, points: np.ndarray, device=None) -> np.nd
 
 
 def boundary_field(grid: Grid, cage: Cage, device=None, handles: slice = slice(None),
-                   complement: bool = False) -> wp.array:
+                   complement: bool = False, data="mvc") -> wp.array:
     """The packed (q, G) field of every handle at every active node, from mean value coordinates.
 
     Parameters
@@ -89,6 +90,10 @@ def boundary_field(grid: Grid, cage: Cage, device=None, handles: slice = slice(N
         outside ``handles`` of w_l and of (c_l - grid.centre) w_l. The chunk and these four columns reproduce
         constants and linear functions like the whole cage does, so a chunked solve can run the same identity
         check (``solve_biharmonic(..., chunk=handles)``) at the cost of four columns.
+    data : "mvc" | "local" | LocalData
+        Ring and band data: mean value coordinates of the nodes, or the local data of
+        :mod:`warp_stokes.local_boundary` (the hat functions at the closest cage point, Taylor-extended; "local"
+        is ``LocalData()``). Both reproduce constants and linear functions exactly.
 
     Returns
     -------
@@ -124,4 +129,9 @@ def boundary_field(grid: Grid, cage: Cage, device=None, handles: slice = slice(N
         outputs=[field],
         device=device,
     )
+    if data != "mvc":
+        # ring and band rows take the local data; the interior keeps the MVC field as its starting guess (exact
+        # too, and smooth: starting from the local data's Taylor extension took twice the iterations)
+        local_field(grid, cage, field, slice(grid.n_interior, grid.n_active), handles, complement,
+                    LocalData() if data == "local" else data, device)
     return field

@@ -1,0 +1,216 @@
+"""Boundary data compared by the deformations they give, beside mean value coordinates (issue 19).
+
+    python benchmarks/bench_boundary.py --resolutions 96 128 256 --device cuda:0 --json out.jsonl
+    python benchmarks/bench_boundary.py --refinement 64 96 128 192 256 384 --device cuda:0
+
+Pairs: SMPL rest pose (arms down, hands beside the thighs) deformed by its T-pose cage and compared with the real
+T-pose mesh (regions: the hand at +x and the hand at -x in the T-pose, |x| > 0.6, and the whole body); the ogre
+deformed by its deformed cage (no reference mesh). For every boundary-data variant and resolution: conformal
+distortion p95 (per triangle, sigma1 / sigma2 of the map rest -> deformed) and dihedral-angle change p95 against the
+reference (degrees, SMPL), min weight, fraction of negative weights, CG iterations, bind seconds. Mean value
+coordinates evaluated at the vertices are the reference method (one row per pair).
+
+``--refinement`` instead follows the min weight of SMPL and the arm over resolutions: its value, the vertex where
+it occurs and that vertex's distance to the nearest folded cage edge (faces whose normals are more than 150 degrees
+apart), for MVC data and the local data.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+import warp_stokes as ws
+
+REPO = Path(__file__).resolve().parents[1]
+DATA = Path(os.environ.get("WARP_STOKES_DATA", REPO.parent / "shared" / "data"))
+
+VARIANTS = {
+    "mvc-data": "mvc",
+    "local": ws.LocalData(),
+    "local-r1.5": ws.LocalData(radius=1.5),
+    "local-r3": ws.LocalData(radius=3.0),
+    "least-norm": ws.LocalData(model="least-norm"),
+}
+
+
+def conformal_distortion(faces: np.ndarray, rest: np.ndarray, deformed: np.ndarray) -> np.ndarray:
+    """Per triangle sigma1 / sigma2 of the linear map rest -> deformed (NaN for degenerate rest triangles)."""
+    e1, e2 = rest[faces[:, 1]] - rest[faces[:, 0]], rest[faces[:, 2]] - rest[faces[:, 0]]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        u = e1 / np.linalg.norm(e1, axis=1, keepdims=True)
+        n = np.cross(e1, e2)
+        n /= np.linalg.norm(n, axis=1, keepdims=True)
+        v = np.cross(n, u)
+        a = np.stack([np.stack([(e1 * u).sum(1), (e2 * u).sum(1)], 1), np.stack([(e1 * v).sum(1), (e2 * v).sum(1)], 1)], 1)
+        b = np.stack([deformed[faces[:, 1]] - deformed[faces[:, 0]], deformed[faces[:, 2]] - deformed[faces[:, 0]]], 2)
+        ok = np.isfinite(a).all(axis=(1, 2)) & (np.abs(np.linalg.det(np.nan_to_num(a))) > 0)
+        s = np.full((len(faces), 2), np.nan)
+        s[ok] = np.linalg.svd(b[ok] @ np.linalg.inv(a[ok]), compute_uv=False)
+        return s[:, 0] / s[:, 1]
+
+
+def interior_edges(faces: np.ndarray):
+    """(face a, face b, edge) for every edge shared by two faces."""
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    fid = np.tile(np.arange(len(faces)), 3)
+    key = np.sort(e, axis=1)
+    order = np.lexsort(key.T[::-1])
+    key, fid = key[order], fid[order]
+    same = (key[1:] == key[:-1]).all(axis=1)
+    return fid[:-1][same], fid[1:][same], key[:-1][same]
+
+
+def dihedral_angles(faces: np.ndarray, points: np.ndarray, edges) -> np.ndarray:
+    fa, fb, _ = edges
+    n = np.cross(points[faces[:, 1]] - points[faces[:, 0]], points[faces[:, 2]] - points[faces[:, 0]])
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    return np.degrees(np.arccos(np.clip((n[fa] * n[fb]).sum(axis=1), -1.0, 1.0)))
+
+
+def folded_edges(cage, threshold_degrees: float = 150.0) -> np.ndarray:
+    """(E, 2) vertex pairs of cage edges whose faces' normals are more than `threshold_degrees` apart."""
+    fa, fb, key = interior_edges(cage.faces)
+    angle = dihedral_angles(cage.faces, cage.vertices, (fa, fb, key))
+    return key[angle > threshold_degrees]
+
+
+def segment_distance(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(P,) distance of each point to the nearest of the segments a[i]-b[i]."""
+    if len(a) == 0:
+        return np.full(len(points), np.inf)
+    d = b - a
+    t = np.clip(np.einsum("pik,ik->pi", points[:, None] - a[None], d) / (d * d).sum(1), 0, 1)
+    return np.linalg.norm(points[:, None] - (a[None] + t[..., None] * d[None]), axis=2).min(axis=1)
+
+
+def load_pair(name: str):
+    if name == "smpl":
+        root = DATA / "smpl_humanoid_neuralcages"
+        mesh = ws.load_surface(root / "model_rpose.obj")
+        cage = ws.check_cage(root / "cage_rpose.obj")
+        pose = ws.load_surface(root / "cage_tpose.obj").vertices
+        reference = ws.load_surface(root / "model_tpose.obj").vertices
+        x = reference[:, 0]
+        regions = {"body": np.ones(len(x), bool), "hand +x": x > 0.6, "hand -x": x < -0.6}
+        return mesh, cage, pose, reference, regions
+    if name == "ogre":
+        root = DATA / "ogre_qmvc"
+        mesh = ws.load_surface(root / "Ogre.obj")
+        return mesh, ws.check_cage(root / "cage_tri.obj"), ws.load_surface(root / "cage_deformed_tri.obj").vertices, \
+            None, {"body": np.ones(len(mesh.vertices), bool)}
+    if name == "arm":
+        mesh = ws.load_surface(REPO / "examples/arm/arm.obj")
+        cage = ws.check_cage(REPO / "examples/arm/arm_cage.obj")
+        poses = np.load(REPO / "examples/arm/bend_poses.npy")
+        return mesh, cage, poses[-1], None, {"body": np.ones(len(mesh.vertices), bool)}
+    raise SystemExit(f"unknown pair {name}")
+
+
+def measure(name, mesh, cage, pose, reference, regions, weights, edges):
+    deformed = weights @ pose
+    conformal = conformal_distortion(mesh.faces, mesh.vertices, deformed)
+    dihedral = None
+    if reference is not None:
+        dihedral = np.abs(dihedral_angles(mesh.faces, deformed, edges) - dihedral_angles(mesh.faces, reference, edges))
+    out = {}
+    for region, mask in regions.items():
+        tri = mask[mesh.faces].all(axis=1) & np.isfinite(conformal)
+        row = {"conformal_p95": float(np.percentile(conformal[tri], 95)),
+               "conformal_p50": float(np.percentile(conformal[tri], 50))}
+        if dihedral is not None:
+            row["dihedral_p95"] = float(np.percentile(dihedral[mask[edges[2]].all(axis=1)], 95))
+        out[region] = row
+    return {"pair": name, "regions": out, "min_weight": float(weights.min()),
+            "negative_fraction": float((weights < 0).mean())}
+
+
+def compare(args) -> int:
+    rows = []
+    for name in args.pairs:
+        mesh, cage, pose, reference, regions = load_pair(name)
+        edges = interior_edges(mesh.faces)
+        row = measure(name, mesh, cage, pose, reference, regions,
+                      ws.mean_value_coordinates(cage, mesh.vertices, device=args.device), edges)
+        rows.append({**row, "method": "MVC", "n": "", "iterations": 0, "seconds": 0.0})
+        print(json.dumps(rows[-1]), flush=True)
+        for n in args.resolutions:
+            for label in args.variants:
+                start = time.perf_counter()
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    b = ws.bind(mesh, cage, resolution=n, device=args.device, boundary=VARIANTS[label])
+                seconds = time.perf_counter() - start
+                row = measure(name, mesh, cage, pose, reference, regions, b.weights.astype(np.float64), edges)
+                rows.append({**row, "method": label, "n": n, "iterations": b.stats["iterations"], "seconds": seconds,
+                             "pu": b.stats["partition_of_unity_error"], "lp": b.stats["linear_precision_error"]})
+                print(json.dumps(rows[-1]), flush=True)
+    if args.json:
+        with open(args.json, "a") as fh:
+            fh.writelines(json.dumps(r) + "\n" for r in rows)
+    device = ws.device_name(args.device)
+    print(f"\nDevice: {device}. Conformal p95 / dihedral change p95 (degrees) by region; min weight; iterations.\n")
+    print("| pair | method | n | region | conformal p95 | dihedral p95 | min w | neg % | its | s |\n|---|---|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        for region, m in r["regions"].items():
+            print(f"| {r['pair']} | {r['method']} | {r['n']} | {region} | {m['conformal_p95']:.3f} | "
+                  f"{m.get('dihedral_p95', float('nan')):.1f} | {r['min_weight']:.3f} | "
+                  f"{100 * r['negative_fraction']:.1f} | {r['iterations']} | {r['seconds']:.2f} |")
+    return 0
+
+
+def refinement(args) -> int:
+    rows = []
+    for name in ("smpl", "arm"):
+        mesh, cage, *_ = load_pair(name)
+        folds = folded_edges(cage)
+        a, b = cage.vertices[folds[:, 0]], cage.vertices[folds[:, 1]]
+        for label in args.variants:
+            for n in args.refinement:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    start = time.perf_counter()
+                    bound = ws.bind(mesh, cage, resolution=n, device=args.device, boundary=VARIANTS[label])
+                    seconds = time.perf_counter() - start
+                w = bound.weights
+                j, l = np.unravel_index(int(np.argmin(w)), w.shape)
+                distance = float(segment_distance(mesh.vertices[j : j + 1], a, b)[0])
+                rows.append({"pair": name, "method": label, "n": n, "min_weight": float(w[j, l]), "vertex": int(j),
+                             "handle": int(l), "fold_distance": distance / cage.diagonal,
+                             "spacing": bound.stats["spacing"] / cage.diagonal,
+                             "iterations": bound.stats["iterations"], "seconds": seconds})
+                print(json.dumps(rows[-1]), flush=True)
+    if args.json:
+        with open(args.json, "a") as fh:
+            fh.writelines(json.dumps(r) + "\n" for r in rows)
+    print(f"\nDevice: {ws.device_name(args.device)}. Distances relative to the cage's diagonal.\n")
+    print("| pair | data | n | min weight | vertex | handle | distance to a folded edge | cell | its | s |\n"
+          "|---|---|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        print(f"| {r['pair']} | {r['method']} | {r['n']} | {r['min_weight']:.3f} | {r['vertex']} | {r['handle']} | "
+              f"{r['fold_distance']:.4f} | {r['spacing']:.4f} | {r['iterations']} | {r['seconds']:.2f} |")
+    return 0
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--pairs", nargs="+", default=["smpl", "ogre"])
+    p.add_argument("--resolutions", nargs="+", type=int, default=[96])
+    p.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
+    p.add_argument("--refinement", nargs="*", type=int, default=None)
+    p.add_argument("--device", default=None)
+    p.add_argument("--json", default=None)
+    args = p.parse_args(argv)
+    args.device = ws.resolve_device(args.device).alias
+    return refinement(args) if args.refinement else compare(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
