@@ -6,8 +6,6 @@ equal the piecewise linear hat functions on it: the boundary data of Stokes cage
 
 import warp as wp
 
-PI = wp.constant(wp.float64(3.141592653589793))
-
 
 @wp.func
 def half_angle(u: wp.vec3d, v: wp.vec3d):
@@ -26,40 +24,55 @@ def triangle_weights(
     d2: wp.float64,
     eps: wp.float64,
 ):
-    """Unnormalised MVC weights of one triangle's corners; the 4th entry says how to use them:
-    0 = regular, 1 = skip (point in the triangle's plane, outside it), 2 = point lies on the triangle
-    (the three weights are then its barycentric coordinates, up to scale)."""
-    one = wp.float64(1.0)
-    two = wp.float64(2.0)
+    """Unnormalised MVC weights of one triangle's corners, from the mean vector of its projection on the unit
+    sphere around x (Ju, Schaefer and Warren 2005, eq. 7): m = sum_i theta_i / 2 n_i with theta_i the arc opposite
+    corner i and n_i the unit normal of the plane through x and that arc; w_i = (n_i . m) / (n_i . u_i) / d_i.
+    Unlike the half-angle form, it keeps full float64 accuracy next to the triangle's plane (1e-16 at 1e-8 of the
+    cage's size from faces, their diagonals and edges). The 4th entry is 1 when x lies in the triangle's plane
+    outside it (the projection is an arc: the triangle contributes nothing), else 0."""
     zero = wp.float64(0.0)
-    t0 = half_angle(u1, u2)
-    t1 = half_angle(u2, u0)
-    t2 = half_angle(u0, u1)
-    h = (t0 + t1 + t2) * wp.float64(0.5)
-    if PI - h < eps:
-        return wp.vec4d(wp.sin(t0) * d1 * d2, wp.sin(t1) * d2 * d0, wp.sin(t2) * d0 * d1, two)
-    sh = wp.sin(h)
-    s_t0 = wp.sin(t0)
-    s_t1 = wp.sin(t1)
-    s_t2 = wp.sin(t2)
-    c0 = two * sh * wp.sin(h - t0) / (s_t1 * s_t2) - one
-    c1 = two * sh * wp.sin(h - t1) / (s_t2 * s_t0) - one
-    c2 = two * sh * wp.sin(h - t2) / (s_t0 * s_t1) - one
     det = wp.dot(u0, wp.cross(u1, u2))
     if wp.abs(det) <= eps:
-        # x lies in the triangle's plane, outside it (e.g. on the line through an edge, where one angle is 0
-        # and the paper's test on s below is defeated by round-off): the triangle contributes nothing
-        return wp.vec4d(zero, zero, zero, one)
-    sign = wp.sign(det)
-    s0 = sign * wp.sqrt(wp.max(one - c0 * c0, zero))
-    s1 = sign * wp.sqrt(wp.max(one - c1 * c1, zero))
-    s2 = sign * wp.sqrt(wp.max(one - c2 * c2, zero))
-    if wp.abs(s0) <= eps or wp.abs(s1) <= eps or wp.abs(s2) <= eps:
-        return wp.vec4d(zero, zero, zero, one)
-    w0 = (t0 - c1 * t2 - c2 * t1) / (d0 * s_t1 * s2)
-    w1 = (t1 - c2 * t0 - c0 * t2) / (d1 * s_t2 * s0)
-    w2 = (t2 - c0 * t1 - c1 * t0) / (d2 * s_t0 * s1)
+        return wp.vec4d(zero, zero, zero, wp.float64(1.0))
+    n0 = wp.normalize(wp.cross(u1, u2))
+    n1 = wp.normalize(wp.cross(u2, u0))
+    n2 = wp.normalize(wp.cross(u0, u1))
+    half = wp.float64(0.5)
+    m = half * (half_angle(u1, u2) * n0 + half_angle(u2, u0) * n1 + half_angle(u0, u1) * n2)
+    w0 = wp.dot(n0, m) / (wp.dot(n0, u0) * d0)
+    w1 = wp.dot(n1, m) / (wp.dot(n1, u1) * d1)
+    w2 = wp.dot(n2, m) / (wp.dot(n2, u2) * d2)
     return wp.vec4d(w0, w1, w2, zero)
+
+
+@wp.func
+def on_triangle(x: wp.vec3d, p0: wp.vec3d, p1: wp.vec3d, p2: wp.vec3d, tolerance: wp.float64):
+    """Barycentric coordinates of x's projection on the triangle when x lies on it (within `tolerance` of its plane
+    and of the inside of all three edges), clamped to the triangle; a 4th entry 1 says x is on it, 0 not.
+
+    A geometric test, because the angle test of the MVC formula fails on a triangle's edges (pi - h comes out
+    ~1.5e-8 there in float64, not 0) and near them."""
+    zero = wp.float64(0.0)
+    area_normal = wp.cross(p1 - p0, p2 - p0)  # 2 A n
+    double_area = wp.length(area_normal)
+    if double_area <= zero:
+        return wp.vec4d(zero, zero, zero, zero)
+    n = area_normal / double_area
+    if wp.abs(wp.dot(x - p0, n)) > tolerance:
+        return wp.vec4d(zero, zero, zero, zero)
+    # signed distances of the projection from the three edges' lines, positive inside
+    e0 = p2 - p1
+    e1 = p0 - p2
+    e2 = p1 - p0
+    d0 = wp.dot(wp.cross(e0, x - p1), n) / wp.length(e0)
+    d1 = wp.dot(wp.cross(e1, x - p2), n) / wp.length(e1)
+    d2 = wp.dot(wp.cross(e2, x - p0), n) / wp.length(e2)
+    if d0 < -tolerance or d1 < -tolerance or d2 < -tolerance:
+        return wp.vec4d(zero, zero, zero, zero)
+    # barycentric coordinates: distance from the opposite edge over the triangle's height there
+    b = wp.vec3d(wp.max(d0, zero) * wp.length(e0), wp.max(d1, zero) * wp.length(e1), wp.max(d2, zero) * wp.length(e2))
+    b = b / (b[0] + b[1] + b[2])
+    return wp.vec4d(b[0], b[1], b[2], wp.float64(1.0))
 
 
 @wp.func
@@ -75,20 +88,28 @@ def mean_value_coordinates(
     cage: wp.array(dtype=wp.vec3d),
     triangles: wp.array(dtype=wp.vec3i),
     eps_distance: wp.float64,
-    eps_angle: wp.float64,
+    eps_plane: wp.float64,
     first_handle: int,
     weights: wp.array2d(dtype=wp.float64),
 ):
     """weights[n, c] = MVC of handle first_handle + c at points[n], for the handles of one chunk (the columns of
-    `weights`); one thread per point. Normalised by the total over all handles, so rows of a full chunk sum to 1."""
+    `weights`); one thread per point. Normalised by the total over all handles, so rows of a full chunk sum to 1.
+    A point within `eps_distance` of a triangle (faces, edges and vertices included) gets the hat functions at its
+    projection; `eps_plane` bounds the triple product of the unit vectors to a triangle's corners below which the
+    point is in the triangle's plane (and, having passed the first test, outside it)."""
     n = wp.tid()
     x = points[n]
     zero = wp.float64(0.0)
     for c in range(weights.shape[1]):
         weights[n, c] = zero
-    for l in range(cage.shape[0]):
-        if wp.length(cage[l] - x) < eps_distance:
-            add_weight(weights, n, l, first_handle, wp.float64(1.0))
+    for t in range(triangles.shape[0]):
+        tri = triangles[t]
+        b = on_triangle(x, cage[tri[0]], cage[tri[1]], cage[tri[2]], eps_distance)
+        if b[3] > zero:
+            # x lies on the cage: the coordinates are the hat functions there
+            add_weight(weights, n, tri[0], first_handle, b[0])
+            add_weight(weights, n, tri[1], first_handle, b[1])
+            add_weight(weights, n, tri[2], first_handle, b[2])
             return
     total = zero
     for t in range(triangles.shape[0]):
@@ -99,16 +120,7 @@ def mean_value_coordinates(
         d0 = wp.length(e0)
         d1 = wp.length(e1)
         d2 = wp.length(e2)
-        w = triangle_weights(e0 / d0, e1 / d1, e2 / d2, d0, d1, d2, eps_angle)
-        if w[3] == wp.float64(2.0):
-            # x lies on this triangle: the coordinates are its barycentric coordinates there
-            for c in range(weights.shape[1]):
-                weights[n, c] = zero
-            s = w[0] + w[1] + w[2]
-            add_weight(weights, n, tri[0], first_handle, w[0] / s)
-            add_weight(weights, n, tri[1], first_handle, w[1] / s)
-            add_weight(weights, n, tri[2], first_handle, w[2] / s)
-            return
+        w = triangle_weights(e0 / d0, e1 / d1, e2 / d2, d0, d1, d2, eps_plane)
         if w[3] == zero:
             add_weight(weights, n, tri[0], first_handle, w[0])
             add_weight(weights, n, tri[1], first_handle, w[1])

@@ -20,9 +20,13 @@ from .local_boundary import LocalData, local_field
 
 __all__ = ["mean_value_coordinates", "boundary_field", "COMPLEMENT_COLUMNS"]
 
-#: tolerance of the degenerate cases (point on a triangle, or in its plane outside it), on unit-vector
-#: quantities: angles and the volume spanned by the three unit vectors to the corners
-EPS_ANGLE = 1e-10
+#: a point whose unit vectors to a triangle's corners span a volume below this lies in the triangle's plane (outside
+#: it, once the on-cage test has failed): the triangle contributes nothing
+EPS_PLANE = 1e-10
+#: a point within this fraction of the cage's diagonal from a cage triangle is on the cage: its coordinates are the
+#: hat functions at its projection (exact for points on faces, edges and vertices; an error of at most about this
+#: much, relative, in linear precision for points that near)
+ON_CAGE = 1e-9
 #: columns that stand for the rest of the cage in a chunk's field (``boundary_field(..., complement=True)``)
 COMPLEMENT_COLUMNS = 4
 
@@ -41,7 +45,7 @@ def _mvc_on_device(cage: Cage, centre: np.ndarray, pts: wp.array, handles: slice
         wp.launch(
             mvc.mean_value_coordinates,
             dim=pts.shape[0],
-            inputs=[pts, verts, tris, wp.float64(1e-12 * cage.diagonal), wp.float64(EPS_ANGLE), first],
+            inputs=[pts, verts, tris, wp.float64(ON_CAGE * cage.diagonal), wp.float64(EPS_PLANE), first],
             outputs=[out],
         )
     return out
