@@ -10,9 +10,9 @@ distortion p95 (per triangle, sigma1 / sigma2 of the map rest -> deformed) and d
 reference (degrees, SMPL), min weight, fraction of negative weights, CG iterations, bind seconds. Mean value
 coordinates evaluated at the vertices are the reference method (one row per pair).
 
-``--refinement`` instead follows the min weight of SMPL and the arm over resolutions: its value, the vertex where
-it occurs and that vertex's distance to the nearest folded cage edge (faces whose normals are more than 150 degrees
-apart), for MVC data and the local data.
+``--refinement`` instead follows the min weight of each pair over resolutions: its value, the vertex where it occurs
+and that vertex's distance to the nearest folded cage edge (faces whose normals are more than 150 degrees apart),
+and the largest change of any weight from the previous resolution.
 """
 
 from __future__ import annotations
@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 import warp_stokes as ws
+from warp_stokes.local_boundary import folded_edges
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = Path(os.environ.get("WARP_STOKES_DATA", REPO.parent / "shared" / "data"))
@@ -38,6 +39,11 @@ VARIANTS = {
     "local-r1.5": ws.LocalData(radius=1.5),
     "local-r3": ws.LocalData(radius=3.0),
     "least-norm": ws.LocalData(model="least-norm"),
+    "mix-0.5": ws.LocalData(least_norm_share=0.5),
+    "mix-0.75": ws.LocalData(least_norm_share=0.75),
+    "mix-0.5-r1.5": ws.LocalData(radius=1.5, least_norm_share=0.5),
+    "fold-1": ws.LocalData(fold_radius=1.0),
+    "fold-2": ws.LocalData(fold_radius=2.0),
 }
 
 
@@ -73,13 +79,6 @@ def dihedral_angles(faces: np.ndarray, points: np.ndarray, edges) -> np.ndarray:
     n = np.cross(points[faces[:, 1]] - points[faces[:, 0]], points[faces[:, 2]] - points[faces[:, 0]])
     n /= np.linalg.norm(n, axis=1, keepdims=True)
     return np.degrees(np.arccos(np.clip((n[fa] * n[fb]).sum(axis=1), -1.0, 1.0)))
-
-
-def folded_edges(cage, threshold_degrees: float = 150.0) -> np.ndarray:
-    """(E, 2) vertex pairs of cage edges whose faces' normals are more than `threshold_degrees` apart."""
-    fa, fb, key = interior_edges(cage.faces)
-    angle = dihedral_angles(cage.faces, cage.vertices, (fa, fb, key))
-    return key[angle > threshold_degrees]
 
 
 def segment_distance(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -168,11 +167,12 @@ def compare(args) -> int:
 
 def refinement(args) -> int:
     rows = []
-    for name in ("smpl", "arm"):
+    for name in args.pairs:
         mesh, cage, *_ = load_pair(name)
         folds = folded_edges(cage)
         a, b = cage.vertices[folds[:, 0]], cage.vertices[folds[:, 1]]
         for label in args.variants:
+            previous = None
             for n in args.refinement:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")
@@ -180,22 +180,26 @@ def refinement(args) -> int:
                     bound = ws.bind(mesh, cage, resolution=n, device=args.device, boundary=VARIANTS[label])
                     seconds = time.perf_counter() - start
                 w = bound.weights
+                change = float(np.abs(w - previous).max()) if previous is not None else float("nan")
+                previous = w
                 j, l = np.unravel_index(int(np.argmin(w)), w.shape)
                 distance = float(segment_distance(mesh.vertices[j : j + 1], a, b)[0])
                 rows.append({"pair": name, "method": label, "n": n, "min_weight": float(w[j, l]), "vertex": int(j),
                              "handle": int(l), "fold_distance": distance / cage.diagonal,
                              "spacing": bound.stats["spacing"] / cage.diagonal,
-                             "iterations": bound.stats["iterations"], "seconds": seconds})
+                             "iterations": bound.stats["iterations"], "seconds": seconds,
+                             "change_from_previous": change})
                 print(json.dumps(rows[-1]), flush=True)
     if args.json:
         with open(args.json, "a") as fh:
             fh.writelines(json.dumps(r) + "\n" for r in rows)
     print(f"\nDevice: {ws.device_name(args.device)}. Distances relative to the cage's diagonal.\n")
-    print("| pair | data | n | min weight | vertex | handle | distance to a folded edge | cell | its | s |\n"
-          "|---|---|---|---|---|---|---|---|---|---|")
+    print("| pair | data | n | min weight | vertex | handle | distance to a folded edge | cell | max change from the "
+          "previous n | its | s |\n|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         print(f"| {r['pair']} | {r['method']} | {r['n']} | {r['min_weight']:.3f} | {r['vertex']} | {r['handle']} | "
-              f"{r['fold_distance']:.4f} | {r['spacing']:.4f} | {r['iterations']} | {r['seconds']:.2f} |")
+              f"{r['fold_distance']:.4f} | {r['spacing']:.4f} | {r['change_from_previous']:.3f} | {r['iterations']} | "
+              f"{r['seconds']:.2f} |")
     return 0
 
 

@@ -31,7 +31,7 @@ from .files import atomic_output
 
 __all__ = ["Asset", "read_manifest", "run_batch", "format_summary"]
 
-ASSET_KEYS = {"name", "mesh", "cage", "poses", "resolution", "fps", "tol", "with_cage", "with_weights"}
+ASSET_KEYS = {"name", "mesh", "cage", "poses", "resolution", "fps", "tol", "with_cage", "with_weights", "boundary"}
 
 
 class ManifestError(WarpStokesError):
@@ -47,6 +47,7 @@ class Asset:
     resolution: int = 64
     fps: float = 24.0
     tol: float = 1e-6
+    boundary: str = "local"
     with_cage: bool = False
     with_weights: bool = False
 
@@ -110,6 +111,8 @@ def read_manifest(path) -> list[Asset]:
                 raise ManifestError(f"{where}: '{key}' (a path) is required")
         if merged.get("poses") is not None and not isinstance(merged["poses"], str):
             raise ManifestError(f"{where}: 'poses' must be a path")
+        if merged.get("boundary", "local") not in ("local", "mvc"):
+            raise ManifestError(f"{where}: 'boundary' must be \"local\" or \"mvc\"")
         for key, kind in (("resolution", int), ("fps", (int, float)), ("tol", (int, float)),
                           ("with_cage", bool), ("with_weights", bool)):
             if key in merged and (not isinstance(merged[key], kind) or (kind is int and isinstance(merged[key], bool))):
@@ -204,7 +207,8 @@ def run_batch(manifest, outdir, force: bool = False, device=None, progress=True)
                 poses = load_poses(asset.poses, cage.faces, cage.n_handles)
             if progress:
                 _progress(progress, k, len(assets), asset.name, f"binding at resolution {asset.resolution}")
-            binding = bind(asset.mesh, cage, resolution=asset.resolution, device=device, tol=asset.tol)
+            binding = bind(asset.mesh, cage, resolution=asset.resolution, device=device, tol=asset.tol,
+                           boundary=asset.boundary)
             result.vertices, result.handles = binding.n_vertices, binding.n_handles
             if not binding.stats["converged"]:
                 raise WarpStokesError(

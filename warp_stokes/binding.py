@@ -214,7 +214,7 @@ def _suggest_resolution(resolution: int, spacing: float, distances: np.ndarray) 
 
 
 def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_iterations: int | None = None,
-         solver: str = "multigrid", memory_budget: int | None = None, boundary="mvc") -> Binding:
+         solver: str = "multigrid", memory_budget: int | None = None, boundary="local") -> Binding:
     """Compute Stokes cage coordinates of a mesh's vertices with respect to a cage.
 
     Load -> voxelise (winding number) -> boundary data (mean value coordinates) -> batched solve of the
@@ -241,9 +241,9 @@ def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_i
     memory_budget : int, optional
         Bytes the bind may allocate on the device (default: 90% of a GPU's free memory, half the free RAM on
         the CPU). Handles are solved in chunks that fit it.
-    boundary : "mvc" | "local" | LocalData
-        The data at ring and band nodes (see :func:`warp_stokes.boundary_field`): mean value coordinates, or the
-        local data of :mod:`warp_stokes.local_boundary`.
+    boundary : "local" | "mvc" | LocalData
+        The data at ring and band nodes (see :func:`warp_stokes.boundary_field`): the local data of
+        :mod:`warp_stokes.local_boundary` (default, ``LocalData()``), or mean value coordinates.
 
     Returns
     -------

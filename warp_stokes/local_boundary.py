@@ -42,11 +42,21 @@ class LocalData:
         meet the constraints ("least-norm", no MVC).
     radius : float, mean edge lengths along the cage beyond which a handle's normal derivative is cut
     falloff : float, mean edge lengths: the weights exp(d / (falloff * mean edge)) of the least change
+    least_norm_share : float in [0, 1], with "mvc-cut": the normal derivatives are this share of the least-norm
+        ones and the rest MVC's cut ones (both meet the constraints, so any mix does)
+    fold_radius : float, mean edge lengths: faces within this distance along the cage of a folded edge (its faces'
+        normals more than ``fold_degrees`` apart) take the least-norm normal derivatives, fading out linearly over
+        the next ``fold_radius`` (MVC's normal derivatives are large there, and the weights near the fold with
+        them: ``benchmarks/RESULTS.md``); 0 = none
+    fold_degrees : float
     """
 
     model: str = "mvc-cut"
     radius: float = 2.0
     falloff: float = 0.5
+    least_norm_share: float = 0.0
+    fold_radius: float = 1.0
+    fold_degrees: float = 150.0
 
     def __post_init__(self):
         if self.model not in ("mvc-cut", "least-norm"):
@@ -55,7 +65,9 @@ class LocalData:
             raise ValueError(f"local data needs radius >= 0 and falloff > 0, got {self.radius}, {self.falloff}")
 
     def __str__(self) -> str:
-        return f"local({self.model}, radius {self.radius:g}, falloff {self.falloff:g})"
+        share = f", least-norm share {self.least_norm_share:g}" if self.least_norm_share else ""
+        folds = f", least-norm within {self.fold_radius:g} of folds > {self.fold_degrees:g} deg" if self.fold_radius else ""
+        return f"local({self.model}, radius {self.radius:g}, falloff {self.falloff:g}{share}{folds})"
 
 
 def cage_graph_distances(cage: Cage) -> np.ndarray:
@@ -90,13 +102,14 @@ def cage_graph_distances(cage: Cage) -> np.ndarray:
     return d
 
 
-def normal_derivatives(cage: Cage, settings: LocalData = LocalData()) -> np.ndarray:
+def normal_derivatives(cage: Cage, settings: LocalData = LocalData(), device=None) -> np.ndarray:
     """Per-face normal derivatives g of the handles' data, with sum_l g_l = 0 and sum_l g_l c_l = n_f.
 
     Parameters
     ----------
     cage : Cage
     settings : LocalData
+    device : None | str, where MVC is evaluated ("mvc-cut")
 
     Returns
     -------
@@ -117,22 +130,46 @@ def normal_derivatives(cage: Cage, settings: LocalData = LocalData()) -> np.ndar
     normals = unit_normals(cage)
     start = np.zeros((len(f), len(v)))
     if settings.model == "mvc-cut":
-        start = _mvc_normal_derivatives(cage, mean_edge) * (distance <= settings.radius * mean_edge)
+        start = _mvc_normal_derivatives(cage, mean_edge, device) * (distance <= settings.radius * mean_edge)
     out = np.empty_like(start)
+    least = np.empty_like(start)
     for i in range(len(f)):
         # the least weighted change to `start` that meets the constraints, on (1, c - centroid) for conditioning
         a = np.vstack([np.ones(len(v)), (v - v[f[i]].mean(axis=0)).T])  # (4, L)
         aw = a * inverse_weight[i]
-        rhs = np.concatenate([[0.0], normals[i]]) - a @ start[i]
-        out[i] = start[i] + aw.T @ np.linalg.solve(aw @ a.T, rhs)
-    return out
+        target = np.concatenate([[0.0], normals[i]])
+        solve = np.linalg.inv(aw @ a.T)
+        out[i] = start[i] + aw.T @ (solve @ (target - a @ start[i]))
+        least[i] = aw.T @ (solve @ target)
+    share = np.full((len(f), 1), settings.least_norm_share if settings.model == "mvc-cut" else 1.0)
+    if settings.model == "mvc-cut" and settings.fold_radius > 0:
+        ends = np.unique(folded_edges(cage, settings.fold_degrees))
+        if len(ends):
+            graph = cage_graph_distances(cage)
+            to_fold = graph[f][:, :, ends].min(axis=(1, 2)) / (settings.fold_radius * mean_edge)  # (F,)
+            share = np.maximum(share, np.clip(2.0 - to_fold, 0.0, 1.0)[:, None])
+    return (1.0 - share) * out + share * least
+
+
+def folded_edges(cage: Cage, degrees: float = 150.0) -> np.ndarray:
+    """(E, 2) handle pairs of the cage edges where the two faces' normals are more than ``degrees`` apart: the cage
+    folds back on itself there, leaving a thin wedge of outside (or inside) space."""
+    e = _edges(cage.faces)
+    fid = np.tile(np.arange(len(cage.faces)), 3)
+    key = np.sort(e, axis=1)
+    order = np.lexsort(key.T[::-1])
+    key, fid = key[order], fid[order]
+    same = np.flatnonzero((key[1:] == key[:-1]).all(axis=1))
+    n = unit_normals(cage)
+    angle = np.degrees(np.arccos(np.clip((n[fid[same]] * n[fid[same + 1]]).sum(axis=1), -1.0, 1.0)))
+    return key[same][angle > degrees]
 
 
 def _edges(faces: np.ndarray) -> np.ndarray:
     return np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
 
 
-def _mvc_normal_derivatives(cage: Cage, mean_edge: float) -> np.ndarray:
+def _mvc_normal_derivatives(cage: Cage, mean_edge: float, device) -> np.ndarray:
     """(F, L): MVC's outward normal derivative at each face's centroid, by a one-sided difference (MVC reproduces
     constants and linear functions, so the constraints hold up to the difference's rounding)."""
     from .boundary import mean_value_coordinates
@@ -140,7 +177,7 @@ def _mvc_normal_derivatives(cage: Cage, mean_edge: float) -> np.ndarray:
     f = cage.faces
     step = 1e-4 * mean_edge
     centroid = cage.vertices[f].mean(axis=1)
-    w = mean_value_coordinates(cage, centroid + step * unit_normals(cage), device="cpu")
+    w = mean_value_coordinates(cage, centroid + step * unit_normals(cage), device=device)
     hat = np.zeros_like(w)
     np.put_along_axis(hat, f, 1.0 / 3.0, axis=1)
     return (w - hat) / step
@@ -198,7 +235,7 @@ def local_field(grid: Grid, cage: Cage, field: wp.array, rows: slice, handles: s
                     wp.array(cage.faces.astype(np.int32), dtype=wp.vec3i),
                     wp.array(unit_normals(cage), dtype=wp.vec3d),
                     wp.array(_tangent_gradients(cage), dtype=wp.vec3d),
-                    wp.array(normal_derivatives(cage, settings), dtype=wp.float64), first, stop - first,
+                    wp.array(normal_derivatives(cage, settings, device), dtype=wp.float64), first, stop - first,
                     int(complement)],
             outputs=[field],
         )

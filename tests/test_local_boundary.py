@@ -1,0 +1,136 @@
+"""Local boundary data: exact partition of unity and linear precision, locality along the cage, folded edges."""
+
+import subprocess
+import sys
+import warnings
+
+import numpy as np
+import pytest
+import trimesh
+
+import warp_stokes as ws
+from conftest import EXAMPLE, box_cage
+from warp_stokes.local_boundary import (cage_graph_distances, folded_edges, local_field, normal_derivatives,
+                                        unit_normals)
+
+SETTINGS = [ws.LocalData(), ws.LocalData(fold_radius=0.0), ws.LocalData(model="least-norm"),
+            ws.LocalData(radius=3.0, least_norm_share=0.5)]
+
+
+def u_cage(gap: float = 0.2) -> ws.Cage:
+    """A U extruded along z: two prongs `gap` apart in space but 4 + gap apart along the cage (via the gap's floor)."""
+    pts = np.array([(0, 0), (1, 0), (1 + gap, 0), (2 + gap, 0), (0, 1), (1, 1), (1 + gap, 1), (2 + gap, 1), (0, 3),
+                    (1, 3), (1 + gap, 3), (2 + gap, 3)], float)
+    quads = [(0, 1, 5, 4), (1, 2, 6, 5), (2, 3, 7, 6), (4, 5, 9, 8), (6, 7, 11, 10)]
+    tris = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))])
+    m = trimesh.creation.extrude_triangulation(pts, tris, height=1.0)
+    return ws.check_cage((m.vertices, m.faces), name="u-cage")
+
+
+def test_graph_distances_follow_the_cage_not_space():
+    cage = u_cage()
+    d = cage_graph_distances(cage)
+    assert np.allclose(d, d.T) and (np.diag(d) == 0).all()
+    # the prongs' inner tips: 0.2 apart in space, 2 + 0.2 + 2 along the cage
+    left = np.flatnonzero(np.all(np.isclose(cage.vertices, [1, 3, 0]), axis=1))[0]
+    right = np.flatnonzero(np.all(np.isclose(cage.vertices, [1.2, 3, 0]), axis=1))[0]
+    assert np.isclose(np.linalg.norm(cage.vertices[left] - cage.vertices[right]), 0.2)
+    assert np.isclose(d[left, right], 4.2)
+
+
+@pytest.mark.parametrize("settings", SETTINGS, ids=str)
+def test_normal_derivatives_reproduce_zero_and_the_normal(arm_cage, settings):
+    g = normal_derivatives(arm_cage, settings, device="cpu")
+    assert np.abs(g.sum(axis=1)).max() < 1e-12
+    assert np.abs(g @ arm_cage.vertices - unit_normals(arm_cage)).max() < 1e-10
+
+
+def test_normal_derivatives_stay_on_handles_near_the_face_along_the_cage():
+    cage = u_cage()
+    g = normal_derivatives(cage, ws.LocalData(), device="cpu")
+    far = cage_graph_distances(cage)[cage.faces].min(axis=1) > 3.0  # more than 3 mean edges (about 1.3) away
+    share = np.abs(g * far).sum(axis=1) / np.abs(g).sum(axis=1)
+    assert far.any() and share.max() < 0.05
+
+
+@pytest.mark.parametrize("complement", [False, True])
+def test_local_field_reproduces_constants_and_linear_functions(arm_cage, complement):
+    grid = ws.voxelize(arm_cage, 20, device="cpu")
+    chunk = slice(5, 21)
+    field = ws.boundary_field(grid, arm_cage, device="cpu", handles=chunk, complement=complement, data="local")
+    f = field.numpy().astype(np.float64)[grid.n_interior:]  # ring and band: the local data
+    columns = np.zeros((f.shape[1], 4))
+    columns[: chunk.stop - chunk.start, 0] = 1.0
+    columns[: chunk.stop - chunk.start, 1:] = arm_cage.vertices[chunk] - grid.centre
+    if complement:
+        columns[chunk.stop - chunk.start:] = np.eye(4)
+    else:  # a whole cage's data, for the check
+        full = ws.boundary_field(grid, arm_cage, device="cpu", data="local").numpy().astype(np.float64)
+        f = full[grid.n_interior:]
+        columns = np.column_stack([np.ones(arm_cage.n_handles), arm_cage.vertices - grid.centre])
+    x = grid.node_positions(np.arange(grid.n_interior, grid.n_active))
+    scale = arm_cage.diagonal
+    assert np.abs(f[..., 0] @ columns[:, 0] - 1).max() < 1e-5
+    assert np.abs(f[..., 0] @ columns[:, 1:] - x).max() < 1e-5 * scale
+    # gradients G = h grad q: of 1 and of x
+    assert np.abs(np.einsum("ncj,c->nj", f[..., 1:], columns[:, 0])).max() < 1e-5
+    gradient_of_x = np.einsum("ncj,ca->naj", f[..., 1:], columns[:, 1:]) / grid.spacing
+    assert np.abs(gradient_of_x - np.eye(3)).max() < 1e-5
+
+
+def test_local_data_is_the_hat_function_on_the_cage():
+    # a node on a face of a box: q = the face's barycentric coordinates (no Taylor term)
+    cage = ws.check_cage(box_cage())
+    grid = ws.voxelize(cage, 16, device="cpu")
+    field = ws.boundary_field(grid, cage, device="cpu", data="local").numpy()
+    x = grid.node_positions() + grid.centre
+    on_top = np.flatnonzero((np.abs(x[:, 2] - 1) < 1e-12) & (np.abs(x[:, :2]) < 1 - 1e-9).all(axis=1))
+    assert len(on_top)
+    expected = ws.mean_value_coordinates(cage, x[on_top], device="cpu")  # exact there: the hat functions
+    np.testing.assert_allclose(field[on_top, :, 0], expected, atol=1e-6)
+
+
+def test_folded_edges_are_found_where_the_cage_folds_back(arm_cage):
+    # the arm's cage folds back at four edges (the issue measured 152-173 degrees); a box and a sphere have none
+    folds = folded_edges(arm_cage)
+    assert len(folds) == 4
+    n = unit_normals(arm_cage)
+    for a, b in folds:
+        faces = np.flatnonzero(np.isin(arm_cage.faces, [a, b]).sum(axis=1) == 2)
+        assert len(faces) == 2 and np.degrees(np.arccos(np.clip(n[faces[0]] @ n[faces[1]], -1, 1))) > 150
+    assert len(folded_edges(ws.check_cage(box_cage()))) == 0
+    sphere = trimesh.creation.icosphere(subdivisions=1)
+    assert len(folded_edges(ws.check_cage((sphere.vertices, sphere.faces)))) == 0
+
+
+def test_local_data_decouples_parts_close_in_space_far_along_the_cage():
+    # vertices in the left prong, next to the gap: the right prong's tip handles hold much less of their weight
+    # with local data than with MVC data (MVC is global: across the gap it carries the other prong)
+    cage = u_cage()
+    points = np.array([[0.9, y, 0.5] for y in np.linspace(1.5, 2.9, 8)])
+    tips = np.flatnonzero((cage.vertices[:, 0] > 1.1) & (cage.vertices[:, 1] > 2.9))
+    share = {}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for data in ("mvc", "local"):
+            b = ws.bind((points, None), cage, resolution=40, device="cpu", boundary=data)
+            assert b.stats["converged"] and b.stats["linear_precision_error"] < 1e-5
+            share[data] = np.abs(b.weights[:, tips]).sum(axis=1).max()
+    assert share["local"] < 0.7 * share["mvc"], share
+
+
+def test_the_boundary_data_is_a_bind_and_cli_choice(tmp_path):
+    out = tmp_path / "arm.npz"
+    proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "bind", str(EXAMPLE / "arm.obj"),
+                           str(EXAMPLE / "arm_cage.obj"), "-o", str(out), "--resolution", "16", "--device", "cpu",
+                           "--boundary", "mvc"], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    assert ws.load_binding(out, device="cpu").settings["boundary"] == "mvc-central-difference"
+    proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "bind", str(EXAMPLE / "arm.obj"),
+                           str(EXAMPLE / "arm_cage.obj"), "-o", str(out), "--boundary", "harmonic"],
+                          capture_output=True, text=True)
+    assert proc.returncode == 2 and "invalid choice" in proc.stderr
+    with pytest.raises(ws.WarpStokesError, match="boundary must be"):
+        ws.bind(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", resolution=16, device="cpu", boundary="harmonic")
+    with pytest.raises(ValueError, match="model"):
+        ws.LocalData(model="nearest")
