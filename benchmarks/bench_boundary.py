@@ -35,15 +35,11 @@ DATA = Path(os.environ.get("WARP_STOKES_DATA", REPO.parent / "shared" / "data"))
 
 VARIANTS = {
     "mvc-data": "mvc",
-    "local": ws.LocalData(),
-    "local-r1.5": ws.LocalData(radius=1.5),
-    "local-r3": ws.LocalData(radius=3.0),
+    "local": ws.LocalData(),  # the default
+    "local-no-folds": ws.LocalData(fold_radius=0.0),
     "least-norm": ws.LocalData(model="least-norm"),
-    "mix-0.5": ws.LocalData(least_norm_share=0.5),
-    "mix-0.75": ws.LocalData(least_norm_share=0.75),
-    "mix-0.5-r1.5": ws.LocalData(radius=1.5, least_norm_share=0.5),
-    "fold-1": ws.LocalData(fold_radius=1.0),
-    "fold-2": ws.LocalData(fold_radius=2.0),
+    "local-r3": ws.LocalData(radius=3.0),
+    "mix-0.5": ws.LocalData(fold_radius=0.0, least_norm_share=0.5),
 }
 
 
