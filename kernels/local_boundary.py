@@ -1,15 +1,73 @@
-"""Local boundary data: each node takes its data from the closest point of the cage, Taylor-extended.
+"""Local boundary data: each node takes its data from the closest points of the cage, Taylor-extended.
 
-At a node x with closest cage point y on face f (barycentric coordinates b, unit normal n_f):
+From a point y on face f (barycentric coordinates b, unit normal n_f), the data of handle l at x is
 
-    q_l(x) = hat_l(y) + (x - y) . (grad_T hat_l + g_l n_f)
+    q_l(x) = hat_l(y) + (x - y) . (grad_T hat_l + g_l n_f),     grad q_l = grad_T hat_l + g_l n_f,
 
-hat_l(y) is b_i for the face's corner i = l and 0 for every other handle; grad_T hat_l is the (constant) gradient
-of that barycentric function in the face's plane; g_l are per-face normal derivatives with sum_l g_l = 0 and
-sum_l g_l c_l = n_f. Then sum_l q_l(x) = 1 and sum_l c_l q_l(x) = x exactly, whatever y is on the face's plane.
+hat_l(y) = b_i for the face's corner i = l and 0 for every other handle; grad_T hat_l is the (constant) gradient of
+that barycentric function in the face's plane; g_l are per-face normal derivatives with sum_l g_l = 0 and
+sum_l g_l c_l = n_f. Then sum_l q_l(x) = 1 and sum_l c_l q_l(x) = x exactly, whatever y is on the face's plane, and
+any convex combination of such data over several faces is exact too. A node blends the faces whose distance is
+within `band` of the nearest one's (weights (1 - t)^2, t the excess over the band): the data is continuous where
+the nearest face changes (medial surfaces, convex edges), and the same on every device.
 """
 
 import warp as wp
+
+
+@wp.func
+def closest_on_triangle(p: wp.vec3d, a: wp.vec3d, b: wp.vec3d, c: wp.vec3d):
+    """Barycentric coordinates (for a, b, c) of the point of triangle abc closest to p (Ericson, Real-Time Collision
+    Detection, 5.1.5), in float64."""
+    zero = wp.float64(0.0)
+    one = wp.float64(1.0)
+    ab = b - a
+    ac = c - a
+    ap = p - a
+    d1 = wp.dot(ab, ap)
+    d2 = wp.dot(ac, ap)
+    if d1 <= zero and d2 <= zero:
+        return wp.vec3d(one, zero, zero)
+    bp = p - b
+    d3 = wp.dot(ab, bp)
+    d4 = wp.dot(ac, bp)
+    if d3 >= zero and d4 <= d3:
+        return wp.vec3d(zero, one, zero)
+    vc = d1 * d4 - d3 * d2
+    if vc <= zero and d1 >= zero and d3 <= zero:
+        v = d1 / (d1 - d3)
+        return wp.vec3d(one - v, v, zero)
+    cp = p - c
+    d5 = wp.dot(ab, cp)
+    d6 = wp.dot(ac, cp)
+    if d6 >= zero and d5 <= d6:
+        return wp.vec3d(zero, zero, one)
+    vb = d5 * d2 - d1 * d6
+    if vb <= zero and d2 >= zero and d6 <= zero:
+        w = d2 / (d2 - d6)
+        return wp.vec3d(one - w, zero, w)
+    va = d3 * d6 - d5 * d4
+    if va <= zero and (d4 - d3) >= zero and (d5 - d6) >= zero:
+        w = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        return wp.vec3d(zero, one - w, w)
+    denominator = one / (va + vb + vc)
+    v = vb * denominator
+    w = vc * denominator
+    return wp.vec3d(one - v - w, v, w)
+
+
+@wp.func
+def face_distance(x: wp.vec3d, cage: wp.array(dtype=wp.vec3d), tri: wp.vec3i):
+    b = closest_on_triangle(x, cage[tri[0]], cage[tri[1]], cage[tri[2]])
+    return wp.length(x - (b[0] * cage[tri[0]] + b[1] * cage[tri[1]] + b[2] * cage[tri[2]]))
+
+
+#: most faces a node blends (more within the band are dropped, the farthest first: it takes a node equidistant from
+#: more than this many faces)
+MAX_BLEND = 8
+face_list = wp.types.vector(length=MAX_BLEND, dtype=wp.int32)
+weight_list = wp.types.vector(length=MAX_BLEND, dtype=wp.float64)
+point_list = wp.types.matrix(shape=(MAX_BLEND, 3), dtype=wp.float64)
 
 
 @wp.kernel
@@ -18,7 +76,7 @@ def local_field(
     first_row: int,
     origin: wp.vec3d,
     spacing: wp.float64,
-    mesh: wp.uint64,
+    band: wp.float64,
     cage: wp.array(dtype=wp.vec3d),
     triangles: wp.array(dtype=wp.vec3i),
     normals: wp.array(dtype=wp.vec3d),
@@ -29,40 +87,60 @@ def local_field(
     complement: int,
     field: wp.array2d(dtype=wp.vec4f),
 ):
-    """field[n, c] = (q, h grad q) of handle first_handle + c at active row n = first_row + thread, the gradient
-    that of the same Taylor extension (grad_T hat_l + g_l n_f: constant per face), for c < n_handles; with
-    `complement`, the four columns after them stand for the rest of the cage (1 - sum q, x - sum c q, and their
-    gradients 0 - sum, h e_a - sum). `mesh` is the cage in float32 (for the closest-point query only), `cage` its
-    vertices in float64, relative to the same centre as `origin`; `tangent_gradients[f, i]` is grad_T of corner
-    i's barycentric function on face f and `normal_derivatives[f, l]` is g_l on face f for every handle l."""
+    """field[n, c] = (q, h grad q) of handle first_handle + c at active row n = first_row + thread, for
+    c < n_handles, blended over the faces within `band` of the nearest; with `complement`, the four columns after
+    them stand for the rest of the cage (1 - sum q, x - sum c q, and their gradients 0 - sum, h e_a - sum).
+    `cage` holds the vertices relative to the same centre as `origin`; `tangent_gradients[f, i]` is grad_T of
+    corner i's barycentric function on face f and `normal_derivatives[f, l]` is g_l on face f for every handle l."""
     n = first_row + wp.tid()
     node = ijk[n]
     x = origin + spacing * wp.vec3d(wp.float64(node[0]), wp.float64(node[1]), wp.float64(node[2]))
-    query = wp.mesh_query_point_no_sign(mesh, wp.vec3f(wp.float32(x[0]), wp.float32(x[1]), wp.float32(x[2])),
-                                        1.0e30)
-    f = query.face
-    tri = triangles[f]
-    # Warp's barycentric coordinates: the point is u p0 + v p1 + (1 - u - v) p2
-    u = wp.float64(query.u)
-    v = wp.float64(query.v)
-    b = wp.vec3d(u, v, wp.float64(1.0) - u - v)
-    y = b[0] * cage[tri[0]] + b[1] * cage[tri[1]] + b[2] * cage[tri[2]]
-    offset = x - y
-    normal = normals[f]
-    height = wp.dot(offset, normal)
-    total = wp.float64(0.0)
+    zero = wp.float64(0.0)
+    one = wp.float64(1.0)
+    nearest = wp.float64(1.0e300)
+    for f in range(triangles.shape[0]):
+        nearest = wp.min(nearest, face_distance(x, cage, triangles[f]))
+    # the faces within the band, their weights (1 - t)^2 and closest points' barycentric coordinates
+    faces = face_list()
+    weights = weight_list()
+    points = point_list()
+    count = int(0)
+    total_weight = zero
+    for f in range(triangles.shape[0]):
+        tri = triangles[f]
+        b = closest_on_triangle(x, cage[tri[0]], cage[tri[1]], cage[tri[2]])
+        t = (wp.length(x - (b[0] * cage[tri[0]] + b[1] * cage[tri[1]] + b[2] * cage[tri[2]])) - nearest) / band
+        if t < one and count < MAX_BLEND:
+            faces[count] = f
+            weights[count] = (one - t) * (one - t)
+            points[count, 0] = b[0]
+            points[count, 1] = b[1]
+            points[count, 2] = b[2]
+            total_weight += weights[count]
+            count += 1
+    total = zero
     moment = wp.vec3d()
     total_gradient = wp.vec3d()
     moment_gradient = wp.mat33d()
     for c in range(n_handles):
         l = first_handle + c
-        g = normal_derivatives[f, l]
-        q = height * g
-        grad = g * normal
-        for i in range(3):
-            if tri[i] == l:
-                q += b[i] + wp.dot(offset, tangent_gradients[f, i])
-                grad += tangent_gradients[f, i]
+        q = zero
+        grad = wp.vec3d()
+        for k in range(count):
+            f = faces[k]
+            tri = triangles[f]
+            b = wp.vec3d(points[k, 0], points[k, 1], points[k, 2])
+            offset = x - (b[0] * cage[tri[0]] + b[1] * cage[tri[1]] + b[2] * cage[tri[2]])
+            g = normal_derivatives[f, l]
+            qf = wp.dot(offset, normals[f]) * g
+            gradf = g * normals[f]
+            for i in range(3):
+                if tri[i] == l:
+                    qf += b[i] + wp.dot(offset, tangent_gradients[f, i])
+                    gradf += tangent_gradients[f, i]
+            weight = weights[k] / total_weight
+            q += weight * qf
+            grad += weight * gradf
         field[n, c] = wp.vec4f(wp.float32(q), wp.float32(spacing * grad[0]), wp.float32(spacing * grad[1]),
                                wp.float32(spacing * grad[2]))
         if complement != 0:
@@ -72,12 +150,12 @@ def local_field(
             moment_gradient += wp.outer(cage[l], grad)
     if complement != 0:
         rest_gradient = -total_gradient
-        field[n, n_handles] = wp.vec4f(wp.float32(wp.float64(1.0) - total), wp.float32(spacing * rest_gradient[0]),
+        field[n, n_handles] = wp.vec4f(wp.float32(one - total), wp.float32(spacing * rest_gradient[0]),
                                        wp.float32(spacing * rest_gradient[1]), wp.float32(spacing * rest_gradient[2]))
         rest = x - moment
         for a in range(3):
             e = wp.vec3d()
-            e[a] = wp.float64(1.0)
+            e[a] = one
             row = e - wp.vec3d(moment_gradient[a, 0], moment_gradient[a, 1], moment_gradient[a, 2])
             field[n, n_handles + 1 + a] = wp.vec4f(wp.float32(rest[a]), wp.float32(spacing * row[0]),
                                                    wp.float32(spacing * row[1]), wp.float32(spacing * row[2]))
