@@ -152,7 +152,8 @@ def test_thin_features_are_detected_with_a_suggested_resolution():
     with pytest.warns(UserWarning, match=r"mesh vertices lie in parts of the cage thinner .* resolution=\d+ would"):
         b = ws.bind(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", resolution=16, device="cpu")
     assert b.stats["vertices_in_thin_features"] > 0
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
         b = ws.bind(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", resolution=32, device="cpu")
+    assert not any("thinner" in str(w.message) for w in caught)  # (the cage's folded edges are still named)
     assert b.stats["vertices_in_thin_features"] == 0

@@ -10,8 +10,8 @@ import trimesh
 
 import warp_stokes as ws
 from conftest import EXAMPLE, box_cage
-from warp_stokes.local_boundary import (cage_graph_distances, folded_edges, local_field, normal_derivatives,
-                                        unit_normals)
+from warp_stokes.cage import folded_edges, unit_normals
+from warp_stokes.local_boundary import cage_graph_distances, normal_derivatives
 
 SETTINGS = [ws.LocalData(), ws.LocalData(fold_radius=0.0), ws.LocalData(model="least-norm"),
             ws.LocalData(radius=3.0, least_norm_share=0.5)]
@@ -134,3 +134,13 @@ def test_the_boundary_data_is_a_bind_and_cli_choice(tmp_path):
         ws.bind(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", resolution=16, device="cpu", boundary="harmonic")
     with pytest.raises(ValueError, match="model"):
         ws.LocalData(model="nearest")
+
+
+def test_the_cage_check_names_folded_edges_and_the_binding_keeps_the_warning():
+    with pytest.warns(UserWarning, match=r"folds back on itself at 4 edge\(s\).*36-37 \(173 deg\)"):
+        cage = ws.check_cage(EXAMPLE / "arm_cage.obj")
+    assert any("folds back" in note for note in cage.notes)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        b = ws.bind(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", resolution=16, device="cpu")
+    assert any("folds back" in w for w in b.stats["warnings"])

@@ -20,7 +20,7 @@ from .device import device_name, resolve_device
 from .errors import BindingError, WarpStokesError
 from .files import atomic_output
 from .budget import available_memory, chunk_columns, estimate_memory, plan_chunks
-from .grid import classify_points, voxelize
+from .grid import check_resolution, classify_points, voxelize
 from .multigrid import Multigrid, coarsen
 from .load import Surface, load_surface
 from .local_boundary import LocalData
@@ -268,6 +268,7 @@ def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_i
         raise WarpStokesError(f"solver must be 'multigrid' or 'jacobi', got {solver!r}")
     if not (boundary in ("mvc", "local") or isinstance(boundary, LocalData)):
         raise WarpStokesError(f"boundary must be 'mvc', 'local' or a LocalData, got {boundary!r}")
+    resolution = check_resolution(resolution)  # arguments first: before the inputs are loaded and checked
     device = resolve_device(device)
     seconds = {}
     t = time.perf_counter()
@@ -316,23 +317,22 @@ def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_i
     inside, distance = classify_points(checked, points, device=device)
     sampled = (corners >= 0).all(axis=1)
     beyond = ~sampled
+    notes = list(checked.notes)  # what the user is warned of, kept in the stats
     if beyond.any():
         weights[beyond] = mean_value_coordinates(checked, points[beyond], device=device).astype(np.float32)
-        warnings.warn(
+        notes.append(
             f"{surface.name}: {int(beyond.sum())} vertices lie outside {checked.name} beyond the grid's band "
-            f"(up to {distance[beyond].max():.3g} from the cage); they get mean value coordinates",
-            stacklevel=2,
-        )
+            f"(up to {distance[beyond].max():.3g} from the cage); they get mean value coordinates")
+        warnings.warn(notes[-1], stacklevel=2)
     # a vertex inside the cage whose cell has no interior node sits in a feature the grid does not resolve
     thin = inside & sampled & ~((corners >= 0) & (corners < grid.n_interior)).any(axis=1)
     if thin.any():
         suggestion = _suggest_resolution(resolution, grid.spacing, distance[thin])
-        warnings.warn(
+        notes.append(
             f"{checked.name}: {int(thin.sum())} mesh vertices lie in parts of the cage thinner than about two grid "
             f"cells at resolution {resolution}; their weights come from the boundary data alone. "
-            f"resolution={suggestion} would resolve them",
-            stacklevel=2,
-        )
+            f"resolution={suggestion} would resolve them")
+        warnings.warn(notes[-1], stacklevel=2)
     seconds["sample"] += time.perf_counter() - t
     seconds["total"] = sum(seconds.values())
 
@@ -366,6 +366,7 @@ def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_i
         "partition_of_unity_error": float(np.abs(w64.sum(axis=1) - 1.0).max()),
         "linear_precision_error": float(np.linalg.norm(w64 @ checked.vertices - points, axis=1).max() / diag),
         "seconds": seconds,
+        "warnings": notes,
     }
     settings = {
         "resolution": int(resolution),

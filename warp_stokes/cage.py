@@ -10,7 +10,11 @@ import numpy as np
 from .errors import CageError
 from .load import load_surface
 
-__all__ = ["Cage", "check_cage", "signed_volume"]
+__all__ = ["Cage", "check_cage", "signed_volume", "unit_normals", "folded_edges", "FOLD_DEGREES"]
+
+#: an edge where the two faces' normals are more than this many degrees apart is folded: the cage folds back on
+#: itself there, leaving a wedge of outside (or inside) space thinner than any grid cell near the edge
+FOLD_DEGREES = 150.0
 
 
 @dataclass(frozen=True)
@@ -64,12 +68,58 @@ def signed_volume(vertices: np.ndarray, faces: np.ndarray) -> float:
     return float(np.einsum("ij,ij->i", a, np.cross(b, d)).sum() / 6.0)
 
 
+def unit_normals(cage: Cage) -> np.ndarray:
+    """(F, 3) unit normals of the cage's faces (outward for a checked cage).
+
+    Examples
+    --------
+    >>> v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
+    >>> unit_normals(check_cage((v, [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])))[0].tolist()
+    [0.0, 0.0, -1.0]
+    """
+    v, f = cage.vertices, cage.faces
+    n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    return n / np.linalg.norm(n, axis=1, keepdims=True)
+
+
+def folded_edges(cage: Cage, degrees: float = FOLD_DEGREES, angles: bool = False):
+    """The cage's edges where the two faces' normals are more than ``degrees`` apart (the cage folds back there).
+
+    Parameters
+    ----------
+    cage : Cage
+    degrees : float
+    angles : bool, also return the angle between the normals at each folded edge
+
+    Returns
+    -------
+    (E, 2) int64 handle pairs, sorted by handle; with ``angles``, also (E,) degrees
+
+    Examples
+    --------
+    >>> folded_edges(check_cage("examples/arm/arm_cage.obj")).shape  # doctest: +SKIP
+    (4, 2)
+    """
+    f = cage.faces
+    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    face = np.tile(np.arange(len(f)), 3)
+    key = np.sort(e, axis=1)
+    order = np.lexsort(key.T[::-1])
+    key, face = key[order], face[order]
+    pair = np.flatnonzero((key[1:] == key[:-1]).all(axis=1))  # a closed cage: each edge twice, adjacent here
+    n = unit_normals(cage)
+    angle = np.degrees(np.arccos(np.clip((n[face[pair]] * n[face[pair + 1]]).sum(axis=1), -1.0, 1.0)))
+    folded = angle > degrees
+    return (key[pair][folded], angle[folded]) if angles else key[pair][folded]
+
+
 def check_cage(source, name: str | None = None) -> Cage:
     """Load a cage and check that it can carry Stokes coordinates.
 
     Checks, in order: at least 4 vertices, finite coordinates, no degenerate or duplicate faces, closed
     (every edge shared by exactly two faces), consistent orientation (the two faces at an edge traverse it in
-    opposite directions), outward orientation (an inward cage is flipped, with a warning).
+    opposite directions), outward orientation (an inward cage is flipped, with a warning). Edges where the cage
+    folds back on itself (:func:`folded_edges`) are named in a warning.
 
     Parameters
     ----------
@@ -168,4 +218,13 @@ def check_cage(source, name: str | None = None) -> Cage:
         msg = f"{name}: the cage is oriented inward (negative volume); its faces were reversed"
         notes.append(msg)
         warnings.warn(msg, stacklevel=2)
-    return Cage(vertices=v, faces=np.ascontiguousarray(f), name=name, flipped=flipped, notes=notes)
+    cage = Cage(vertices=v, faces=np.ascontiguousarray(f), name=name, flipped=flipped, notes=notes)
+    folds, angle = folded_edges(cage, angles=True)
+    if len(folds):
+        worst = np.argsort(-angle)[:3]
+        listed = ", ".join(f"{a}-{b} ({t:.0f} deg)" for (a, b), t in zip(folds[worst].tolist(), angle[worst]))
+        msg = (f"{name}: the cage folds back on itself at {len(folds)} edge(s) whose faces' normals are more than "
+               f"{FOLD_DEGREES:.0f} degrees apart, e.g. {listed}; weights near them grow slowly with the resolution")
+        notes.append(msg)
+        warnings.warn(msg, stacklevel=2)
+    return cage

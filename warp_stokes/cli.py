@@ -143,14 +143,22 @@ def main(argv=None) -> int:
     p.set_defaults(run=_batch)
 
     args = parser.parse_args(argv)
-    warnings.showwarning = _show_warning
     from warp_stokes.errors import WarpStokesError
 
-    try:
-        return args.run(args)
-    except (WarpStokesError, OSError) as exc:
-        print(f"warp-stokes: error: {exc}", file=sys.stderr)
-        return 2
+    # warnings are shown once the command has run, so that bad input ends in its one-line error alone
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            rc = args.run(args)
+        except (WarpStokesError, OSError) as exc:
+            print(f"warp-stokes: error: {exc}", file=sys.stderr)
+            return 2
+    shown = set()
+    for w in caught:
+        if str(w.message) not in shown:
+            shown.add(str(w.message))
+            _show_warning(w.message, w.category, w.filename, w.lineno)
+    return rc
 
 
 if __name__ == "__main__":

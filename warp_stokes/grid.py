@@ -14,7 +14,8 @@ from .kernels import labels as L
 from .kernels import stencil
 from .kernels import voxel
 
-__all__ = ["Grid", "voxelize", "grid_from_mask", "classify_points", "MARGIN", "BAND_WIDTH", "PATCH_LENGTH", "MAX_ROWS"]
+__all__ = ["Grid", "voxelize", "check_resolution", "grid_from_mask", "classify_points", "MARGIN", "BAND_WIDTH",
+           "PATCH_LENGTH", "MAX_ROWS"]
 
 #: nodes of known data kept outside the interior (max-norm distance): the ring plus a sampling band, so that
 #: trilinear sampling of vertices slightly outside the cage reads only known corners
@@ -136,6 +137,21 @@ def _cage_mesh(cage: Cage, centre: np.ndarray, device) -> wp.Mesh:
     return wp.Mesh(points=points, indices=indices, support_winding_number=True)
 
 
+def check_resolution(resolution) -> int:
+    """The resolution as an int, or a ResolutionError when it is not an integer in [8, 2048].
+
+    Examples
+    --------
+    >>> check_resolution(64)
+    64
+    """
+    if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)):
+        raise ResolutionError(f"resolution must be an integer number of cells, got {resolution!r}")
+    if not 8 <= int(resolution) <= 2048:
+        raise ResolutionError(f"resolution must be between 8 and 2048 cells, got {resolution}")
+    return int(resolution)
+
+
 def voxelize(cage: Cage, resolution: int = 64, device=None, max_rows: int = MAX_ROWS) -> Grid:
     """Voxelise the inside of a cage: label grid nodes and number the active ones.
 
@@ -171,11 +187,7 @@ def voxelize(cage: Cage, resolution: int = 64, device=None, max_rows: int = MAX_
     >>> grid.n_interior > 0  # doctest: +SKIP
     True
     """
-    if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)):
-        raise ResolutionError(f"resolution must be an integer number of cells, got {resolution!r}")
-    resolution = int(resolution)
-    if not 8 <= resolution <= 2048:
-        raise ResolutionError(f"resolution must be between 8 and 2048 cells, got {resolution}")
+    resolution = check_resolution(resolution)
     device = resolve_device(device)
     lo, hi = cage.vertices.min(axis=0), cage.vertices.max(axis=0)
     centre = 0.5 * (lo + hi)

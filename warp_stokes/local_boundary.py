@@ -23,12 +23,12 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from .cage import Cage
+from .cage import FOLD_DEGREES, Cage, folded_edges, unit_normals
 from .device import resolve_device
 from .grid import Grid
 from .kernels import local_boundary
 
-__all__ = ["LocalData", "cage_graph_distances", "normal_derivatives", "local_field", "folded_edges", "unit_normals"]
+__all__ = ["LocalData", "cage_graph_distances", "normal_derivatives", "local_field"]
 
 #: a node blends the data of the faces whose distance is within this many grid spacings of the nearest face's, so
 #: that the data is continuous where the nearest face changes (and the same on every device: a float32 nearest-face
@@ -61,7 +61,7 @@ class LocalData:
     falloff: float = 0.5
     least_norm_share: float = 0.0
     fold_radius: float = 1.0
-    fold_degrees: float = 150.0
+    fold_degrees: float = FOLD_DEGREES
 
     def __post_init__(self):
         if self.model not in ("mvc-cut", "least-norm"):
@@ -156,20 +156,6 @@ def normal_derivatives(cage: Cage, settings: LocalData = LocalData(), device=Non
     return (1.0 - share) * out + share * least
 
 
-def folded_edges(cage: Cage, degrees: float = 150.0) -> np.ndarray:
-    """(E, 2) handle pairs of the cage edges where the two faces' normals are more than ``degrees`` apart: the cage
-    folds back on itself there, leaving a thin wedge of outside (or inside) space."""
-    e = _edges(cage.faces)
-    fid = np.tile(np.arange(len(cage.faces)), 3)
-    key = np.sort(e, axis=1)
-    order = np.lexsort(key.T[::-1])
-    key, fid = key[order], fid[order]
-    same = np.flatnonzero((key[1:] == key[:-1]).all(axis=1))
-    n = unit_normals(cage)
-    angle = np.degrees(np.arccos(np.clip((n[fid[same]] * n[fid[same + 1]]).sum(axis=1), -1.0, 1.0)))
-    return key[same][angle > degrees]
-
-
 def _edges(faces: np.ndarray) -> np.ndarray:
     return np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
 
@@ -186,13 +172,6 @@ def _mvc_normal_derivatives(cage: Cage, mean_edge: float, device) -> np.ndarray:
     hat = np.zeros_like(w)
     np.put_along_axis(hat, f, 1.0 / 3.0, axis=1)
     return (w - hat) / step
-
-
-def unit_normals(cage: Cage) -> np.ndarray:
-    """(F, 3) outward unit normals of the cage's faces."""
-    v, f = cage.vertices, cage.faces
-    n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
-    return n / np.linalg.norm(n, axis=1, keepdims=True)
 
 
 def _tangent_gradients(cage: Cage) -> np.ndarray:
