@@ -79,7 +79,7 @@ def test_deform_with_a_cage_file_and_topology_check(bindings, tmp_path):
     # the quad original triangulates to the same cage: accepted
     np.testing.assert_allclose(b.deform(cage_path.parent / "Ogre_Cage.obj"), b.deform(b.cage_vertices))
     smpl_cage = pair("smpl")[1]
-    with pytest.raises(ws.BindingError, match="cage_rpose.obj: the cage pose has 126 vertices, the bound cage has 118"):
+    with pytest.raises(ws.BindingError, match="cage_rpose.obj: the pose has 126 vertices, the bound cage has 118"):
         b.deform(smpl_cage)
     wrong = deformed.faces.copy()
     wrong[[0, 1]] = wrong[[1, 0, ]][:, [0, 2, 1]]

@@ -63,3 +63,63 @@ def test_unused_vertex():
 
 def test_errors_are_value_errors():
     assert issubclass(ws.CageError, ValueError) and issubclass(ws.MeshError, ValueError)
+
+
+def _stl(path, vertices, faces):
+    import trimesh
+
+    trimesh.Trimesh(vertices, faces, process=False).export(path)  # binary STL: one vertex per face corner
+    return path
+
+
+def test_a_triangle_soup_cage_is_merged_and_binds_like_the_original(tmp_path):
+    import subprocess
+    import sys
+
+    from conftest import EXAMPLE
+
+    original = ws.load_surface(EXAMPLE / "arm_cage.obj")
+    stl = _stl(tmp_path / "arm_cage.stl", original.vertices, original.faces)
+    assert len(ws.load_surface(stl).vertices) == 3 * len(original.faces)  # a soup as stored
+    cage = ws.check_cage(stl)
+    assert cage.n_handles == 58 and any("merged into 58 handles" in n for n in cage.notes)
+    # handles in order of first appearance; the map sends every soup vertex to its handle's position
+    np.testing.assert_allclose(cage.vertices[cage.source_index], ws.load_surface(stl).vertices, atol=1e-5)
+
+    out = tmp_path / "b.npz"
+    proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "bind", str(EXAMPLE / "arm.obj"), str(stl), "-o",
+                           str(out), "--resolution", "16", "--device", "cpu"], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    b = ws.load_binding(out, device="cpu")
+    assert b.n_handles == 58 and b.stats["partition_of_unity_error"] <= 1e-5
+    assert b.stats["linear_precision_error"] <= 1e-5 and "merged into 58 handles" in b.settings["cage_handles"]
+    assert np.array_equal(b.cage_source_index, cage.source_index)
+
+    # a deformed STL with the same layout deforms the mesh like the deformed cage as OBJ
+    moved = _stl(tmp_path / "moved.stl", original.vertices * [1.0, 1.2, 1.0] + [5.0, 0.0, 0.0], original.faces)
+    deformed = tmp_path / "deformed.obj"
+    proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "deform", str(out), str(moved), "-o",
+                           str(deformed), "--device", "cpu"], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    expected = b.deform(cage.vertices * [1.0, 1.2, 1.0] + [5.0, 0.0, 0.0])
+    np.testing.assert_allclose(ws.load_surface(deformed).vertices, expected, atol=1e-3)
+
+
+def test_a_closed_cage_keeps_its_vertex_order_and_an_open_soup_is_still_refused(tmp_path):
+    from conftest import box_cage
+
+    v, f = box_cage()
+    v = v[::-1].copy()
+    f = (len(v) - 1 - f)[:, ::-1]  # the same box, vertices listed backwards
+    cage = ws.check_cage((v, f))
+    assert cage.source_index is None and np.array_equal(cage.vertices, v)
+    soup = _stl(tmp_path / "open.stl", v, f[:-1])  # one triangle missing: no merging closes it
+    with pytest.raises(ws.CageError, match=r"open.stl: the cage is not closed"):
+        ws.check_cage(soup)
+
+
+def test_merge_coincident_keeps_the_first_vertex_of_each_position():
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1e-9, 0], [0, 1, 0], [1, 1, 0]], float)
+    merged, faces, index = ws.cage.merge_coincident(v, np.array([[0, 1, 2], [3, 5, 4]]), 1e-6)
+    assert index.tolist() == [0, 1, 2, 1, 2, 3] and faces.tolist() == [[0, 1, 2], [1, 3, 2]]
+    np.testing.assert_array_equal(merged, v[[0, 1, 2, 5]])

@@ -204,7 +204,7 @@ def run_batch(manifest, outdir, force: bool = False, device=None, progress=True)
             if asset.poses:
                 if progress:
                     _progress(progress, k, len(assets), asset.name, "reading poses")
-                poses = load_poses(asset.poses, cage.faces, cage.n_handles)
+                poses = load_poses(asset.poses, cage.faces, cage.n_handles, cage.source_index)
             if progress:
                 _progress(progress, k, len(assets), asset.name, f"binding at resolution {asset.resolution}")
             binding = bind(asset.mesh, cage, resolution=asset.resolution, device=device, tol=asset.tol,

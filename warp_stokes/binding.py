@@ -14,7 +14,7 @@ import warp as wp
 
 from . import __version__
 from .boundary import boundary_field, mean_value_coordinates
-from .cage import Cage, check_cage
+from .cage import Cage, check_cage, pose_vertices
 from .deform import deform_vertices
 from .device import device_name, resolve_device
 from .errors import BindingError, WarpStokesError
@@ -50,19 +50,21 @@ class Binding:
     cage_vertices, cage_faces : the rest cage (faces outward oriented)
     mesh_vertices, mesh_faces : the rest mesh
     mesh_normals : (V, 3) rest normals when the mesh file had them, else None
+    cage_source_index : for a cage merged from a triangle soup, the handle of each of its source's vertices
     settings : dict of the grid and solver settings used
     stats : dict of what binding measured (grid shape, node counts, iterations, residual, errors, timings)
     device : the Warp device ``deform`` runs on
     """
 
     def __init__(self, weights, cage_vertices, cage_faces, mesh_vertices, mesh_faces, settings, stats,
-                 device=None, mesh_normals=None):
+                 device=None, mesh_normals=None, cage_source_index=None):
         self.weights = np.ascontiguousarray(weights, dtype=np.float32)
         self.cage_vertices = np.asarray(cage_vertices, dtype=np.float64)
         self.cage_faces = np.asarray(cage_faces, dtype=np.int64)
         self.mesh_vertices = np.asarray(mesh_vertices, dtype=np.float64)
         self.mesh_faces = np.asarray(mesh_faces, dtype=np.int64)
         self.mesh_normals = None if mesh_normals is None else np.asarray(mesh_normals, dtype=np.float64)
+        self.cage_source_index = None if cage_source_index is None else np.asarray(cage_source_index, dtype=np.int64)
         self.settings = dict(settings)
         self.stats = dict(stats)
         self.device = resolve_device(device)
@@ -80,16 +82,7 @@ class Binding:
         return f"Binding({self.n_vertices} vertices, {self.n_handles} handles, resolution {self.settings.get('resolution')})"
 
     def _check_topology(self, surface: Surface) -> np.ndarray:
-        if len(surface.vertices) != self.n_handles:
-            raise BindingError(
-                f"{surface.name}: the cage pose has {len(surface.vertices)} vertices, the bound cage has {self.n_handles}"
-            )
-        same = surface.faces.shape == self.cage_faces.shape and (
-            np.array_equal(surface.faces, self.cage_faces) or np.array_equal(surface.faces[:, ::-1], self.cage_faces)
-        )
-        if not same:
-            raise BindingError(f"{surface.name}: the cage pose's faces differ from the bound cage's (different topology)")
-        return surface.vertices
+        return pose_vertices(surface.vertices, surface.faces, self.cage_faces, self.cage_source_index, surface.name)
 
     def deform(self, poses):
         """Deformed mesh vertices ``p' = W c'`` for one cage pose or a batch.
@@ -151,6 +144,7 @@ class Binding:
                     mesh_faces=self.mesh_faces,
                     meta=np.array(json.dumps(meta)),
                     **({} if self.mesh_normals is None else {"mesh_normals": self.mesh_normals}),
+                    **({} if self.cage_source_index is None else {"cage_source_index": self.cage_source_index}),
                 )
         except WarpStokesError as exc:
             raise BindingError(str(exc)) from None
@@ -204,6 +198,7 @@ def load_binding(path, device=None) -> Binding:
     return Binding(
         w, arrays["cage_vertices"], arrays["cage_faces"], arrays["mesh_vertices"], arrays["mesh_faces"],
         meta["settings"], meta["stats"], device=device, mesh_normals=arrays.get("mesh_normals"),
+        cage_source_index=arrays.get("cage_source_index"),
     )
 
 
@@ -379,7 +374,10 @@ def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_i
         "mesh": surface.name,
         "cage": checked.name,
         "cage_flipped": checked.flipped,
+        "cage_handles": ("the cage's vertices, in its order" if checked.source_index is None else
+                         f"{len(checked.source_index)} vertices merged into {checked.n_handles} handles, in order of "
+                         "first appearance (map: cage_source_index)"),
         "warp_version": wp.config.version,
     }
     return Binding(weights, checked.vertices, checked.faces, points, surface.faces, settings, stats, device=device,
-                   mesh_normals=surface.normals)
+                   mesh_normals=surface.normals, cage_source_index=checked.source_index)

@@ -10,7 +10,8 @@ import numpy as np
 from .errors import CageError
 from .load import load_surface
 
-__all__ = ["Cage", "check_cage", "signed_volume", "unit_normals", "folded_edges", "FOLD_DEGREES"]
+__all__ = ["Cage", "check_cage", "signed_volume", "unit_normals", "folded_edges", "merge_coincident",
+           "pose_vertices", "FOLD_DEGREES", "MERGE_TOLERANCE"]
 
 #: an edge where the two faces' normals are more than this many degrees apart is folded: the cage folds back on
 #: itself there, leaving a wedge of outside (or inside) space thinner than any grid cell near the edge
@@ -28,6 +29,10 @@ class Cage:
     name : str, where the cage came from
     flipped : bool, True when the input was inward oriented and its faces were reversed
     notes : list of str, warnings issued while checking
+    source_index : (V_source,) int64 or None
+        For a cage merged from a triangle soup (STL and the like): the handle of each vertex of the source, in its
+        order; the handles are the distinct positions in order of first appearance. None when nothing was merged
+        (the handles are the source's vertices, in its order).
     """
 
     vertices: np.ndarray
@@ -35,6 +40,7 @@ class Cage:
     name: str
     flipped: bool = False
     notes: list = field(default_factory=list)
+    source_index: np.ndarray | None = None
 
     @property
     def n_handles(self) -> int:
@@ -66,6 +72,45 @@ def signed_volume(vertices: np.ndarray, faces: np.ndarray) -> float:
     c = vertices.mean(axis=0)
     a, b, d = (vertices[faces[:, k]] - c for k in range(3))
     return float(np.einsum("ij,ij->i", a, np.cross(b, d)).sum() / 6.0)
+
+
+def pose_vertices(vertices: np.ndarray, faces: np.ndarray, cage_faces: np.ndarray,
+                  source_index: np.ndarray | None, name: str) -> np.ndarray:
+    """The handles' positions in a deformed cage with the bound cage's topology: its vertices as they are, or, for
+    a triangle soup laid out like the bound cage's source, merged by the same map.
+
+    Parameters
+    ----------
+    vertices, faces : the deformed cage as loaded
+    cage_faces : (F, 3) the bound cage's faces (outward)
+    source_index : the bound cage's map from source vertices to handles, or None
+    name : str, for messages
+
+    Returns
+    -------
+    (L, 3) float64
+
+    Raises
+    ------
+    BindingError
+        When the vertex count or the faces differ from the bound cage's.
+    """
+    from .errors import BindingError
+
+    n_handles = int(cage_faces.max()) + 1
+    vertices, faces = np.asarray(vertices, dtype=np.float64), np.asarray(faces)
+    if source_index is not None and len(vertices) == len(source_index) and len(vertices) != n_handles:
+        faces = source_index[faces]
+        merged = np.zeros((n_handles, 3))
+        np.add.at(merged, source_index, vertices)
+        vertices = merged / np.bincount(source_index, minlength=n_handles)[:, None]
+    if len(vertices) != n_handles:
+        raise BindingError(f"{name}: the pose has {len(vertices)} vertices, the bound cage has {n_handles}")
+    same = faces.shape == cage_faces.shape and (np.array_equal(faces, cage_faces)
+                                                or np.array_equal(faces[:, ::-1], cage_faces))
+    if not same:
+        raise BindingError(f"{name}: the pose's faces differ from the bound cage's (different topology)")
+    return vertices
 
 
 def unit_normals(cage: Cage) -> np.ndarray:
@@ -113,8 +158,59 @@ def folded_edges(cage: Cage, degrees: float = FOLD_DEGREES, angles: bool = False
     return (key[pair][folded], angle[folded]) if angles else key[pair][folded]
 
 
+#: vertices of a triangle soup closer than this fraction of the cage's diagonal are one handle
+MERGE_TOLERANCE = 1e-6
+
+
+def _closed(faces: np.ndarray) -> bool:
+    key = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    return bool((np.unique(key, axis=0, return_counts=True)[1] == 2).all())
+
+
+def merge_coincident(vertices: np.ndarray, faces: np.ndarray, tolerance: float):
+    """Merge vertices closer than ``tolerance``: each becomes the first vertex (in source order) near it.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float64
+    faces : (F, 3) int
+    tolerance : float, absolute
+
+    Returns
+    -------
+    merged_vertices : (L, 3), the distinct vertices in order of first appearance
+    merged_faces : (F, 3) int64
+    source_index : (V,) int64, the merged vertex of each source vertex
+
+    Examples
+    --------
+    >>> v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], float)
+    >>> merge_coincident(v, np.array([[0, 1, 2], [3, 5, 4]]), 1e-9)[2].tolist()
+    [0, 1, 2, 1, 2, 3]
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    if len(v) <= 20000:
+        # every pair (a cage's soup has a few thousand vertices): the first vertex near each one represents it
+        first = np.empty(len(v), dtype=np.int64)
+        for start in range(0, len(v), 2048):
+            block = v[start : start + 2048]
+            near = np.linalg.norm(block[:, None, :] - v[None, :, :], axis=2) <= tolerance
+            first[start : start + len(block)] = np.argmax(near, axis=1)
+        first = first[first]  # a representative that is itself represented by an earlier one
+    else:  # too many for all pairs: bit-identical positions only
+        _, first_of, inverse = np.unique(v, axis=0, return_index=True, return_inverse=True)
+        first = first_of[inverse.ravel()]
+    representatives, source_index = np.unique(first, return_inverse=True)  # sorted: order of first appearance
+    return v[representatives], source_index.ravel()[np.asarray(faces, dtype=np.int64)], source_index.ravel()
+
+
 def check_cage(source, name: str | None = None) -> Cage:
     """Load a cage and check that it can carry Stokes coordinates.
+
+    A cage that is not closed as given, but is once coincident vertices are merged (a triangle soup: STL, and
+    some PLY and glTF files), is merged first (:func:`merge_coincident`, tolerance :data:`MERGE_TOLERANCE` of the
+    diagonal; the map from source vertices to handles is ``Cage.source_index``). Cages that need no merging keep
+    their vertex order exactly.
 
     Checks, in order: at least 4 vertices, finite coordinates, no degenerate or duplicate faces, closed
     (every edge shared by exactly two faces), consistent orientation (the two faces at an edge traverse it in
@@ -164,6 +260,16 @@ def check_cage(source, name: str | None = None) -> Cage:
     diag = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
     if not diag > 0:
         raise CageError(f"{name}: all cage vertices coincide")
+
+    source_index = None
+    if len(f) and not _closed(f):
+        # a triangle soup (STL stores one vertex per face corner; so do some PLY and glTF files): merge what
+        # coincides, and keep it if that closes the cage
+        merged_v, merged_f, index = merge_coincident(v, f, MERGE_TOLERANCE * diag)
+        if len(merged_v) < len(v) and _closed(merged_f):
+            notes.append(f"{name}: {len(v)} vertices merged into {len(merged_v)} handles (vertices within "
+                         f"{MERGE_TOLERANCE:g} of the diagonal are one handle; handles in order of first appearance)")
+            v, f, source_index = merged_v, merged_f, index
 
     repeated = (f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 0] == f[:, 2])
     area2 = np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1)
@@ -218,7 +324,8 @@ def check_cage(source, name: str | None = None) -> Cage:
         msg = f"{name}: the cage is oriented inward (negative volume); its faces were reversed"
         notes.append(msg)
         warnings.warn(msg, stacklevel=2)
-    cage = Cage(vertices=v, faces=np.ascontiguousarray(f), name=name, flipped=flipped, notes=notes)
+    cage = Cage(vertices=v, faces=np.ascontiguousarray(f), name=name, flipped=flipped, notes=notes,
+                source_index=source_index)
     folds, angle = folded_edges(cage, angles=True)
     if len(folds):
         worst = np.argsort(-angle)[:3]

@@ -76,7 +76,7 @@ def _animate(args) -> int:
     import warp_stokes as ws
 
     binding = ws.load_binding(args.binding, device=args.device)
-    poses = ws.load_poses(args.poses, binding.cage_faces, binding.n_handles)
+    poses = ws.load_poses(args.poses, binding.cage_faces, binding.n_handles, binding.cage_source_index)
     ws.write_animation(args.output, binding, poses, fps=args.fps, with_cage=args.with_cage,
                        with_weights=args.with_weights, up_axis=args.up_axis, meters_per_unit=args.meters_per_unit)
     print(f"wrote {args.output}: {len(poses.frames)} frames ({poses.frames.min():g} to {poses.frames.max():g}) "

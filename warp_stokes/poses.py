@@ -9,6 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import BindingError
+from .cage import pose_vertices
 from .load import load_surface
 
 __all__ = ["Poses", "load_poses", "natural_key"]
@@ -46,7 +47,7 @@ def _same_faces(faces: np.ndarray, cage_faces: np.ndarray) -> bool:
     )
 
 
-def _from_folder(path: str, cage_faces: np.ndarray, n_handles: int) -> Poses:
+def _from_folder(path: str, cage_faces: np.ndarray, n_handles: int, source_index=None) -> Poses:
     names = sorted((f for f in os.listdir(path) if f.lower().endswith(".obj")), key=natural_key)
     if not names:
         raise BindingError(f"{path}: the folder has no .obj frames")
@@ -57,13 +58,7 @@ def _from_folder(path: str, cage_faces: np.ndarray, n_handles: int) -> Poses:
             surface = load_surface(frame)
         except ValueError as exc:  # already names the frame's file
             raise BindingError(str(exc)) from None
-        if len(surface.vertices) != n_handles:
-            raise BindingError(
-                f"{frame}: the pose has {len(surface.vertices)} vertices, the bound cage has {n_handles}"
-            )
-        if not _same_faces(surface.faces, cage_faces):
-            raise BindingError(f"{frame}: the pose's faces differ from the bound cage's (different topology)")
-        positions.append(surface.vertices)
+        positions.append(pose_vertices(surface.vertices, surface.faces, cage_faces, source_index, frame))
         frames.append(_frame_number(name, k + 1))
     frames = np.asarray(frames)
     if len(np.unique(frames)) != len(frames):  # numbers in the names do not identify frames: number them
@@ -154,7 +149,7 @@ def _checked(poses: Poses) -> Poses:
     return poses
 
 
-def load_poses(source, cage_faces: np.ndarray, n_handles: int | None = None) -> Poses:
+def load_poses(source, cage_faces: np.ndarray, n_handles: int | None = None, source_index=None) -> Poses:
     """Read a sequence of cage poses and check that every frame has the bound cage's topology.
 
     Parameters
@@ -165,6 +160,8 @@ def load_poses(source, cage_faces: np.ndarray, n_handles: int | None = None) -> 
         has time-sampled points (the first mesh with the cage's vertex count).
     cage_faces : (T, 3) int array, the bound cage's triangles
     n_handles : int, the bound cage's vertex count (default: from ``cage_faces``)
+    source_index : the bound cage's map from its source's vertices to handles (``Cage.source_index``), for OBJ
+        frames laid out like a triangle-soup source
 
     Returns
     -------
@@ -194,7 +191,7 @@ def load_poses(source, cage_faces: np.ndarray, n_handles: int | None = None) -> 
     if not os.path.exists(path):
         raise BindingError(f"{path}: no such file or folder")
     if os.path.isdir(path):
-        return _checked(_from_folder(path, cage_faces, n_handles))
+        return _checked(_from_folder(path, cage_faces, n_handles, source_index))
     ext = os.path.splitext(path)[1].lower()
     if ext in (".npy", ".npz"):
         return _checked(_from_array(path, n_handles))
