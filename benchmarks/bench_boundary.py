@@ -5,10 +5,11 @@
 
 Pairs: SMPL rest pose (arms down, hands beside the thighs) deformed by its T-pose cage and compared with the real
 T-pose mesh (regions: the hand at +x and the hand at -x in the T-pose, |x| > 0.6, and the whole body); the ogre
-deformed by its deformed cage (no reference mesh). For every boundary-data variant and resolution: conformal
-distortion p95 (per triangle, sigma1 / sigma2 of the map rest -> deformed) and dihedral-angle change p95 against the
-reference (degrees, SMPL), min weight, fraction of negative weights, CG iterations, bind seconds. Mean value
-coordinates evaluated at the vertices are the reference method (one row per pair).
+deformed by its deformed cage and the arm by its most bent pose (no reference meshes). For every boundary-data
+variant and resolution, the measures of ``warp_stokes.quality``: conformal distortion (per triangle, sigma1 / sigma2
+of the map rest -> deformed), dihedral-angle change against the reference (degrees, SMPL), the weight held by
+distant handles, min weight, fraction of negative weights; and CG iterations, bind seconds. Mean value coordinates
+evaluated at the vertices are the reference method (one row per pair).
 
 ``--refinement`` instead follows the min weight of each pair over resolutions: its value, the vertex where it occurs
 and that vertex's distance to the nearest folded cage edge (faces whose normals are more than 150 degrees apart),
@@ -43,40 +44,6 @@ VARIANTS = {
 }
 
 
-def conformal_distortion(faces: np.ndarray, rest: np.ndarray, deformed: np.ndarray) -> np.ndarray:
-    """Per triangle sigma1 / sigma2 of the linear map rest -> deformed (NaN for degenerate rest triangles)."""
-    e1, e2 = rest[faces[:, 1]] - rest[faces[:, 0]], rest[faces[:, 2]] - rest[faces[:, 0]]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        u = e1 / np.linalg.norm(e1, axis=1, keepdims=True)
-        n = np.cross(e1, e2)
-        n /= np.linalg.norm(n, axis=1, keepdims=True)
-        v = np.cross(n, u)
-        a = np.stack([np.stack([(e1 * u).sum(1), (e2 * u).sum(1)], 1), np.stack([(e1 * v).sum(1), (e2 * v).sum(1)], 1)], 1)
-        b = np.stack([deformed[faces[:, 1]] - deformed[faces[:, 0]], deformed[faces[:, 2]] - deformed[faces[:, 0]]], 2)
-        ok = np.isfinite(a).all(axis=(1, 2)) & (np.abs(np.linalg.det(np.nan_to_num(a))) > 0)
-        s = np.full((len(faces), 2), np.nan)
-        s[ok] = np.linalg.svd(b[ok] @ np.linalg.inv(a[ok]), compute_uv=False)
-        return s[:, 0] / s[:, 1]
-
-
-def interior_edges(faces: np.ndarray):
-    """(face a, face b, edge) for every edge shared by two faces."""
-    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    fid = np.tile(np.arange(len(faces)), 3)
-    key = np.sort(e, axis=1)
-    order = np.lexsort(key.T[::-1])
-    key, fid = key[order], fid[order]
-    same = (key[1:] == key[:-1]).all(axis=1)
-    return fid[:-1][same], fid[1:][same], key[:-1][same]
-
-
-def dihedral_angles(faces: np.ndarray, points: np.ndarray, edges) -> np.ndarray:
-    fa, fb, _ = edges
-    n = np.cross(points[faces[:, 1]] - points[faces[:, 0]], points[faces[:, 2]] - points[faces[:, 0]])
-    n /= np.linalg.norm(n, axis=1, keepdims=True)
-    return np.degrees(np.arccos(np.clip((n[fa] * n[fb]).sum(axis=1), -1.0, 1.0)))
-
-
 def segment_distance(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """(P,) distance of each point to the nearest of the segments a[i]-b[i]."""
     if len(a) == 0:
@@ -109,31 +76,24 @@ def load_pair(name: str):
     raise SystemExit(f"unknown pair {name}")
 
 
-def measure(name, mesh, cage, pose, reference, regions, weights, edges):
-    deformed = weights @ pose
-    conformal = conformal_distortion(mesh.faces, mesh.vertices, deformed)
-    dihedral = None
-    if reference is not None:
-        dihedral = np.abs(dihedral_angles(mesh.faces, deformed, edges) - dihedral_angles(mesh.faces, reference, edges))
+def measure(name, mesh, cage, pose, reference, regions, weights, device):
+    q = ws.deformation_quality(weights, mesh.vertices, mesh.faces, cage, pose, reference, regions, device=device)
     out = {}
-    for region, mask in regions.items():
-        tri = mask[mesh.faces].all(axis=1) & np.isfinite(conformal)
-        row = {"conformal_p95": float(np.percentile(conformal[tri], 95)),
-               "conformal_p50": float(np.percentile(conformal[tri], 50))}
-        if dihedral is not None:
-            row["dihedral_p95"] = float(np.percentile(dihedral[mask[edges[2]].all(axis=1)], 95))
+    for region, m in q["regions"].items():
+        row = {"conformal_p95": m["conformal"]["p95"], "conformal_p50": m["conformal"]["p50"],
+               "conformal_max": m["conformal"]["max"], "distant_p95": m["distant_weight"]["p95"]}
+        if "dihedral_change" in m:
+            row["dihedral_p95"] = m["dihedral_change"]["p95"]
         out[region] = row
-    return {"pair": name, "regions": out, "min_weight": float(weights.min()),
-            "negative_fraction": float((weights < 0).mean())}
+    return {"pair": name, "regions": out, "min_weight": q["min_weight"], "negative_fraction": q["negative_fraction"]}
 
 
 def compare(args) -> int:
     rows = []
     for name in args.pairs:
         mesh, cage, pose, reference, regions = load_pair(name)
-        edges = interior_edges(mesh.faces)
         row = measure(name, mesh, cage, pose, reference, regions,
-                      ws.mean_value_coordinates(cage, mesh.vertices, device=args.device), edges)
+                      ws.mean_value_coordinates(cage, mesh.vertices, device=args.device), args.device)
         rows.append({**row, "method": "MVC", "n": "", "iterations": 0, "seconds": 0.0})
         print(json.dumps(rows[-1]), flush=True)
         for n in args.resolutions:
@@ -143,7 +103,7 @@ def compare(args) -> int:
                     warnings.simplefilter("ignore")
                     b = ws.bind(mesh, cage, resolution=n, device=args.device, boundary=VARIANTS[label])
                 seconds = time.perf_counter() - start
-                row = measure(name, mesh, cage, pose, reference, regions, b.weights.astype(np.float64), edges)
+                row = measure(name, mesh, cage, pose, reference, regions, b.weights.astype(np.float64), args.device)
                 rows.append({**row, "method": label, "n": n, "iterations": b.stats["iterations"], "seconds": seconds,
                              "pu": b.stats["partition_of_unity_error"], "lp": b.stats["linear_precision_error"]})
                 print(json.dumps(rows[-1]), flush=True)
@@ -151,13 +111,16 @@ def compare(args) -> int:
         with open(args.json, "a") as fh:
             fh.writelines(json.dumps(r) + "\n" for r in rows)
     device = ws.device_name(args.device)
-    print(f"\nDevice: {device}. Conformal p95 / dihedral change p95 (degrees) by region; min weight; iterations.\n")
-    print("| pair | method | n | region | conformal p95 | dihedral p95 | min w | neg % | its | s |\n|---|---|---|---|---|---|---|---|---|---|")
+    print(f"\nDevice: {device}. Conformal distortion p50 / p95 / max, dihedral change p95 (degrees) and distant-handle "
+          "weight p95 by region; min weight; iterations.\n")
+    print("| pair | method | n | region | conformal p50 | p95 | max | dihedral p95 | distant p95 | min w | neg % | its | s |"
+          "\n|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         for region, m in r["regions"].items():
-            print(f"| {r['pair']} | {r['method']} | {r['n']} | {region} | {m['conformal_p95']:.3f} | "
-                  f"{m.get('dihedral_p95', float('nan')):.1f} | {r['min_weight']:.3f} | "
-                  f"{100 * r['negative_fraction']:.1f} | {r['iterations']} | {r['seconds']:.2f} |")
+            print(f"| {r['pair']} | {r['method']} | {r['n']} | {region} | {m['conformal_p50']:.3f} | "
+                  f"{m['conformal_p95']:.3f} | {m['conformal_max']:.2f} | {m.get('dihedral_p95', float('nan')):.1f} | "
+                  f"{m['distant_p95']:.3f} | {r['min_weight']:.3f} | {100 * r['negative_fraction']:.1f} | "
+                  f"{r['iterations']} | {r['seconds']:.2f} |")
     return 0
 
 

@@ -1,4 +1,4 @@
-"""Trilinear sampling of the nodal weight field at mesh vertices."""
+"""Sampling the nodal weight field at mesh vertices: tricubic Hermite of (q, G = h grad q), or trilinear of q."""
 
 import warp as wp
 
@@ -48,4 +48,56 @@ def sample_trilinear(
         wz = wp.where(((c >> 2) & 1) == 1, f[2], one - f[2])
         if row >= 0:
             acc += wx * wy * wz * wp.float64(field[row, h][0])
+    weights[v, h] = wp.float32(acc)
+
+
+@wp.func
+def hermite_value(t: wp.float64, corner: int):
+    """The 1D cubic Hermite basis for the value at corner 0 (2t^3 - 3t^2 + 1) or corner 1 (-2t^3 + 3t^2)."""
+    t2 = t * t
+    if corner == 0:
+        return wp.float64(2.0) * t2 * t - wp.float64(3.0) * t2 + wp.float64(1.0)
+    return wp.float64(-2.0) * t2 * t + wp.float64(3.0) * t2
+
+
+@wp.func
+def hermite_slope(t: wp.float64, corner: int):
+    """The 1D cubic Hermite basis for the scaled derivative h q' at corner 0 (t^3 - 2t^2 + t) or 1 (t^3 - t^2)."""
+    t2 = t * t
+    if corner == 0:
+        return t2 * t - wp.float64(2.0) * t2 + t
+    return t2 * t - t2
+
+
+@wp.kernel
+def sample_hermite(
+    corners: wp.array2d(dtype=wp.int32),
+    fractions: wp.array(dtype=wp.vec3d),
+    field: wp.array2d(dtype=wp.vec4f),
+    weights: wp.array2d(dtype=wp.float32),
+):
+    """weights[v, h] = tricubic Hermite interpolation of (q, G) over the cell's corners, mixed derivatives zero;
+    launch (vertices, handles).
+
+    The tensor product of 1D cubic Hermite interpolants, with the second and third mixed derivatives taken as zero
+    at every node: on a cell face the value and the normal derivative depend on that face's corners only, so the
+    interpolant is C1 across faces; it reproduces every function whose mixed derivatives vanish, linear ones among
+    them (partition of unity and linear precision stay exact)."""
+    v, h = wp.tid()
+    f = fractions[v]
+    acc = wp.float64(0.0)
+    for c in range(8):
+        row = corners[v, c]
+        if row >= 0:
+            a = c & 1
+            b = (c >> 1) & 1
+            d = (c >> 2) & 1
+            node = field[row, h]
+            hx = hermite_value(f[0], a)
+            hy = hermite_value(f[1], b)
+            hz = hermite_value(f[2], d)
+            acc += wp.float64(node[0]) * hx * hy * hz
+            acc += wp.float64(node[1]) * hermite_slope(f[0], a) * hy * hz
+            acc += wp.float64(node[2]) * hx * hermite_slope(f[1], b) * hz
+            acc += wp.float64(node[3]) * hx * hy * hermite_slope(f[2], d)
     weights[v, h] = wp.float32(acc)

@@ -162,20 +162,24 @@ def pack_nodal_field(
     n_with_gradient: int,
     field: wp.array2d(dtype=wp.vec4f),
 ):
-    """field[n] = (q, G) from nodal values q: G_a = (q(p+e_a) - q(p-e_a)) / 2, the central difference of
-    step h, exact for linear functions. Rows at or beyond `n_with_gradient` (the band) get G = 0: they are
-    only ever sampled for q."""
+    """field[n] = (q, G) from nodal values q: G_a = (q(p+e_a) - q(p-e_a)) / 2, the central difference of step h,
+    exact for linear functions. Every neighbour of an interior or ring row (n < `n_with_gradient`) is an active
+    node; a band row uses the one-sided difference where a neighbour is not (exact for linear functions too)."""
     n, h = wp.tid()
     q = values[n, h]
     g = wp.vec3d()
-    if n < n_with_gradient:
-        c = active_ijk[n]
-        for a in range(3):
-            e = wp.vec3i(0, 0, 0)
-            e[a] = 1
-            up = c + e
-            down = c - e
-            g[a] = wp.float64(0.5) * (
-                values[index[up[0], up[1], up[2]], h] - values[index[down[0], down[1], down[2]], h]
-            )
+    c = active_ijk[n]
+    for a in range(3):
+        e = wp.vec3i(0, 0, 0)
+        e[a] = 1
+        up = c + e
+        down = c - e
+        row_up = index[up[0], up[1], up[2]]
+        row_down = index[down[0], down[1], down[2]]
+        if n < n_with_gradient or (row_up >= 0 and row_down >= 0):
+            g[a] = wp.float64(0.5) * (values[row_up, h] - values[row_down, h])
+        elif row_up >= 0:
+            g[a] = values[row_up, h] - q
+        elif row_down >= 0:
+            g[a] = q - values[row_down, h]
     field[n, h] = wp.vec4f(wp.float32(q), wp.float32(g[0]), wp.float32(g[1]), wp.float32(g[2]))

@@ -89,3 +89,11 @@ def classify_points(
         d = wp.length(wp.mesh_eval_position(cage, query.face, query.u, query.v) - p)
     inside[n] = flag
     distance[n] = d
+
+
+@wp.kernel
+def nearest_faces(cage: wp.uint64, points: wp.array(dtype=wp.vec3), face: wp.array(dtype=wp.int32)):
+    """The cage face nearest to each point."""
+    n = wp.tid()
+    query = wp.mesh_query_point_no_sign(cage, points[n], 1.0e30)
+    face[n] = query.face

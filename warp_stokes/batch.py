@@ -31,7 +31,8 @@ from .files import atomic_output
 
 __all__ = ["Asset", "read_manifest", "run_batch", "format_summary"]
 
-ASSET_KEYS = {"name", "mesh", "cage", "poses", "resolution", "fps", "tol", "with_cage", "with_weights", "boundary"}
+ASSET_KEYS = {"name", "mesh", "cage", "poses", "resolution", "fps", "tol", "with_cage", "with_weights", "boundary",
+              "sampling"}
 
 
 class ManifestError(WarpStokesError):
@@ -48,6 +49,7 @@ class Asset:
     fps: float = 24.0
     tol: float = 1e-6
     boundary: str = "local"
+    sampling: str = "hermite"
     with_cage: bool = False
     with_weights: bool = False
 
@@ -113,6 +115,8 @@ def read_manifest(path) -> list[Asset]:
             raise ManifestError(f"{where}: 'poses' must be a path")
         if merged.get("boundary", "local") not in ("local", "mvc"):
             raise ManifestError(f"{where}: 'boundary' must be \"local\" or \"mvc\"")
+        if merged.get("sampling", "hermite") not in ("hermite", "trilinear"):
+            raise ManifestError(f"{where}: 'sampling' must be \"hermite\" or \"trilinear\"")
         for key, kind in (("resolution", int), ("fps", (int, float)), ("tol", (int, float)),
                           ("with_cage", bool), ("with_weights", bool)):
             if key in merged and (not isinstance(merged[key], kind) or (kind is int and isinstance(merged[key], bool))):
@@ -208,7 +212,7 @@ def run_batch(manifest, outdir, force: bool = False, device=None, progress=True)
             if progress:
                 _progress(progress, k, len(assets), asset.name, f"binding at resolution {asset.resolution}")
             binding = bind(asset.mesh, cage, resolution=asset.resolution, device=device, tol=asset.tol,
-                           boundary=asset.boundary)
+                           boundary=asset.boundary, sampling=asset.sampling)
             result.vertices, result.handles = binding.n_vertices, binding.n_handles
             if not binding.stats["converged"]:
                 raise WarpStokesError(

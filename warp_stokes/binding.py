@@ -24,7 +24,7 @@ from .grid import check_resolution, classify_points, voxelize
 from .multigrid import Multigrid, coarsen
 from .load import Surface, load_surface
 from .local_boundary import LocalData
-from .sample import sample_weights
+from .sample import SAMPLINGS, sample_weights
 from .solve import solve_biharmonic
 
 __all__ = ["Binding", "bind", "load_binding", "FORMAT"]
@@ -209,7 +209,8 @@ def _suggest_resolution(resolution: int, spacing: float, distances: np.ndarray) 
 
 
 def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_iterations: int | None = None,
-         solver: str = "multigrid", memory_budget: int | None = None, boundary="local") -> Binding:
+         solver: str = "multigrid", memory_budget: int | None = None, boundary="local",
+         sampling: str = "hermite") -> Binding:
     """Compute Stokes cage coordinates of a mesh's vertices with respect to a cage.
 
     Load -> voxelise (winding number) -> boundary data (mean value coordinates) -> batched solve of the
@@ -239,6 +240,9 @@ def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_i
     boundary : "local" | "mvc" | LocalData
         The data at ring and band nodes (see :func:`warp_stokes.boundary_field`): the local data of
         :mod:`warp_stokes.local_boundary` (default, ``LocalData()``), or mean value coordinates.
+    sampling : "hermite" | "trilinear"
+        How the weights are interpolated at the vertices (see :func:`warp_stokes.sample_weights`): C1 tricubic
+        Hermite of the values and gradients (default), or C0 trilinear of the values.
 
     Returns
     -------
@@ -263,6 +267,8 @@ def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_i
         raise WarpStokesError(f"solver must be 'multigrid' or 'jacobi', got {solver!r}")
     if not (boundary in ("mvc", "local") or isinstance(boundary, LocalData)):
         raise WarpStokesError(f"boundary must be 'mvc', 'local' or a LocalData, got {boundary!r}")
+    if sampling not in SAMPLINGS:
+        raise WarpStokesError(f"sampling must be 'hermite' or 'trilinear', got {sampling!r}")
     resolution = check_resolution(resolution)  # arguments first: before the inputs are loaded and checked
     device = resolve_device(device)
     seconds = {}
@@ -303,7 +309,7 @@ def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_i
         reports.append(report)
         seconds["solve"] += report.seconds
         t = time.perf_counter()
-        sampled_columns, corners = sample_weights(grid, field, points, device=device)
+        sampled_columns, corners = sample_weights(grid, field, points, device=device, method=sampling)
         weights[:, chunk] = sampled_columns[:, : chunk.stop - chunk.start]
         seconds["sample"] += time.perf_counter() - t
         del field
@@ -370,7 +376,7 @@ def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_i
         "solver": solver,
         "boundary": "mvc-central-difference" if boundary == "mvc" else str(
             LocalData() if boundary == "local" else boundary),
-        "sampling": "trilinear",
+        "sampling": sampling,
         "mesh": surface.name,
         "cage": checked.name,
         "cage_flipped": checked.flipped,

@@ -42,7 +42,7 @@ def _bind(args) -> int:
     budget = None if args.memory_gb is None else args.memory_gb * 2**30
     binding = ws.bind(args.mesh, args.cage, resolution=args.resolution, device=args.device, tol=args.tol,
                       max_iterations=args.max_iterations, solver=args.solver, memory_budget=budget,
-                      boundary=args.boundary)
+                      boundary=args.boundary, sampling=args.sampling)
     binding.save(args.output)
     print(format_stats(binding.stats))
     print(f"wrote {args.output}")
@@ -114,6 +114,8 @@ def main(argv=None) -> int:
                    help="memory budget in GiB (default: 90%% of free GPU memory, half the free RAM on CPU)")
     p.add_argument("--boundary", choices=["local", "mvc"], default="local",
                    help="boundary data: local to each node's closest cage point (default) or mean value coordinates")
+    p.add_argument("--sampling", choices=["hermite", "trilinear"], default="hermite",
+                   help="weights at the vertices: C1 tricubic Hermite of values and gradients (default) or trilinear")
     p.set_defaults(run=_bind)
 
     p = sub.add_parser("deform", help="deform the bound mesh with a deformed cage and write it")

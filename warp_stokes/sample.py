@@ -1,4 +1,5 @@
-"""Sampling the solved weight field at mesh vertices (trilinear, as in the source paper)."""
+"""Sampling the solved weight field at mesh vertices: tricubic Hermite of (q, G) by default (C1), or trilinear
+of q (C0, as in the source paper)."""
 
 from __future__ import annotations
 
@@ -9,11 +10,18 @@ from .device import resolve_device
 from .grid import Grid
 from .kernels import sample
 
-__all__ = ["sample_weights"]
+__all__ = ["sample_weights", "SAMPLINGS"]
+
+#: the sampling methods: "hermite" (default) and "trilinear"
+SAMPLINGS = ("hermite", "trilinear")
 
 
-def sample_weights(grid: Grid, field: wp.array, points: np.ndarray, device=None) -> tuple[np.ndarray, np.ndarray]:
-    """Trilinear interpolation of every handle's weight at the given points.
+def sample_weights(grid: Grid, field: wp.array, points: np.ndarray, device=None,
+                   method: str = "hermite") -> tuple[np.ndarray, np.ndarray]:
+    """Interpolation of every handle's weight at the given points.
+
+    ``"hermite"`` interpolates (q, G = h grad q) over the point's cell with tricubic Hermite polynomials (mixed
+    derivatives zero): C1 across cell faces, exact for linear functions. ``"trilinear"`` interpolates q: C0.
 
     A point is sampled when all 8 corners of its grid cell are active nodes (interior, ring or band): every
     point inside the cage, and points outside it within the band.
@@ -24,6 +32,7 @@ def sample_weights(grid: Grid, field: wp.array, points: np.ndarray, device=None)
     field : wp.array2d(vec4f), (grid.n_active, handles), the solved field
     points : (V, 3) array of absolute positions
     device : None | str
+    method : "hermite" | "trilinear"
 
     Returns
     -------
@@ -35,6 +44,8 @@ def sample_weights(grid: Grid, field: wp.array, points: np.ndarray, device=None)
     --------
     >>> weights, corners = sample_weights(grid, field, mesh_vertices)  # doctest: +SKIP
     """
+    if method not in SAMPLINGS:
+        raise ValueError(f"sampling must be one of {SAMPLINGS}, got {method!r}")
     device = resolve_device(device)
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     n_points, n_handles = len(points), field.shape[1]
@@ -50,8 +61,8 @@ def sample_weights(grid: Grid, field: wp.array, points: np.ndarray, device=None)
             outputs=[corners, fractions],
         )
         weights = wp.empty((n_points, n_handles), dtype=wp.float32)
-        wp.launch(sample.sample_trilinear, dim=(n_points, n_handles), inputs=[corners, fractions, field],
-                  outputs=[weights])
+        kernel = {"hermite": sample.sample_hermite, "trilinear": sample.sample_trilinear}[method]
+        wp.launch(kernel, dim=(n_points, n_handles), inputs=[corners, fractions, field], outputs=[weights])
         rows = corners.numpy()
         out = weights.numpy()
     out[~(rows >= 0).all(axis=1)] = 0.0
