@@ -101,10 +101,11 @@ def compare(args) -> int:
                 start = time.perf_counter()
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")
-                    b = ws.bind(mesh, cage, resolution=n, device=args.device, boundary=VARIANTS[label])
+                    b = ws.bind(mesh, cage, resolution=n, device=args.device, boundary=VARIANTS[label],
+                                sampling=args.sampling)
                 seconds = time.perf_counter() - start
                 row = measure(name, mesh, cage, pose, reference, regions, b.weights.astype(np.float64), args.device)
-                rows.append({**row, "method": label, "n": n, "iterations": b.stats["iterations"], "seconds": seconds,
+                rows.append({**row, "method": f"{label} ({args.sampling})", "n": n, "iterations": b.stats["iterations"], "seconds": seconds,
                              "pu": b.stats["partition_of_unity_error"], "lp": b.stats["linear_precision_error"]})
                 print(json.dumps(rows[-1]), flush=True)
     if args.json:
@@ -136,14 +137,15 @@ def refinement(args) -> int:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")
                     start = time.perf_counter()
-                    bound = ws.bind(mesh, cage, resolution=n, device=args.device, boundary=VARIANTS[label])
+                    bound = ws.bind(mesh, cage, resolution=n, device=args.device, boundary=VARIANTS[label],
+                                    sampling=args.sampling)
                     seconds = time.perf_counter() - start
                 w = bound.weights
                 change = float(np.abs(w - previous).max()) if previous is not None else float("nan")
                 previous = w
                 j, l = np.unravel_index(int(np.argmin(w)), w.shape)
                 distance = float(segment_distance(mesh.vertices[j : j + 1], a, b)[0])
-                rows.append({"pair": name, "method": label, "n": n, "min_weight": float(w[j, l]), "vertex": int(j),
+                rows.append({"pair": name, "method": f"{label} ({args.sampling})", "n": n, "min_weight": float(w[j, l]), "vertex": int(j),
                              "handle": int(l), "fold_distance": distance / cage.diagonal,
                              "spacing": bound.stats["spacing"] / cage.diagonal,
                              "iterations": bound.stats["iterations"], "seconds": seconds,
@@ -168,6 +170,7 @@ def main(argv=None) -> int:
     p.add_argument("--resolutions", nargs="+", type=int, default=[96])
     p.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
     p.add_argument("--refinement", nargs="*", type=int, default=None)
+    p.add_argument("--sampling", default="hermite", choices=["hermite", "trilinear"])
     p.add_argument("--device", default=None)
     p.add_argument("--json", default=None)
     args = p.parse_args(argv)
