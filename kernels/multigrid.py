@@ -171,6 +171,22 @@ def parent_entry(d: wp.vec3i):
     return 8 * parity + side
 
 
+@wp.func
+def parent_slot(f: wp.vec3i, slot: int):
+    """Parent `slot` of fine node f (bit a of `slot`: the right parent along axis a): (d, 1) with f = 2 c + d for
+    that parent c, or (0, 0) when the slot does not exist (a right parent along an even axis, where the node sits
+    on its only parent)."""
+    d = wp.vec3i()
+    for a in range(3):
+        side = (slot >> a) & 1
+        if f[a] % 2 == 0:
+            if side != 0:
+                return wp.vec4i(0, 0, 0, 0)
+        else:
+            d[a] = 1 - 2 * side  # side 0: the parent at (f - 1) / 2, so f = 2 c + 1
+    return wp.vec4i(d[0], d[1], d[2], 1)
+
+
 @wp.kernel
 def prolongation_triplets(
     fine_ijk: wp.array(dtype=wp.vec3i),
@@ -186,18 +202,11 @@ def prolongation_triplets(
     n = wp.tid()
     f = fine_ijk[n]
     for slot in range(8):
+        parent = parent_slot(f, slot)
+        d = wp.vec3i(parent[0], parent[1], parent[2])
         col = int(-1)
-        d = wp.vec3i()
-        ok = bool(True)
-        for a in range(3):
-            s = (slot >> a) & 1
-            if f[a] % 2 == 0:
-                ok = ok and s == 0
-            else:
-                d[a] = 1 - 2 * s  # side 0: the parent is at (f - 1) / 2, so f = 2c + 1
-        if ok:
-            col = node_row(coarse_index, n_coarse, wp.vec3i((f[0] - d[0]) // 2, (f[1] - d[1]) // 2,
-                                                             (f[2] - d[2]) // 2))
+        if parent[3] != 0:
+            col = node_row(coarse_index, n_coarse, (f - d) / 2)
         m = wp.mat44f()
         if col >= 0:
             m = wp.mat44f(table[parent_entry(d)])
@@ -339,17 +348,10 @@ def prolong_add(
     f = fine_ijk[n]
     acc = wp.vec4f(0.0)
     for slot in range(8):
-        d = wp.vec3i()
-        ok = bool(True)
-        for a in range(3):
-            s = (slot >> a) & 1
-            if f[a] % 2 == 0:
-                ok = ok and s == 0
-            else:
-                d[a] = 1 - 2 * s
-        if ok:
-            col = node_row(coarse_index, xc.shape[0], wp.vec3i((f[0] - d[0]) // 2, (f[1] - d[1]) // 2,
-                                                                (f[2] - d[2]) // 2))
+        parent = parent_slot(f, slot)
+        if parent[3] != 0:
+            d = wp.vec3i(parent[0], parent[1], parent[2])
+            col = node_row(coarse_index, xc.shape[0], (f - d) / 2)
             if col >= 0:
                 acc += wp.mat44f(table[parent_entry(d)]) * xc[col, h]
     x[n, h] = x[n, h] + acc
