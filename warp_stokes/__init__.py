@@ -33,7 +33,7 @@ from .budget import MemoryEstimate, estimate_memory, available_memory, plan_chun
 from .solve import SolveReport, solve_biharmonic, apply_operator  # noqa: E402
 from .sample import sample_weights  # noqa: E402
 from .deform import deform_vertices  # noqa: E402
-from .quality import deformation_quality  # noqa: E402
+from .quality import deformation_quality, mean_value_quality  # noqa: E402
 from .binding import Binding, bind, load_binding  # noqa: E402
 from .device import resolve_device, device_name  # noqa: E402
 from .poses import Poses, load_poses  # noqa: E402
@@ -46,7 +46,7 @@ __all__ = [
     "voxelize", "grid_from_mask", "Grid", "classify_points",
     "mean_value_coordinates", "boundary_field", "COMPLEMENT_COLUMNS", "LocalData",
     "solve_biharmonic", "apply_operator", "SolveReport", "Multigrid", "coarsen",
-    "sample_weights", "deform_vertices", "deformation_quality",
+    "sample_weights", "deform_vertices", "deformation_quality", "mean_value_quality",
     "MemoryEstimate", "estimate_memory", "available_memory", "plan_chunks",
     "resolve_device", "device_name",
     "Poses", "load_poses", "write_animation", "read_manifest", "run_batch",
