@@ -1,6 +1,8 @@
 """Deformation quality measures against exact facts."""
 
 import doctest
+import json
+import sys
 import warnings
 
 import numpy as np
@@ -8,7 +10,7 @@ import pytest
 import trimesh
 
 import warp_stokes as ws
-from conftest import EXAMPLE, pair
+from conftest import EXAMPLE, REPO, pair
 from test_local_boundary import u_cage
 from warp_stokes import quality
 from warp_stokes.local_boundary import cage_graph_distances
@@ -268,3 +270,22 @@ def test_mean_value_coordinates_give_the_issue_figures_on_smpl_and_the_ogre():
     s = ws.load_surface(mesh)
     q = quality.mean_value_quality(s.vertices, s.faces, cage, cage.parent / "cage_deformed_tri.obj", device="cpu")
     assert abs(q["regions"]["all"]["conformal"]["p95"] - 1.71) < 0.005
+
+
+def test_the_benchmark_finds_the_wrists_and_prints_its_table(capsys, tmp_path):
+    sys.path.insert(0, str(REPO / "benchmarks"))
+    try:
+        import bench_quality
+    finally:
+        sys.path.remove(str(REPO / "benchmarks"))
+    mesh, _ = pair("smpl")
+    hands = bench_quality.hand_regions(ws.load_surface(mesh.parent / "model_tpose.obj").vertices)
+    for side, wrist in zip(("+x", "-x"), hands["wrists"]):
+        assert 0.66 < abs(wrist) < 0.74 and 700 < hands[f"hand {side}"].sum() < 900  # between forearm and palm
+    assert bench_quality.main(["--resolutions", "16,12", "--pairs", "arm", "--device", "cpu",
+                               "--json", str(tmp_path / "q.json")]) == 0
+    rows = [line.split("|")[1:-1] for line in capsys.readouterr().out.splitlines() if line.startswith("| cpu | arm |")]
+    assert [(r[3].strip(), r[4].strip()) for r in rows] == [("MVC", "-"), ("Stokes", "12"), ("Stokes", "16")]
+    assert rows[1][12].strip() != "-" and rows[2][12].strip() == "-"  # 12 is compared with 16, 16 with nothing
+    saved = json.loads((tmp_path / "q.json").read_text())
+    assert saved[1]["finer_n"] == 16 and saved[1]["quality"]["regions"]["all"]["change"]["max"] > 0
