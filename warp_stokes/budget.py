@@ -29,6 +29,7 @@ from .boundary import COMPLEMENT_COLUMNS
 from .device import available_memory, resolve_device  # noqa: F401 (re-exported)
 from .errors import ResolutionError
 from .grid import Grid
+from . import multigrid
 from .multigrid import COARSEST_NODES, hierarchy_bytes
 
 __all__ = ["MemoryEstimate", "estimate_memory", "available_memory", "plan_chunks", "chunk_columns"]
@@ -37,9 +38,9 @@ VEC4 = 16
 #: coarse level size over the next finer one, used when the levels are not given (measured 0.15-0.19 on the
 #: real cages at n = 64-96; a bulky cage at n = 256: 0.13)
 COARSENING_RATIO = 0.19
-#: bytes per coarse node held by the hierarchy (see warp_stokes.multigrid.COARSE_NODE_BYTES) and its lattice index
-#: (4 B per lattice node, about 8 lattice nodes per coarse node for a bulky cage; less for a thin one)
-COARSE_NODE_BYTES = 27 * 64 + 64 + 12 + 4 * 8
+#: bytes per coarse node held by the hierarchy and its lattice index (4 B per lattice node, about 8 lattice nodes
+#: per coarse node for a bulky cage; less for a thin one), when the levels are not given
+COARSE_NODE_BYTES = multigrid.COARSE_NODE_BYTES + 4 * 8
 
 
 @dataclass

@@ -10,7 +10,8 @@ import numpy as np
 from .errors import CageError
 from .load import load_surface
 
-__all__ = ["Cage", "check_cage", "signed_volume", "unit_normals", "folded_edges", "merge_coincident",
+__all__ = ["Cage", "check_cage", "signed_volume", "unit_normals", "face_edges", "interior_edges", "folded_edges",
+           "merge_coincident",
            "pose_vertices", "FOLD_DEGREES", "MERGE_TOLERANCE"]
 
 #: an edge where the two faces' normals are more than this many degrees apart is folded: the cage folds back on
@@ -127,6 +128,46 @@ def unit_normals(cage: Cage) -> np.ndarray:
     return n / np.linalg.norm(n, axis=1, keepdims=True)
 
 
+def face_edges(faces: np.ndarray) -> np.ndarray:
+    """(3F, 2) the triangles' directed edges: every face's (0, 1), then every face's (1, 2), then (2, 0).
+
+    Examples
+    --------
+    >>> face_edges(np.array([[0, 1, 2]])).tolist()
+    [[0, 1], [1, 2], [2, 0]]
+    """
+    return np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+
+
+def interior_edges(faces: np.ndarray):
+    """The edges shared by exactly two triangles (edges of one face, or of three or more, are left out).
+
+    Parameters
+    ----------
+    faces : (F, 3) int array
+
+    Returns
+    -------
+    face_a, face_b : (E,) int64, the two triangles
+    edges : (E, 2) int64, the edge's vertices in the order ``face_a`` traverses them
+
+    Examples
+    --------
+    >>> a, b, e = interior_edges(np.array([[0, 1, 2], [2, 1, 3]]))
+    >>> a.tolist(), b.tolist(), e.tolist()
+    ([0], [1], [[1, 2]])
+    """
+    faces = np.asarray(faces, dtype=np.int64)
+    directed = face_edges(faces)
+    owner = np.tile(np.arange(len(faces), dtype=np.int64), 3)
+    key = np.sort(directed, axis=1)
+    order = np.lexsort((owner, key[:, 1], key[:, 0]))
+    key, directed, owner = key[order], directed[order], owner[order]
+    start = np.flatnonzero(np.r_[True, (key[1:] != key[:-1]).any(axis=1)])
+    two = start[np.diff(np.r_[start, len(key)]) == 2]
+    return owner[two], owner[two + 1], directed[two]
+
+
 def folded_edges(cage: Cage, degrees: float = FOLD_DEGREES, angles: bool = False):
     """The cage's edges where the two faces' normals are more than ``degrees`` apart (the cage folds back there).
 
@@ -145,17 +186,12 @@ def folded_edges(cage: Cage, degrees: float = FOLD_DEGREES, angles: bool = False
     >>> folded_edges(check_cage("examples/arm/arm_cage.obj")).shape  # doctest: +SKIP
     (4, 2)
     """
-    f = cage.faces
-    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
-    face = np.tile(np.arange(len(f)), 3)
-    key = np.sort(e, axis=1)
-    order = np.lexsort(key.T[::-1])
-    key, face = key[order], face[order]
-    pair = np.flatnonzero((key[1:] == key[:-1]).all(axis=1))  # a closed cage: each edge twice, adjacent here
+    face_a, face_b, edges = interior_edges(cage.faces)
     n = unit_normals(cage)
-    angle = np.degrees(np.arccos(np.clip((n[face[pair]] * n[face[pair + 1]]).sum(axis=1), -1.0, 1.0)))
+    angle = np.degrees(np.arccos(np.clip((n[face_a] * n[face_b]).sum(axis=1), -1.0, 1.0)))
     folded = angle > degrees
-    return (key[pair][folded], angle[folded]) if angles else key[pair][folded]
+    edges = np.sort(edges[folded], axis=1)
+    return (edges, angle[folded]) if angles else edges
 
 
 #: vertices of a triangle soup closer than this fraction of the cage's diagonal are one handle
@@ -163,7 +199,7 @@ MERGE_TOLERANCE = 1e-6
 
 
 def _closed(faces: np.ndarray) -> bool:
-    key = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    key = np.sort(face_edges(faces), axis=1)
     return bool((np.unique(key, axis=0, return_counts=True)[1] == 2).all())
 
 
@@ -288,7 +324,7 @@ def check_cage(source, name: str | None = None) -> Cage:
         raise CageError(f"{name}: duplicate faces: face {i} with vertices {f[i].tolist()} appears more than once")
 
     # every undirected edge must be used by exactly two faces, in opposite directions
-    directed = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    directed = face_edges(f)
     undirected = np.sort(directed, axis=1)
     uniq, inverse, counts = np.unique(undirected, axis=0, return_inverse=True, return_counts=True)
     inverse = inverse.ravel()

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from .cage import FOLD_DEGREES, Cage, folded_edges, unit_normals
+from .cage import FOLD_DEGREES, Cage, face_edges, folded_edges, unit_normals
 from .device import resolve_device
 from .grid import Grid
 from .kernels import local_boundary
@@ -98,7 +98,7 @@ def cage_graph_distances(cage: Cage) -> np.ndarray:
     n = len(v)
     d = np.full((n, n), np.inf)
     np.fill_diagonal(d, 0.0)
-    edges = _edges(f)
+    edges = face_edges(f)
     lengths = np.linalg.norm(v[edges[:, 0]] - v[edges[:, 1]], axis=1)
     d[edges[:, 0], edges[:, 1]] = lengths
     d[edges[:, 1], edges[:, 0]] = lengths
@@ -127,7 +127,7 @@ def normal_derivatives(cage: Cage, settings: LocalData = LocalData(), device=Non
     (True, True)
     """
     v, f = cage.vertices, cage.faces
-    mean_edge = float(np.linalg.norm(np.subtract(*v[_edges(f)].transpose(1, 0, 2)), axis=1).mean())
+    mean_edge = float(np.linalg.norm(np.subtract(*v[face_edges(f)].transpose(1, 0, 2)), axis=1).mean())
     distance = cage_graph_distances(cage)[f].min(axis=1)  # (F, L): from the nearest corner of each face
     # inverse weights exp(-d / scale), shifted per face (only their ratios matter) so that none underflows to 0
     # on the near handles
@@ -154,10 +154,6 @@ def normal_derivatives(cage: Cage, settings: LocalData = LocalData(), device=Non
             to_fold = graph[f][:, :, ends].min(axis=(1, 2)) / (settings.fold_radius * mean_edge)  # (F,)
             share = np.maximum(share, np.clip(2.0 - to_fold, 0.0, 1.0)[:, None])
     return (1.0 - share) * out + share * least
-
-
-def _edges(faces: np.ndarray) -> np.ndarray:
-    return np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
 
 
 def _mvc_normal_derivatives(cage: Cage, mean_edge: float, device) -> np.ndarray:

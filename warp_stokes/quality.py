@@ -30,7 +30,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from .cage import Cage, pose_vertices
+from .cage import Cage, interior_edges, pose_vertices
 from .device import resolve_device
 from .kernels import voxel
 from .load import load_surface
@@ -101,35 +101,6 @@ def conformal_distortion(faces: np.ndarray, rest: np.ndarray, deformed: np.ndarr
     ratio[(area_rest > 0) & (area_deformed == 0)] = np.inf
     ratio[area_rest == 0] = np.nan
     return np.maximum(ratio, 1.0, where=np.isfinite(ratio), out=ratio)
-
-
-def interior_edges(faces: np.ndarray):
-    """The edges shared by exactly two triangles (edges of one face, or of three or more, are left out).
-
-    Parameters
-    ----------
-    faces : (F, 3) int array
-
-    Returns
-    -------
-    face_a, face_b : (E,) int64, the two triangles
-    edges : (E, 2) int64, the edge's vertices in the order ``face_a`` traverses them
-
-    Examples
-    --------
-    >>> a, b, e = interior_edges(np.array([[0, 1, 2], [2, 1, 3]]))
-    >>> a.tolist(), b.tolist(), e.tolist()
-    ([0], [1], [[1, 2]])
-    """
-    faces = np.asarray(faces, dtype=np.int64)
-    directed = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    owner = np.tile(np.arange(len(faces), dtype=np.int64), 3)
-    key = np.sort(directed, axis=1)
-    order = np.lexsort((owner, key[:, 1], key[:, 0]))
-    key, directed, owner = key[order], directed[order], owner[order]
-    start = np.flatnonzero(np.r_[True, (key[1:] != key[:-1]).any(axis=1)])
-    two = start[np.diff(np.r_[start, len(key)]) == 2]
-    return owner[two], owner[two + 1], directed[two]
 
 
 def dihedral_angles(faces: np.ndarray, points: np.ndarray, edges=None, signed: bool = False) -> np.ndarray:
