@@ -88,8 +88,8 @@ def local_field(
     field: wp.array2d(dtype=wp.vec4f),
 ):
     """field[n, c] = (q, h grad q) of handle first_handle + c at active row n = first_row + thread, for
-    c < n_handles, blended over the faces within `band` of the nearest; with `complement`, the four columns after
-    them stand for the rest of the cage (1 - sum q, x - sum c q, and their gradients 0 - sum, h e_a - sum).
+    c < n_handles, blended over the faces within `band` of the nearest; with `complement`, the column after
+    them stands for the rest of the cage (1 - sum q and its gradient, - sum grad q).
     `cage` holds the vertices relative to the same centre as `origin`; `tangent_gradients[f, i]` is grad_T of
     corner i's barycentric function on face f and `normal_derivatives[f, l]` is g_l on face f for every handle l."""
     n = first_row + wp.tid()
@@ -119,9 +119,7 @@ def local_field(
             total_weight += weights[count]
             count += 1
     total = zero
-    moment = wp.vec3d()
     total_gradient = wp.vec3d()
-    moment_gradient = wp.mat33d()
     for c in range(n_handles):
         l = first_handle + c
         q = zero
@@ -145,17 +143,7 @@ def local_field(
                                wp.float32(spacing * grad[2]))
         if complement != 0:
             total += q
-            moment += q * cage[l]
             total_gradient += grad
-            moment_gradient += wp.outer(cage[l], grad)
     if complement != 0:
-        rest_gradient = -total_gradient
-        field[n, n_handles] = wp.vec4f(wp.float32(one - total), wp.float32(spacing * rest_gradient[0]),
-                                       wp.float32(spacing * rest_gradient[1]), wp.float32(spacing * rest_gradient[2]))
-        rest = x - moment
-        for a in range(3):
-            e = wp.vec3d()
-            e[a] = one
-            row = e - wp.vec3d(moment_gradient[a, 0], moment_gradient[a, 1], moment_gradient[a, 2])
-            field[n, n_handles + 1 + a] = wp.vec4f(wp.float32(rest[a]), wp.float32(spacing * row[0]),
-                                                   wp.float32(spacing * row[1]), wp.float32(spacing * row[2]))
+        field[n, n_handles] = wp.vec4f(wp.float32(one - total), wp.float32(-spacing * total_gradient[0]),
+                                       wp.float32(-spacing * total_gradient[1]), wp.float32(-spacing * total_gradient[2]))

@@ -131,24 +131,11 @@ def mean_value_coordinates(
 
 
 @wp.kernel
-def complement_columns(
-    points: wp.array(dtype=wp.vec3d),
-    chunk_handles: wp.array(dtype=wp.vec3d),
-    weights: wp.array2d(dtype=wp.float64),
-):
-    """After the k = chunk_handles.shape[0] columns of a chunk's coordinates, write the four columns that stand
-    for the rest of the cage: weights[n, k] = 1 - sum_c w_c and weights[n, k+1 .. k+3] = x_n - sum_c c_c w_c,
-    the sums over the other handles of w_l and c_l w_l (exact: the coordinates reproduce 1 and x)."""
+def complement_column(n_handles: int, weights: wp.array2d(dtype=wp.float64)):
+    """After the k = n_handles columns of a chunk's coordinates, write the column that stands for the rest of the
+    cage: weights[n, k] = 1 - sum_c w_c, the sum of the other handles' w_l (exact: the coordinates sum to 1)."""
     n = wp.tid()
-    k = chunk_handles.shape[0]
     total = wp.float64(0.0)
-    moment = wp.vec3d()
-    for c in range(k):
-        w = weights[n, c]
-        total += w
-        moment += w * chunk_handles[c]
-    rest = points[n] - moment
-    weights[n, k] = wp.float64(1.0) - total
-    weights[n, k + 1] = rest[0]
-    weights[n, k + 2] = rest[1]
-    weights[n, k + 3] = rest[2]
+    for c in range(n_handles):
+        total += weights[n, c]
+    weights[n, n_handles] = wp.float64(1.0) - total

@@ -58,24 +58,24 @@ def test_chunked_and_unchunked_solves_give_the_same_weights(arm_cage):
     assert chunked.stats["memory_estimate_bytes"] <= budget < whole.stats["memory_estimate_bytes"]
     np.testing.assert_allclose(chunked.weights, whole.weights, atol=1e-5)
     assert chunked.stats["partition_of_unity_error"] <= 1e-5
-    # each chunk ran the identity check (with the complement columns), as the whole solve did
+    # each chunk ran the identity check (partition of unity, with the complement column)
     assert chunked.stats["converged"] and 0 < chunked.stats["identity_error"] <= 1e-6
 
 
 def test_plan_chunks_balances_and_covers_all_handles():
     est = ws.MemoryEstimate(per_handle=100, shared=1000)
-    # 8 columns fit: chunks of at most 4 handles, each with the 4 complement columns
-    chunks = ws.plan_chunks(est, 10, budget=1000 + 8 * 100, resolution=64)
+    # 5 columns fit: chunks of at most 4 handles, each with the complement column
+    chunks = ws.plan_chunks(est, 10, budget=1000 + 5 * 100, resolution=64)
     assert [c.stop - c.start for c in chunks] == [4, 4, 2]
     assert chunks[0].start == 0 and chunks[-1].stop == 10
     assert all(a.stop == b.start for a, b in zip(chunks, chunks[1:]))
-    assert ws.budget.chunk_columns(chunks) == 8
+    assert ws.budget.chunk_columns(chunks) == 5
     assert ws.plan_chunks(est, 10, budget=10**9, resolution=64) == [slice(0, 10)]
     assert ws.plan_chunks(est, 10, budget=1000 + 10 * 100, resolution=64) == [slice(0, 10)]  # all fit: no complement
     assert ws.budget.chunk_columns([slice(0, 10)]) == 10
-    assert len(ws.plan_chunks(est, 10, budget=1000 + 5 * 100, resolution=64)) == 10  # one handle + 4 columns
+    assert len(ws.plan_chunks(est, 10, budget=1000 + 2 * 100, resolution=64)) == 10  # one handle + 1 column
     with pytest.raises(ws.ResolutionError, match="one handle at a time"):
-        ws.plan_chunks(est, 10, budget=1000 + 4 * 100, resolution=64)
+        ws.plan_chunks(est, 10, budget=1000 + 1 * 100, resolution=64)
 
 
 def test_an_impossible_budget_fails_at_once_naming_a_resolution_that_fits(arm_cage):

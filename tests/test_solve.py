@@ -258,8 +258,8 @@ def test_failing_identity_check_keeps_cg_correct_and_stops_at_stagnation(arm_cag
 
 
 def test_a_chunk_is_checked_through_its_complement_columns(arm_cage):
-    # A chunk of handles and the four columns that stand for the rest of the cage: the solver runs the same
-    # identity check as on the whole cage, converges on it, and matches the direct float64 solve.
+    # A chunk of handles and the column that stands for the rest of the cage: the solver checks the chunk's
+    # partition of unity, converges on it, and matches the direct float64 solve.
     grid = ws.voxelize(arm_cage, resolution=18, device="cpu")
     chunk = slice(10, 30)
     field = ws.boundary_field(grid, arm_cage, device="cpu", handles=chunk, complement=True)
@@ -283,7 +283,7 @@ def test_a_chunk_is_checked_through_its_complement_columns(arm_cage):
 
     # a chunk's field without the complement columns is refused, saying what was expected
     plain = ws.boundary_field(grid, arm_cage, device="cpu", handles=chunk)
-    with pytest.raises(ValueError, match=r"has 20 columns; the identity check expects 24 \(20 handles of the chunk"):
+    with pytest.raises(ValueError, match=r"has 20 columns; the identity check expects 21 \(20 handles of the chunk"):
         ws.solve_biharmonic(grid, plain, handles=arm_cage.vertices, chunk=chunk, device="cpu")
 
 

@@ -298,7 +298,7 @@ def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_i
     chunked = len(chunks) > 1
     for chunk in chunks:
         t = time.perf_counter()
-        # a chunk carries the rest of the cage in four more columns, so that its solve is checked like a whole one
+        # a chunk carries the rest of the cage in one more column, so that its solve checks partition of unity
         field = boundary_field(grid, checked, device=device, handles=chunk, complement=chunked, data=boundary)
         wp.synchronize_device(device)
         seconds["boundary"] += time.perf_counter() - t

@@ -27,8 +27,11 @@ EPS_PLANE = 1e-10
 #: hat functions at its projection (exact for points on faces, edges and vertices; an error of at most about this
 #: much, relative, in linear precision for points that near)
 ON_CAGE = 1e-9
-#: columns that stand for the rest of the cage in a chunk's field (``boundary_field(..., complement=True)``)
-COMPLEMENT_COLUMNS = 4
+#: columns that stand for the rest of the cage in a chunk's field (``boundary_field(..., complement=True)``): one,
+#: the sum of the other handles' weights, so that each chunk's solve checks partition of unity. (Four, with the
+#: moments that check linear precision too, cost 4 of every 7 columns on a bulky cage at n = 512, where 3 handles
+#: fit per chunk.)
+COMPLEMENT_COLUMNS = 1
 
 
 def _mvc_on_device(cage: Cage, centre: np.ndarray, pts: wp.array, handles: slice, device,
@@ -90,10 +93,10 @@ def boundary_field(grid: Grid, cage: Cage, device=None, handles: slice = slice(N
     device : None | str
     handles : slice, the handles (columns) to compute, e.g. ``slice(0, 32)`` for a chunk; all by default
     complement : bool
-        Append :data:`COMPLEMENT_COLUMNS` columns that stand for the rest of the cage: the sums over the handles
-        outside ``handles`` of w_l and of (c_l - grid.centre) w_l. The chunk and these four columns reproduce
-        constants and linear functions like the whole cage does, so a chunked solve can run the same identity
-        check (``solve_biharmonic(..., chunk=handles)``) at the cost of four columns.
+        Append :data:`COMPLEMENT_COLUMNS` (one) column that stands for the rest of the cage: the sum over the
+        handles outside ``handles`` of w_l. The chunk and this column sum to one like the whole cage does, so a
+        chunked solve can check partition of unity (``solve_biharmonic(..., chunk=handles)``) at the cost of one
+        column; linear precision is checked on the sampled weights once every chunk is solved.
     data : "mvc" | "local" | LocalData
         Ring and band data: mean value coordinates of the nodes, or the local data of
         :mod:`warp_stokes.local_boundary` (the hat functions at the closest cage point, Taylor-extended; "local"
@@ -101,14 +104,14 @@ def boundary_field(grid: Grid, cage: Cage, device=None, handles: slice = slice(N
 
     Returns
     -------
-    wp.array2d of vec4f, shape (grid.n_active, handles [+ 4]): known data at ring and band rows, the starting
+    wp.array2d of vec4f, shape (grid.n_active, handles [+ 1]): known data at ring and band rows, the starting
     guess at interior rows. Band rows carry G = 0 (never read).
 
     Examples
     --------
     >>> field = boundary_field(grid, cage, handles=slice(0, 32), complement=True)  # doctest: +SKIP
     >>> field.shape[1]                                                             # doctest: +SKIP
-    36
+    33
     """
     device = resolve_device(device)
     first, stop, _ = handles.indices(cage.n_handles)
@@ -117,13 +120,7 @@ def boundary_field(grid: Grid, cage: Cage, device=None, handles: slice = slice(N
     values = wp.empty((grid.n_active, n_columns), dtype=wp.float64, device=device)
     _mvc_on_device(cage, grid.centre, positions, handles, device, out=values[:, 0 : stop - first])
     if complement:
-        wp.launch(
-            mvc.complement_columns,
-            dim=grid.n_active,
-            inputs=[positions, wp.array(cage.vertices[first:stop] - grid.centre, dtype=wp.vec3d, device=device)],
-            outputs=[values],
-            device=device,
-        )
+        wp.launch(mvc.complement_column, dim=grid.n_active, inputs=[stop - first], outputs=[values], device=device)
     arrays = grid.device_arrays(device)
     field = wp.empty(values.shape, dtype=wp.vec4f, device=device)
     wp.launch(

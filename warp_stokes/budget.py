@@ -1,7 +1,7 @@
 """Memory budget of a bind: what the solve will allocate, estimated before allocating it, and handle chunks.
 
 Every large allocation is known once the grid is voxelised and its multigrid levels are coarsened (sizes, not
-operators: :func:`warp_stokes.multigrid.coarsen`). Per column (a handle, or one of the four columns that stand for
+operators: :func:`warp_stokes.multigrid.coarsen`). Per column (a handle, or the column that stands for
 the rest of the cage in a chunk), in bytes, with N_a active, N_i interior nodes, N_l nodes of coarse level l, V
 mesh vertices:
 

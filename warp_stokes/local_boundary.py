@@ -191,7 +191,7 @@ def local_field(grid: Grid, cage: Cage, field: wp.array, rows: slice, handles: s
     field : wp.array2d(vec4f), (grid.n_active, columns), written in place at ``rows``
     rows : slice of active rows, e.g. ``slice(grid.n_interior, grid.n_active)`` (ring and band)
     handles : slice, the handles of the field's first columns
-    complement : bool, the four columns after them stand for the rest of the cage (see ``boundary_field``)
+    complement : bool, the column after them stands for the rest of the cage (see ``boundary_field``)
     settings : LocalData
     device : None | str
 

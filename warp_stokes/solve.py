@@ -18,10 +18,10 @@ floor, measured on the starting field, when that is larger). Otherwise, or when 
 float32 floor, CG restarts from the recomputed residual with a tighter tolerance. Checked against a direct
 float64 solve in tests/test_solve.py.
 
-Chunks. When the handles are solved a chunk at a time (memory), the chunk's field carries four more columns
-that stand for the rest of the cage (``boundary_field(..., complement=True)``): the sums over the other handles
-of w_l and (c_l - centre) w_l, which are biharmonic too. Chunk and complement reproduce 1 and x exactly, so
-the same identity check, and the same stopping rule, apply to each chunk.
+Chunks. When the handles are solved a chunk at a time (memory), the chunk's field carries one more column that
+stands for the rest of the cage (``boundary_field(..., complement=True)``): the sum over the other handles of
+w_l, biharmonic too. Chunk and complement sum to 1 exactly, so the same stopping rule applies to each chunk, with
+partition of unity as its identity check (linear precision is measured on the sampled weights of all chunks).
 """
 
 from __future__ import annotations
@@ -114,8 +114,8 @@ def solve_biharmonic(
         modify the field.
     chunk : slice, optional
         With ``handles``, when the columns are a chunk of the cage coordinates, ``handles[chunk]``, followed by
-        the four columns of the rest of the cage (``boundary_field(..., handles=chunk, complement=True)``):
-        the identity check then runs on the chunk as on the whole cage.
+        the column of the rest of the cage (``boundary_field(..., handles=chunk, complement=True)``): the
+        identity check then checks the chunk's partition of unity.
 
     Returns
     -------
@@ -289,7 +289,7 @@ def solve_biharmonic(
 def _identity_check(grid: Grid, field: wp.array, handles, device, chunk: slice | None = None):
     """A function returning the largest deviation from partition of unity and linear precision at the
     interior nodes (0 when ``handles`` is None), over the columns of ``field``: the cage coordinates of all
-    ``handles``, or of ``handles[chunk]`` followed by the four complement columns."""
+    ``handles``; or of ``handles[chunk]`` followed by the complement column, and then partition of unity only."""
     if handles is None:
         return lambda: 0.0
     handles = np.asarray(handles, dtype=np.float64)
@@ -299,8 +299,8 @@ def _identity_check(grid: Grid, field: wp.array, handles, device, chunk: slice |
     columns[:, 0] = 1.0
     columns[:, 1:] = handles[first:stop] - grid.centre
     if chunk is not None:
-        # the rest of the cage: sum of w_l (counts towards 1) and of (c_l - centre) w_l (towards x)
-        columns = np.concatenate([columns, np.eye(COMPLEMENT_COLUMNS)])
+        # the rest of the cage: the sum of its w_l counts towards 1
+        columns = np.concatenate([columns, np.eye(4)[:COMPLEMENT_COLUMNS]])
     if field.shape[1] != len(columns):
         raise ValueError(
             f"the field has {field.shape[1]} columns; the identity check expects {len(columns)} "
@@ -316,7 +316,8 @@ def _identity_check(grid: Grid, field: wp.array, handles, device, chunk: slice |
         wp.launch(
             checks.identity_deviation,
             dim=grid.n_interior,
-            inputs=[field, ijk, wp.vec3d(*grid.origin), wp.float64(grid.spacing), columns, wp.float64(scale)],
+            inputs=[field, ijk, wp.vec3d(*grid.origin), wp.float64(grid.spacing), columns, wp.float64(scale),
+                    int(chunk is None)],
             outputs=[out],
             device=device,
         )
