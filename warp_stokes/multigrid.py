@@ -10,8 +10,11 @@ One V-cycle for all handles at once (every handle a column of the level arrays):
 - coarse operators: Galerkin products P^T A P, so they stay symmetric positive definite. On a lattice they are
   27-point block stencils: formed by one kernel per level straight from the finer stencil (the fine operator is
   never assembled) and stored as (nodes, 27) 4x4 blocks;
-- smoother: Chebyshev polynomial of degree 3 in D^-1 A (D the 4x4 diagonal blocks) on [lmax/30, 1.1 lmax], lmax
-  from power iterations; it is a fixed polynomial, so the V-cycle is a symmetric preconditioner;
+- smoother: Chebyshev polynomial in D^-1 A (D the 4x4 diagonal blocks) on [lmax/30, lmax], of degree 3 on the
+  two finest levels and 8 below (cheap there; the deep levels' corrections limited convergence: the icosphere
+  pair at n = 512 took 27 CG iterations with degree 3 everywhere, 19 with this, in 21% less time, H100), lmax 1.2
+  times the estimate of 40 power iterations (12 underestimated it by 20% at n = 512, and higher degrees then
+  diverged); it is a fixed polynomial, so the V-cycle is a symmetric preconditioner;
 - coarsest level: a dense inverse computed once in float64.
 
 No general sparse matrix is involved: warp.sparse addresses block values with 32-bit offsets
@@ -32,15 +35,19 @@ from .grid import Grid
 from .kernels import cg, multigrid as mg
 from .operator import apply_operator
 
-__all__ = ["Multigrid", "coarsen", "hierarchy_bytes", "SMOOTHER_DEGREE", "COARSEST_NODES"]
+__all__ = ["Multigrid", "coarsen", "hierarchy_bytes", "SMOOTHER_DEGREES", "COARSEST_NODES"]
 
-SMOOTHER_DEGREE = 3
-#: the Chebyshev interval is [lmax / SMOOTHING_RANGE, 1.1 lmax]: the upper part of the spectrum is smoothed
+#: Chebyshev degree on the fine level, the first coarse level, ...; the last entry holds for every deeper level
+#: (measured with benchmarks/bench_smoother.py: RESULTS.md)
+SMOOTHER_DEGREES = (3, 3, 8)
+#: the Chebyshev interval is [lmax / SMOOTHING_RANGE, lmax]: the upper part of the spectrum is smoothed
 SMOOTHING_RANGE = 30.0
 #: coarsen until a level has at most this many nodes; it is then inverted densely (1600 x 1600 floats at most:
 #: 10 MiB). A lower limit adds a level below and costs CG iterations (one at n = 80 on a bulky cage, measured)
 COARSEST_NODES = 400
-POWER_ITERATIONS = 12
+POWER_ITERATIONS = 40
+#: the power iteration's estimate approaches lmax from below: the smoother's upper end is this much above it
+LMAX_SAFETY = 1.2
 #: device bytes per node of a coarse level: 27 blocks of the operator, the diagonal's inverse, its coordinates
 COARSE_NODE_BYTES = 27 * 64 + 64 + 12
 
@@ -200,7 +207,7 @@ class Multigrid:
                 v, z = z, v
             squared.zero_()
             wp.launch(cg.column_dots, dim=(threads, 1), inputs=[v, v, threads], outputs=[squared])
-            lev.lmax = 1.1 * float(np.sqrt(squared.numpy()[0]))
+            lev.lmax = LMAX_SAFETY * float(np.sqrt(squared.numpy()[0]))
         self.seconds["eigenvalues"] = time.perf_counter() - start
 
     # -- inspection -----------------------------------------------------------------------------------------------
@@ -284,7 +291,7 @@ class Multigrid:
         else:
             self._residual(depth, b, x, r)
             wp.launch(mg.chebyshev_start, dim=shape, inputs=[r, lev.inv_diag, 1.0 / theta], outputs=[x, d])
-        for _ in range(SMOOTHER_DEGREE - 1):
+        for _ in range(SMOOTHER_DEGREES[min(depth, len(SMOOTHER_DEGREES) - 1)] - 1):
             self._residual(depth, b, x, r)
             rho_next = 1.0 / (2.0 * sigma - rho)
             wp.launch(mg.chebyshev_step, dim=shape, inputs=[r, lev.inv_diag, rho_next * rho, 2.0 * rho_next / delta],

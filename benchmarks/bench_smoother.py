@@ -1,0 +1,80 @@
+"""Multigrid smoothing against CG iterations on one chunk of handles, at large n (issue 20: 28 iterations on the
+icosphere pair at n = 512, against 11 at n = 224).
+
+    python benchmarks/bench_smoother.py --pair sphere --resolution 512 --handles 6 --variants 3,3/12/1.1 3,8/40/1.2 3,3,8/40/1.2
+
+One grid, one hierarchy, one chunk's field (the first ``--handles`` handles and the complement column) solved once
+per variant ``DEGREES/POWER/SAFETY``: the Chebyshev degrees from the fine level down (the last for every deeper
+level, e.g. ``3,8``: 3 on the fine level, 8 on the coarse ones), the power iterations that estimate each level's lmax and the factor above the estimate. Prints the levels,
+and per variant the CG iterations, the solve's seconds and seconds per iteration, and the identity error.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_large import pair_files  # noqa: E402
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--pair", default="sphere")
+    p.add_argument("--resolution", type=int, default=128)
+    p.add_argument("--handles", type=int, default=6)
+    p.add_argument("--variants", nargs="+", default=["3,3/12/1.1", "3,8/40/1.2"])
+    p.add_argument("--coarsest", type=int, default=None, help="coarsest level's node limit")
+    p.add_argument("--device", default=None)
+    p.add_argument("--folder", default="/tmp/warp_stokes_bench")
+    args = p.parse_args(argv)
+
+    import warp as wp
+
+    import warp_stokes as ws
+    from warp_stokes import multigrid
+
+    _, cage_file = pair_files(args.pair, Path(args.folder))
+    cage = ws.check_cage(cage_file)
+    device = ws.resolve_device(args.device)
+    start = time.perf_counter()
+    grid = ws.voxelize(cage, args.resolution, device=device)
+    voxelize = time.perf_counter() - start
+    start = time.perf_counter()
+    mg = multigrid.Multigrid(grid, device, **({"coarsest_nodes": args.coarsest} if args.coarsest else {}))
+    setup = time.perf_counter() - start
+    chunk = slice(0, args.handles)
+    print(f"device {ws.device_name(device)}, {args.pair} n = {args.resolution}: levels {mg.level_sizes}, "
+          f"voxelize {voxelize:.1f} s, multigrid setup {setup:.1f} s", flush=True)
+    rows = []
+    for variant in args.variants:
+        degrees, power, safety = variant.split("/")
+        multigrid.SMOOTHER_DEGREES = tuple(int(d) for d in degrees.split(","))
+        if (int(power), float(safety)) != (multigrid.POWER_ITERATIONS, multigrid.LMAX_SAFETY):
+            multigrid.POWER_ITERATIONS, multigrid.LMAX_SAFETY = int(power), float(safety)
+            with wp.ScopedDevice(device):
+                mg._estimate_eigenvalues()
+        field = ws.boundary_field(grid, cage, device=device, handles=chunk, complement=True, data="local")
+        wp.synchronize_device(device)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            report = ws.solve_biharmonic(grid, field, handles=cage.vertices, chunk=chunk, preconditioner=mg,
+                                         device=device)
+        rows.append((variant + f" lmax {[round(lev.lmax, 2) for lev in mg.levels[:-1]]}", report.iterations, report.seconds, report.identity_error, report.converged,
+                     [r[0] for r in report.rounds]))
+        print(rows[-1], flush=True)
+        del field
+    print(f"\n| degrees (fine, coarse...), power its, safety | iterations | solve s | s / iteration | identity error | converged | rounds |\n"
+          "|---|---|---|---|---|---|---|")
+    for variant, its, seconds, identity, converged, rounds in rows:
+        print(f"| {variant} | {its} | {seconds:.2f} | {seconds / its:.3f} | {identity:.1e} | {converged} | {rounds} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
