@@ -201,21 +201,13 @@ def solve_biharmonic(
         # the nodes: 1e-6 is within reach of 100+ handles on 10^6 nodes). Ask for the tolerance or twice it.
         identity = deviation()
         identity_tol = max(tol, 2.0 * identity)
-        has_directions = False
         if callback is not None:
             callback(0, field)
         while True:
             running_np = (rel > tol_cg).astype(np.int32)
             if running_np.any():
                 running = wp.array(running_np, dtype=wp.int32)
-                # after a round, r is replaced by the true residual and CG goes on along its last directions
-                # (residual replacement, van der Vorst and Ye 2000), the first step an exact line search
-                # (r.p / p.A p: r.p = r.M r no longer holds): starting again from p = M r instead cost two
-                # iterations per chunk at n = 512 (H100), where the float32 recurrence drifts to 1e-6
-                line_search = has_directions
-                if not has_directions:
-                    wp.copy(p, z)  # z = M r from the last norm
-                    has_directions = True
+                wp.copy(p, z)  # z = M r from the last norm
             # once every residual has met tol_cg, the identity check decides when to stop
             by_identity, best_identity, stalled = False, np.inf, 0
             while running_np.any() and iterations < max_iterations:
@@ -224,8 +216,7 @@ def solve_biharmonic(
                 # after the first round); one application per iteration, against ten in the V-cycle
                 apply_operator(grid, p, ap, n_rows=n, device=device)
                 pap = dots(p, ap)
-                wp.launch(cg.step, dim=(n, n_cols), inputs=[x, r, p, ap, dots(r, p) if line_search else rz, pap, running])
-                line_search = False
+                wp.launch(cg.step, dim=(n, n_cols), inputs=[x, r, p, ap, rz, pap, running])
                 iterations += 1
                 if callback is not None:
                     callback(iterations, field)
@@ -267,7 +258,8 @@ def solve_biharmonic(
                 break
             if restarts >= MAX_RESTARTS:
                 break
-            # CG goes on from the recomputed residual; when the weights were what fell short, asking for more
+            # CG starts again from the recomputed residual; when the weights were what fell short, asking
+            # for more
             restarts += 1
             if identity > identity_tol:
                 tol_cg = min(tol_cg, float(rel.max())) / 10.0
