@@ -1,5 +1,9 @@
 """The multigrid preconditioner: its parts against exact facts, and level-independent CG iterations."""
 
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 import scipy.sparse as sp
@@ -128,3 +132,14 @@ def test_jacobi_iterations_do_grow(arm_cage):
         field = ws.boundary_field(grid, arm_cage, device="cpu", handles=slice(10, 12))
         its.append(ws.solve_biharmonic(grid, field, tol=1e-6, preconditioner="jacobi", device="cpu").iterations)
     assert its[1] > 1.5 * its[0] and its[1] > 40
+
+
+def test_bench_smoother_solves_and_tabulates_every_variant():
+    # the benchmark behind the smoother's degrees, at a tiny size: every variant solves and is tabulated
+    repo = Path(__file__).resolve().parents[1]
+    proc = subprocess.run([sys.executable, str(repo / "benchmarks" / "bench_smoother.py"), "--pair", "arm",
+                           "--resolution", "16", "--handles", "4", "--device", "cpu",
+                           "--variants", "3,3/12/1.1", "3,3,8/40/1.2"], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    rows = [line for line in proc.stdout.splitlines() if line.startswith("| 3,3")]
+    assert len(rows) == 2 and all("| True |" in row for row in rows), proc.stdout

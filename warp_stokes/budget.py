@@ -167,7 +167,7 @@ def plan_chunks(estimate: MemoryEstimate, n_handles: int, budget: int, resolutio
         fits = int(resolution * ratio ** 0.5)
         raise ResolutionError(
             f"{name}: resolution {resolution} needs at least {need / 2**30:.2f} GiB to solve one handle at a time "
-            f"(with the {COMPLEMENT_COLUMNS} columns that check it), but the memory budget is "
+            f"(with the column of the rest of the cage that checks it), but the memory budget is "
             f"{budget / 2**30:.2f} GiB; resolution {max(fits, 8)} or less would fit"
         )
     n_chunks = -(-n_handles // per_chunk)
