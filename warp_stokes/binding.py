@@ -17,7 +17,7 @@ from .boundary import boundary_field, mean_value_coordinates
 from .cage import Cage, check_cage, pose_vertices
 from .deform import deform_vertices
 from .device import device_name, resolve_device
-from .errors import BindingError, WarpStokesError
+from .errors import BindingError, MeshError, WarpStokesError
 from .files import atomic_output
 from .budget import available_memory, chunk_columns, estimate_memory, plan_chunks
 from .grid import check_resolution, classify_points, voxelize
@@ -276,6 +276,15 @@ def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_i
     surface = load_surface(mesh)
     checked: Cage = check_cage(cage)
     points = surface.vertices
+    # a mesh mostly outside its cage is in other units or another place (a transform not applied): refused before
+    # the solve, instead of weights that extrapolate far beyond [0, 1]
+    inside, distance = classify_points(checked, points, device=device)
+    outside = int((~inside).sum())
+    if outside > 0.5 * len(points):
+        raise MeshError(
+            f"{surface.name}: {outside} of {len(points)} vertices ({100 * outside / len(points):.0f}%) lie outside "
+            f"{checked.name}, up to {distance[~inside].max() / checked.diagonal:.3g} cage diagonals away; is the mesh "
+            "in the cage's units and place?")
     seconds["load"] = time.perf_counter() - t
 
     t = time.perf_counter()
@@ -315,7 +324,6 @@ def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_i
         del field
 
     t = time.perf_counter()
-    inside, distance = classify_points(checked, points, device=device)
     sampled = (corners >= 0).all(axis=1)
     beyond = ~sampled
     notes = list(checked.notes)  # what the user is warned of, kept in the stats
@@ -323,7 +331,8 @@ def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_i
         weights[beyond] = mean_value_coordinates(checked, points[beyond], device=device).astype(np.float32)
         notes.append(
             f"{surface.name}: {int(beyond.sum())} vertices lie outside {checked.name} beyond the grid's band "
-            f"(up to {distance[beyond].max():.3g} from the cage); they get mean value coordinates")
+            f"(up to {distance[beyond].max():.3g} from the cage, {distance[beyond].max() / checked.diagonal:.3g} of its "
+            "diagonal); they get mean value coordinates")
         warnings.warn(notes[-1], stacklevel=2)
     # a vertex inside the cage whose cell has no interior node sits in a feature the grid does not resolve
     thin = inside & sampled & ~((corners >= 0) & (corners < grid.n_interior)).any(axis=1)

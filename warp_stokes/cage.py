@@ -107,11 +107,36 @@ def pose_vertices(vertices: np.ndarray, faces: np.ndarray, cage_faces: np.ndarra
         vertices = merged / np.bincount(source_index, minlength=n_handles)[:, None]
     if len(vertices) != n_handles:
         raise BindingError(f"{name}: the pose has {len(vertices)} vertices, the bound cage has {n_handles}")
-    same = faces.shape == cage_faces.shape and (np.array_equal(faces, cage_faces)
-                                                or np.array_equal(faces[:, ::-1], cage_faces))
-    if not same:
-        raise BindingError(f"{name}: the pose's faces differ from the bound cage's (different topology)")
+    if not same_triangles(faces, cage_faces):
+        raise BindingError(f"{name}: the pose's faces differ from the bound cage's (different topology: "
+                           f"{len(faces)} faces against {len(cage_faces)}, or other vertex triples)")
     return vertices
+
+
+def same_triangles(faces: np.ndarray, other: np.ndarray) -> bool:
+    """Whether two face lists hold the same triangles over the same vertices, in any order, each triangle's
+    corners rotated in any way, and with the orientation of all of them flipped or not (an exporter may list
+    faces in another order or wind them the other way; the vertices are what a pose moves).
+
+    Examples
+    --------
+    >>> f = np.array([[0, 1, 2], [0, 2, 3], [0, 3, 1], [1, 3, 2]])
+    >>> same_triangles(f[::-1], f), same_triangles(np.roll(f, 1, axis=1), f), same_triangles(f[:, ::-1], f)
+    (True, True, True)
+    >>> same_triangles(np.array([[0, 1, 2], [0, 1, 3], [0, 3, 1], [1, 3, 2]]), f)
+    False
+    """
+    faces, other = np.asarray(faces), np.asarray(other)
+    if faces.shape != other.shape or faces.ndim != 2 or faces.shape[1] != 3:
+        return False
+
+    def canonical(f: np.ndarray) -> np.ndarray:
+        # rotate each triangle so that its smallest index comes first (keeps the winding), then sort the rows
+        f = np.take_along_axis(f, (np.argmin(f, axis=1)[:, None] + np.arange(3)) % 3, axis=1)
+        return f[np.lexsort(f.T[::-1])]
+
+    target = canonical(other)
+    return bool(np.array_equal(canonical(faces), target) or np.array_equal(canonical(faces[:, ::-1]), target))
 
 
 def unit_normals(cage: Cage) -> np.ndarray:

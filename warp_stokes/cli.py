@@ -36,9 +36,58 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
     print(f"warning: {message}", file=sys.stderr)
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with its errors on one line (exit code 2), as every other error of the command."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def _number(kind, low=None, high=None, low_open=False, what=""):
+    """An argparse type: ``kind`` (int or float) within [low, high] (low excluded with ``low_open``)."""
+
+    def parse(text):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not {'an integer' if kind is int else 'a number'}") from None
+        if value != value or (low is not None and (value <= low if low_open else value < low)) or (
+                high is not None and value > high):
+            bound = (f"> {low:g}" if low_open else f">= {low:g}") if low is not None else ""
+            bound += (" and " if bound and high is not None else "") + (f"<= {high:g}" if high is not None else "")
+            raise argparse.ArgumentTypeError(f"must be {what or bound}, got {text}")
+        return value
+
+    parse.__name__ = kind.__name__  # what argparse names in "invalid int value"
+    return parse
+
+
+def _check_output(path: str, inputs=(), folder: bool = False) -> None:
+    """Before any work: the output's folder exists and is writable, the output is not one of the inputs, and it
+    is not an existing folder (or, with ``folder``, not an existing file)."""
+    from warp_stokes.errors import WarpStokesError
+
+    parent = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(parent):
+        raise WarpStokesError(f"{path}: the output folder {parent} does not exist")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise WarpStokesError(f"{path}: the output folder {parent} is not writable")
+    if folder:
+        if os.path.exists(path) and not os.path.isdir(path):
+            raise WarpStokesError(f"{path}: the output exists and is not a folder")
+        if os.path.isdir(path) and not os.access(path, os.W_OK | os.X_OK):
+            raise WarpStokesError(f"{path}: the output folder is not writable")
+    elif os.path.isdir(path):
+        raise WarpStokesError(f"{path}: the output is a folder, not a file")
+    for source in inputs:
+        if source and os.path.exists(path) and os.path.exists(source) and os.path.samefile(path, source):
+            raise WarpStokesError(f"{path}: the output is the input {source}; choose another output name")
+
+
 def _bind(args) -> int:
     import warp_stokes as ws
 
+    _check_output(args.output, (args.mesh, args.cage))
     budget = None if args.memory_gb is None else args.memory_gb * 2**30
     binding = ws.bind(args.mesh, args.cage, resolution=args.resolution, device=args.device, tol=args.tol,
                       max_iterations=args.max_iterations, solver=args.solver, memory_budget=budget,
@@ -58,12 +107,13 @@ def _deform(args) -> int:
 
     import warp_stokes as ws
 
-    binding = ws.load_binding(args.binding, device=args.device)
-    vertices = binding.deform(args.cage)
-    mesh = trimesh.Trimesh(vertices=vertices, faces=binding.mesh_faces, process=False)
     ext = os.path.splitext(args.output)[1].lower().lstrip(".")
     if ext not in ("obj", "ply", "off", "stl", "glb"):
         raise ws.WarpStokesError(f"{args.output}: unsupported mesh format {ext!r} (use obj, ply, off, stl or glb)")
+    _check_output(args.output, (args.binding, args.cage))
+    binding = ws.load_binding(args.binding, device=args.device)
+    vertices = binding.deform(_pose(args.cage, binding.n_handles))
+    mesh = trimesh.Trimesh(vertices=vertices, faces=binding.mesh_faces, process=False)
     from warp_stokes.files import atomic_output
 
     with atomic_output(args.output, "." + ext) as tmp:
@@ -72,9 +122,29 @@ def _deform(args) -> int:
     return 0
 
 
+def _pose(source: str, n_handles: int):
+    """A deformed cage file, or plain handle positions: a .npy array of shape (L, 3)."""
+    import numpy as np
+
+    from warp_stokes.errors import BindingError
+
+    if not source.lower().endswith(".npy"):
+        return source
+    try:
+        positions = np.load(source, allow_pickle=False)
+    except (OSError, ValueError) as exc:
+        raise BindingError(f"{source}: not a readable .npy array ({exc})") from None
+    if positions.shape != (n_handles, 3):
+        raise BindingError(f"{source}: positions of shape {positions.shape}; the bound cage needs ({n_handles}, 3)")
+    if not np.isfinite(positions).all():
+        raise BindingError(f"{source}: the positions contain NaN or infinite values")
+    return positions.astype(np.float64)
+
+
 def _animate(args) -> int:
     import warp_stokes as ws
 
+    _check_output(args.output, (args.binding, args.poses))
     binding = ws.load_binding(args.binding, device=args.device)
     poses = ws.load_poses(args.poses, binding.cage_faces, binding.n_handles, binding.cage_source_index)
     ws.write_animation(args.output, binding, poses, fps=args.fps, with_cage=args.with_cage,
@@ -87,6 +157,7 @@ def _animate(args) -> int:
 def _batch(args) -> int:
     from warp_stokes.batch import format_summary, run_batch
 
+    _check_output(args.output, (args.manifest,), folder=True)
     results = run_batch(args.manifest, args.output, force=args.force, device=args.device)
     print(format_summary(results))
     failed = sum(r.status == "failed" for r in results)
@@ -96,21 +167,34 @@ def _batch(args) -> int:
 
 
 def main(argv=None) -> int:
-    """Entry point of the ``warp-stokes`` command."""
-    parser = argparse.ArgumentParser(prog="warp-stokes", description="Stokes cage coordinates with NVIDIA Warp.")
-    sub = parser.add_subparsers(dest="command", required=True)
+    """Entry point of the ``warp-stokes`` command: its exit code (0 done, 1 not converged or an asset failed,
+    2 bad input or a failed write, 130 interrupted)."""
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:
+        # outputs are written under temporary names and renamed when complete: nothing half-written stays
+        print("warp-stokes: interrupted; no output was left half-written", file=sys.stderr)
+        return 130
+
+
+def _main(argv) -> int:
+    from warp_stokes import __version__
+
+    parser = _Parser(prog="warp-stokes", description="Stokes cage coordinates with NVIDIA Warp.")
+    parser.add_argument("--version", action="version", version=f"warp-stokes {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
     p = sub.add_parser("bind", help="compute the weights of a mesh's vertices with respect to a cage")
     p.add_argument("mesh", help="mesh file (OBJ, PLY, OFF, STL, glTF/GLB, ...)")
     p.add_argument("cage", help="closed cage mesh file")
     p.add_argument("-o", "--output", required=True, help="binding file to write (.npz)")
-    p.add_argument("--resolution", type=int, default=64, help="grid cells along the cage's longest axis (64)")
+    p.add_argument("--resolution", type=_number(int, 1), default=64, help="grid cells along the cage's longest axis (64)")
     p.add_argument("--device", default=None, help="cpu, cuda or cuda:N (default: CUDA when present, else CPU)")
-    p.add_argument("--tol", type=float, default=1e-6, help="solver tolerance (1e-6)")
-    p.add_argument("--max-iterations", type=int, default=None, help="solver iteration limit")
+    p.add_argument("--tol", type=_number(float, 0.0, 0.1, low_open=True), default=1e-6, help="solver tolerance (1e-6)")
+    p.add_argument("--max-iterations", type=_number(int, 1), default=None, help="solver iteration limit")
     p.add_argument("--solver", choices=["multigrid", "jacobi"], default="multigrid",
                    help="CG preconditioner (multigrid)")
-    p.add_argument("--memory-gb", type=float, default=None,
+    p.add_argument("--memory-gb", type=_number(float, 0.0, low_open=True), default=None,
                    help="memory budget in GiB (default: 90%% of free GPU memory, half the free RAM on CPU)")
     p.add_argument("--boundary", choices=["local", "mvc"], default="local",
                    help="boundary data: local to each node's closest cage point (default) or mean value coordinates")
@@ -120,7 +204,8 @@ def main(argv=None) -> int:
 
     p = sub.add_parser("deform", help="deform the bound mesh with a deformed cage and write it")
     p.add_argument("binding", help="binding file written by 'warp-stokes bind'")
-    p.add_argument("cage", help="deformed cage with the bound cage's topology")
+    p.add_argument("cage", help="deformed cage with the bound cage's topology (faces in any order), or its "
+                                "vertex positions as a .npy array of shape (L, 3)")
     p.add_argument("-o", "--output", required=True, help="mesh file to write (obj, ply, off, stl, glb)")
     p.add_argument("--device", default=None, help="cpu, cuda or cuda:N")
     p.set_defaults(run=_deform)
@@ -129,11 +214,11 @@ def main(argv=None) -> int:
     p.add_argument("binding", help="binding file written by 'warp-stokes bind'")
     p.add_argument("poses", help="cage poses: a folder of OBJ frames, a .npy/.npz array (F, L, 3) or a USD file")
     p.add_argument("-o", "--output", required=True, help="USD file to write (.usd/.usdc binary, .usda text)")
-    p.add_argument("--fps", type=float, default=24.0, help="time codes per second (24)")
+    p.add_argument("--fps", type=_number(float, 0.0, low_open=True), default=24.0, help="time codes per second (24)")
     p.add_argument("--with-cage", action="store_true", help="also write the animated cage (/Root/Cage)")
     p.add_argument("--with-weights", action="store_true", help="write the weights as a primvar")
     p.add_argument("--up-axis", choices=["Y", "Z"], default="Y", help="stage up axis (Y)")
-    p.add_argument("--meters-per-unit", type=float, default=1.0, help="stage metersPerUnit (1.0)")
+    p.add_argument("--meters-per-unit", type=_number(float, 0.0, low_open=True), default=1.0, help="stage metersPerUnit (1.0)")
     p.add_argument("--device", default=None, help="cpu, cuda or cuda:N")
     p.set_defaults(run=_animate)
 
@@ -144,7 +229,10 @@ def main(argv=None) -> int:
     p.add_argument("--device", default=None, help="cpu, cuda or cuda:N")
     p.set_defaults(run=_batch)
 
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # --help, --version, or a bad argument (one line on stderr already)
+        return exc.code if isinstance(exc.code, int) else 2
     from warp_stokes.errors import WarpStokesError
 
     # warnings are shown once the command has run, so that bad input ends in its one-line error alone
@@ -155,6 +243,7 @@ def main(argv=None) -> int:
         except (WarpStokesError, OSError) as exc:
             print(f"warp-stokes: error: {exc}", file=sys.stderr)
             return 2
+
     shown = set()
     for w in caught:
         if str(w.message) not in shown:

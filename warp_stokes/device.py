@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import os
+import sys
+import tempfile
 
 import warp as wp
 
 from .errors import WarpStokesError
 
-__all__ = ["resolve_device", "device_name", "available_memory", "reduction_threads"]
+__all__ = ["resolve_device", "init_warp", "device_name", "available_memory", "reduction_threads"]
 
 
 def resolve_device(device=None) -> wp.context.Device:
@@ -34,14 +36,47 @@ def resolve_device(device=None) -> wp.context.Device:
     >>> resolve_device("cpu").alias
     'cpu'
     """
-    wp.init()
+    init_warp()
     if device is None:
         device = "cuda:0" if wp.is_cuda_available() else "cpu"
+    if isinstance(device, str) and device.startswith("cuda") and not wp.is_cuda_available():
+        raise WarpStokesError(f"device {device!r} is not available: no CUDA driver or GPU was found on this "
+                              "machine (use --device cpu, or leave the device out)")
     try:
         return wp.get_device(device)
     except Exception as exc:
         available = ", ".join(d.alias for d in wp.get_devices())
         raise WarpStokesError(f"device {device!r} is not available ({exc}); available: {available}") from None
+
+
+#: what Warp's native start-up prints on every machine without a GPU: a CPU command should not (a request for
+#: CUDA there is answered by resolve_device's own error)
+_NO_DRIVER = "Could not find or load the NVIDIA CUDA driver"
+
+
+def init_warp() -> None:
+    """``wp.init()``, without Warp's start-up warning that no CUDA driver was found; anything else it prints on
+    stderr is passed on. Its native code writes to file descriptor 2, so that is what is redirected, once."""
+    if any(getattr(sys.modules.get(name), "runtime", None) is not None for name in ("warp._src.context", "warp.context")):
+        return  # initialised already
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError, AttributeError):  # no usable stderr (embedded interpreters): just initialise
+        wp.init()
+        return
+    with tempfile.TemporaryFile() as captured:
+        os.dup2(captured.fileno(), 2)
+        try:
+            wp.init()
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        captured.seek(0)
+        text = captured.read().decode(errors="replace")
+    rest = "".join(line for line in text.splitlines(True) if _NO_DRIVER not in line)
+    if rest:
+        sys.stderr.write(rest)
 
 
 def device_name(device) -> str:

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import BindingError
-from .cage import pose_vertices
+from .cage import pose_vertices, same_triangles
 from .load import load_surface
 
 __all__ = ["Poses", "load_poses", "natural_key"]
@@ -39,12 +39,6 @@ def natural_key(name: str):
 def _frame_number(name: str, default: int) -> float:
     digits = re.findall(r"\d+", os.path.splitext(name)[0])
     return float(digits[-1]) if digits else float(default)
-
-
-def _same_faces(faces: np.ndarray, cage_faces: np.ndarray) -> bool:
-    return faces.shape == cage_faces.shape and (
-        np.array_equal(faces, cage_faces) or np.array_equal(faces[:, ::-1], cage_faces)
-    )
 
 
 def _from_folder(path: str, cage_faces: np.ndarray, n_handles: int, source_index=None) -> Poses:
@@ -127,7 +121,7 @@ def _from_usd(path: str, cage_faces: np.ndarray, n_handles: int) -> Poses:
         polys.append(indices[start : start + c])
         start += c
     faces = np.array([(p[0], p[k], p[k + 1]) for p in polys for k in range(1, len(p) - 1)], dtype=np.int64)
-    if not _same_faces(faces, cage_faces):
+    if not same_triangles(faces, cage_faces):
         raise BindingError(f"{path}: the faces of {prim.GetPath()} differ from the bound cage's (different topology)")
     positions = []
     for t in times:

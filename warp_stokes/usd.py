@@ -126,6 +126,20 @@ def write_animation(path, binding, poses: Poses, fps: float = 24.0, with_cage: b
                     cage_points = chunk[k].astype(np.float32)
                     cage.GetPointsAttr().Set(Vt.Vec3fArray.FromNumpy(cage_points), t)
                     cage.GetExtentAttr().Set(_extent(cage_points), t)
-        layer.Save()
+        _save(layer, path)
         del stage, layer
     return path
+
+
+def _save(layer, path) -> None:
+    """Save the layer, a failure (a full disk, a vanished folder) as one line naming ``path``: USD reports it as
+    a Tf error (or a False return), and the temporary file is then removed by ``atomic_output``."""
+    from pxr import Tf
+
+    try:
+        saved = layer.Save()
+    except Tf.ErrorException as exc:
+        reason = " ".join(str(exc).split())
+        raise WarpStokesError(f"{path}: could not write the USD file ({reason[:200]})") from None
+    if not saved:
+        raise WarpStokesError(f"{path}: could not write the USD file (is the disk full or the folder gone?)")

@@ -1,0 +1,149 @@
+"""The command as a user meets it when something is wrong: each case runs ``warp-stokes`` as a subprocess (CPU,
+small grids) and checks the exit code, the one-line message and the files left behind (issue 13)."""
+
+import hashlib
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+import warp_stokes as ws
+from conftest import EXAMPLE, cuda_available
+
+MESH, CAGE = str(EXAMPLE / "arm.obj"), str(EXAMPLE / "arm_cage.obj")
+
+
+def warp_stokes(*args, timeout=300):
+    exe = shutil.which("warp-stokes") or sys.executable
+    command = [exe, *args] if exe != sys.executable else [exe, "-m", "warp_stokes.cli", *args]
+    return subprocess.run(command, capture_output=True, text=True, timeout=timeout)
+
+
+def one_error_line(proc) -> str:
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1, proc.stderr
+    return lines[0]
+
+
+@pytest.fixture(scope="module")
+def bound(tmp_path_factory):
+    """One small binding shared by the deform cases."""
+    out = tmp_path_factory.mktemp("bound") / "arm.npz"
+    proc = warp_stokes("bind", MESH, CAGE, "-o", str(out), "--resolution", "16", "--device", "cpu")
+    assert proc.returncode == 0, proc.stderr
+    return out
+
+
+def test_version():
+    proc = warp_stokes("--version")
+    assert proc.returncode == 0 and proc.stdout.strip() == f"warp-stokes {ws.__version__}"
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--max-iterations", "-1"], "argument --max-iterations: must be >= 1, got -1"),
+    (["--tol", "0"], "argument --tol: must be > 0 and <= 0.1, got 0"),
+    (["--tol", "nan"], "argument --tol: must be > 0 and <= 0.1, got nan"),
+    (["--resolution", "abc"], "argument --resolution: 'abc' is not an integer"),
+    (["--memory-gb", "0"], "argument --memory-gb: must be > 0, got 0"),
+])
+def test_numbers_out_of_range_are_one_line_errors(tmp_path, args, message):
+    proc = warp_stokes("bind", MESH, CAGE, "-o", str(tmp_path / "b.npz"), *args)
+    assert proc.returncode == 2 and one_error_line(proc) == f"warp-stokes bind: error: {message}"
+    assert os.listdir(tmp_path) == []
+
+
+def test_outputs_are_checked_before_the_solve(tmp_path):
+    # a missing folder: refused before anything is computed (no stats printed)
+    proc = warp_stokes("bind", MESH, CAGE, "-o", str(tmp_path / "missing" / "b.npz"), "--device", "cpu")
+    assert proc.returncode == 2 and proc.stdout == ""
+    assert one_error_line(proc) == f"warp-stokes: error: {tmp_path / 'missing' / 'b.npz'}: the output folder " \
+                                   f"{tmp_path / 'missing'} does not exist"
+    # the output may not be an input: the mesh stays as it was
+    mesh = tmp_path / "arm.obj"
+    shutil.copy(MESH, mesh)
+    before = hashlib.sha256(mesh.read_bytes()).hexdigest()
+    proc = warp_stokes("bind", str(mesh), CAGE, "-o", str(mesh), "--device", "cpu")
+    assert proc.returncode == 2 and "the output is the input" in one_error_line(proc)
+    assert hashlib.sha256(mesh.read_bytes()).hexdigest() == before
+    # nor a folder
+    proc = warp_stokes("bind", MESH, CAGE, "-o", str(tmp_path), "--device", "cpu")
+    assert proc.returncode == 2 and "the output is a folder" in one_error_line(proc)
+    assert sorted(os.listdir(tmp_path)) == ["arm.obj"]
+
+
+def test_a_mesh_far_outside_its_cage_is_refused(tmp_path):
+    # wrong units or a transform not applied: the mesh sits 100 cage diagonals away
+    cage = ws.check_cage(CAGE)
+    mesh = ws.load_surface(MESH)
+    far = tmp_path / "far.obj"
+    with open(far, "w") as fh:
+        fh.writelines(f"v {x} {y} {z}\n" for x, y, z in mesh.vertices + [100 * cage.diagonal, 0, 0])
+        fh.writelines(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in mesh.faces)
+    proc = warp_stokes("bind", str(far), CAGE, "-o", str(tmp_path / "b.npz"), "--device", "cpu")
+    assert proc.returncode == 2
+    line = one_error_line(proc)
+    assert "far.obj: 2089 of 2089 vertices (100%) lie outside" in line and "cage diagonals away" in line
+    assert sorted(os.listdir(tmp_path)) == ["far.obj"]
+
+
+def test_deform_takes_reordered_faces_and_plain_positions(tmp_path, bound):
+    cage = ws.load_surface(CAGE)
+    moved = cage.vertices + [0.5, -0.25, 1.0]
+    expected = ws.load_binding(bound, device="cpu").deform(moved)
+
+    # the deformed cage as another exporter writes it: faces in another order, corners rotated
+    rng = np.random.default_rng(3)
+    faces = np.roll(cage.faces[rng.permutation(len(cage.faces))], 1, axis=1)
+    shuffled = tmp_path / "shuffled.obj"
+    with open(shuffled, "w") as fh:
+        fh.writelines(f"v {x} {y} {z}\n" for x, y, z in moved)
+        fh.writelines(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in faces)
+    positions = tmp_path / "moved.npy"
+    np.save(positions, moved)
+    for source, name in ((shuffled, "a.obj"), (positions, "b.obj")):
+        proc = warp_stokes("deform", str(bound), str(source), "-o", str(tmp_path / name), "--device", "cpu")
+        assert proc.returncode == 0, proc.stderr
+        np.testing.assert_allclose(ws.load_surface(tmp_path / name).vertices, expected, atol=1e-5)
+
+    # really another topology: refused with the reason, nothing written
+    other = tmp_path / "other.obj"
+    faces = cage.faces.copy()
+    faces[0] = [faces[0][0], faces[0][1], faces[5][2] if faces[5][2] not in faces[0] else faces[7][2]]
+    with open(other, "w") as fh:
+        fh.writelines(f"v {x} {y} {z}\n" for x, y, z in moved)
+        fh.writelines(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in faces)
+    proc = warp_stokes("deform", str(bound), str(other), "-o", str(tmp_path / "c.obj"), "--device", "cpu")
+    assert proc.returncode == 2 and "the pose's faces differ from the bound cage's" in one_error_line(proc)
+    np.save(tmp_path / "short.npy", moved[:-1])
+    proc = warp_stokes("deform", str(bound), str(tmp_path / "short.npy"), "-o", str(tmp_path / "d.obj"),
+                       "--device", "cpu")
+    assert proc.returncode == 2 and "positions of shape (57, 3); the bound cage needs (58, 3)" in one_error_line(proc)
+    assert not (tmp_path / "c.obj").exists() and not (tmp_path / "d.obj").exists()
+
+
+@pytest.mark.skipif(cuda_available(), reason="checks a machine without CUDA")
+def test_no_cuda_warning_on_the_cpu_and_a_clear_error_when_cuda_is_asked_for(tmp_path, bound):
+    proc = warp_stokes("deform", str(bound), CAGE, "-o", str(tmp_path / "rest.obj"))
+    assert proc.returncode == 0 and "CUDA" not in proc.stderr, proc.stderr
+    proc = warp_stokes("deform", str(bound), CAGE, "-o", str(tmp_path / "x.obj"), "--device", "cuda")
+    assert proc.returncode == 2 and "no CUDA driver or GPU was found" in one_error_line(proc)
+
+
+def test_ctrl_c_exits_130_and_leaves_no_file(tmp_path):
+    exe = shutil.which("warp-stokes")
+    command = [exe] if exe else [sys.executable, "-m", "warp_stokes.cli"]
+    out = tmp_path / "b.npz"
+    proc = subprocess.Popen(command + ["bind", MESH, CAGE, "-o", str(out), "--resolution", "96", "--device", "cpu"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(6)  # past start-up, into the bind (at n = 96 it takes far longer than this on the CPU)
+    assert proc.poll() is None, "the bind ended before it could be interrupted"
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130
+    assert err.strip().splitlines() == ["warp-stokes: interrupted; no output was left half-written"]
+    assert os.listdir(tmp_path) == []
