@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 import warp_stokes as ws
-from conftest import PAIRS, box_cage, pair
+from conftest import EXAMPLE, PAIRS, box_cage, pair
 
 
 @pytest.mark.parametrize("name", sorted(PAIRS))
@@ -123,3 +123,30 @@ def test_merge_coincident_keeps_the_first_vertex_of_each_position():
     merged, faces, index = ws.cage.merge_coincident(v, np.array([[0, 1, 2], [3, 5, 4]]), 1e-6)
     assert index.tolist() == [0, 1, 2, 1, 2, 3] and faces.tolist() == [[0, 1, 2], [1, 3, 2]]
     np.testing.assert_array_equal(merged, v[[0, 1, 2, 5]])
+
+
+def test_crossing_faces_finds_self_intersections_and_only_them():
+    import trimesh
+    from warp_stokes.cage import crossing_faces
+
+    # real cages and clean solids: none (faces that share an edge or a corner are not crossings)
+    for mesh in (trimesh.creation.icosphere(2), trimesh.creation.box(extents=[2, 2, 2]),
+                 trimesh.creation.box(extents=[2, 2, 2]).subdivide()):
+        assert len(crossing_faces(mesh.vertices, mesh.faces)) == 0
+    cage = ws.load_surface(EXAMPLE / "arm_cage.obj")
+    assert len(crossing_faces(cage.vertices, cage.faces)) == 0
+    # a vertex pushed through the far side of a sphere
+    sphere = trimesh.creation.icosphere(2)
+    poked = sphere.vertices.copy()
+    poked[0] = -1.5 * poked[0]
+    pairs = crossing_faces(poked, sphere.faces)
+    assert len(pairs) > 0 and all(0 in sphere.faces[i] or 0 in sphere.faces[j] for i, j in pairs)
+    # two overlapping boxes in one file, also where a crossing edge runs along the diagonal of a box's face
+    for shift in ([0.7, 0.6, 0.9], [1.0, 1.0, 1.0]):
+        b = trimesh.creation.box(extents=[2, 2, 2])
+        b.apply_translation(shift)
+        both = trimesh.util.concatenate([trimesh.creation.box(extents=[2, 2, 2]), b])
+        pairs = crossing_faces(both.vertices, both.faces)
+        assert len(pairs) > 0 and ((pairs[:, 0] < 12) & (pairs[:, 1] >= 12)).all()
+        with pytest.raises(ws.CageError, match=r"the cage intersects itself: faces \d+ \[.*\] and \d+ \[.*\] cross"):
+            ws.check_cage((both.vertices, both.faces))

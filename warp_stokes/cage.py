@@ -113,6 +113,53 @@ def pose_vertices(vertices: np.ndarray, faces: np.ndarray, cage_faces: np.ndarra
     return vertices
 
 
+def crossing_faces(vertices: np.ndarray, faces: np.ndarray, device="cpu") -> np.ndarray:
+    """Pairs of faces that cross each other (an edge of one passes through the other), found with a BVH.
+
+    Faces that share an edge are not tested (they meet along it); faces that share a corner are, away from it.
+    Coplanar overlaps are not detected.
+
+    Parameters
+    ----------
+    vertices : (L, 3) array
+    faces : (F, 3) int array
+    device : the Warp device of the test (the CPU by default: cages are small)
+
+    Returns
+    -------
+    (K, 2) int array of face pairs (i < j), ordered by i
+
+    Examples
+    --------
+    >>> v = np.array([[0, 0, 0], [2, 0, 0], [0, 2, 0], [0.5, 0.5, -1], [0.5, 0.5, 1], [3, 3, 0]], float)
+    >>> crossing_faces(v, np.array([[0, 1, 2], [3, 4, 5]])).tolist()
+    [[0, 1]]
+    """
+    import warp as wp
+
+    from .device import resolve_device
+    from .kernels import intersect
+
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int32)
+    if len(faces) < 2:
+        return np.zeros((0, 2), dtype=np.int64)
+    centre = 0.5 * (vertices.min(axis=0) + vertices.max(axis=0))
+    relative = vertices - centre
+    diag = float(np.linalg.norm(vertices.max(axis=0) - vertices.min(axis=0)))
+    device = resolve_device(device)
+    with wp.ScopedDevice(device):
+        mesh = wp.Mesh(points=wp.array(relative.astype(np.float32), dtype=wp.vec3),
+                       indices=wp.array(faces.ravel(), dtype=wp.int32))
+        first = wp.empty(len(faces), dtype=wp.int32)
+        wp.launch(intersect.crossing_faces, dim=len(faces),
+                  inputs=[mesh.id, wp.array(relative, dtype=wp.vec3d), wp.array(faces, dtype=wp.vec3i),
+                          float(1e-6 * diag), wp.float64(1e-9)], outputs=[first])
+        first = first.numpy()
+    i = np.flatnonzero(first >= 0)
+    return np.column_stack([i, first[i]]).astype(np.int64)
+
+
 def same_triangles(faces: np.ndarray, other: np.ndarray) -> bool:
     """Whether two face lists hold the same triangles over the same vertices, in any order, each triangle's
     corners rotated in any way, and with the orientation of all of them flipped or not (an exporter may list
@@ -375,6 +422,14 @@ def check_cage(source, name: str | None = None) -> Cage:
         raise CageError(
             f"{name}: {len(unused)} cage vertex(es) are not used by any face (e.g. vertex {int(unused[0])}); "
             "every cage vertex is a handle and must lie on the surface"
+        )
+
+    crossing = crossing_faces(v, f)
+    if len(crossing):
+        i, j = (int(k) for k in crossing[0])
+        raise CageError(
+            f"{name}: the cage intersects itself: faces {i} {f[i].tolist()} and {j} {f[j].tolist()} cross "
+            f"({len(crossing)} crossing pair(s)); the inside of a self-intersecting cage is not defined"
         )
 
     flipped = False
