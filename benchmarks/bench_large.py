@@ -161,7 +161,7 @@ def main(argv=None) -> int:
         result = run_batch(folder)
         print("\nbatch (sphere n = 1024, then ogre n = 128): exit code", result["returncode"],
               f"in {result['seconds']:.1f} s")
-        for asset in result["summary"] or []:
+        for asset in (result["summary"] or {}).get("assets", []):
             print(f"  {asset.get('name')}: {asset.get('status')} {asset.get('error', '')}")
         print("  stderr tail:", result["stderr_tail"].strip().splitlines()[-3:])
     return 0

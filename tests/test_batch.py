@@ -72,7 +72,11 @@ def test_batch_keeps_going_and_reports(manifest, tmp_path, capsys):
     assert rc == 1
     files = sorted(os.listdir(out))
     assert files == ["arm_a.npz", "arm_a.usd", "arm_b.npz", "arm_b.usd", "arm_c.npz", "arm_c.usd", "summary.json"]
-    summary = {r["name"]: r for r in json.loads((out / "summary.json").read_text())}
+    document = json.loads((out / "summary.json").read_text())
+    assert document["warp_stokes_version"] == ws.__version__
+    summary = {r["name"]: r for r in document["assets"]}
+    # what each asset warned of is kept with it (the arm's cage folds back on itself at four edges)
+    assert any("folds back on itself" in w for w in summary["arm_a"]["warnings"])
     assert [summary[n]["status"] for n in ("arm_a", "arm_b", "open", "arm_c", "short_pose")] == [
         "ok", "ok", "failed", "ok", "failed"]
     assert "open_cage.obj: the cage is not closed" in summary["open"]["error"]
@@ -138,3 +142,33 @@ def test_json_manifest_and_manifest_errors(tmp_path):
     (tmp_path / "broken.toml").write_text("[[asset]\n")
     rc = main(["batch", str(tmp_path / "broken.toml"), "-o", str(tmp_path / "o2")])
     assert rc == 2
+
+
+def test_a_second_batch_refuses_a_folder_in_use_and_stale_files_are_cleaned(manifest, tmp_path):
+    import subprocess
+    import sys
+
+    out = tmp_path / "out"
+    out.mkdir()
+    # a live process holds the lock: the batch refuses the folder, one line, exit 2, nothing written
+    holder = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        (out / ".warp-stokes.lock").write_text(str(holder.pid))
+        proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "batch", str(manifest), "-o", str(out),
+                               "--device", "cpu"], capture_output=True, text=True)
+        assert proc.returncode == 2
+        assert proc.stderr.strip().splitlines() == [
+            f"warp-stokes: error: {out}: another batch (pid {holder.pid}) is writing to this folder; wait for it to "
+            f"finish (or remove {out / '.warp-stokes.lock'} if that process is not a warp-stokes batch)"]
+        assert sorted(os.listdir(out)) == [".warp-stokes.lock"]
+    finally:
+        holder.kill()
+        holder.wait()
+    # the holder is gone (a killed batch): its lock and half-written temporary files are cleared, the run completes
+    (out / ".tmp-arm_a.usd").write_text("half")
+    (out / "arm_a.npz").write_text("a binding without its USD, from a killed run")
+    results = {r.name: r.status for r in ws.run_batch(manifest, out, device="cpu", progress=None)}
+    assert results["arm_a"] == "ok" and results["arm_c"] == "ok"
+    assert sorted(os.listdir(out)) == ["arm_a.npz", "arm_a.usd", "arm_b.npz", "arm_b.usd", "arm_c.npz", "arm_c.usd",
+                                       "summary.json"]
+    assert ws.load_binding(out / "arm_a.npz", device="cpu").n_handles == 58

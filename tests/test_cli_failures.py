@@ -2,6 +2,7 @@
 small grids) and checks the exit code, the one-line message and the files left behind (issue 13)."""
 
 import hashlib
+import re
 import os
 import shutil
 import signal
@@ -147,3 +148,54 @@ def test_ctrl_c_exits_130_and_leaves_no_file(tmp_path):
     assert proc.returncode == 130
     assert err.strip().splitlines() == ["warp-stokes: interrupted; no output was left half-written"]
     assert os.listdir(tmp_path) == []
+
+
+def test_a_self_intersecting_cage_is_refused_naming_two_crossing_faces(tmp_path):
+    import trimesh
+
+    sphere = trimesh.creation.icosphere(2)
+    poked = sphere.vertices.copy()
+    poked[0] = -1.5 * poked[0]
+    cage = tmp_path / "poked.obj"
+    trimesh.Trimesh(poked, sphere.faces, process=False).export(cage)
+    proc = warp_stokes("bind", MESH, str(cage), "-o", str(tmp_path / "b.npz"), "--device", "cpu")
+    assert proc.returncode == 2
+    assert re.fullmatch(r"warp-stokes: error: .*poked\.obj: the cage intersects itself: faces \d+ \[\d+, \d+, \d+\] "
+                        r"and \d+ \[\d+, \d+, \d+\] cross \(\d+ crossing pair\(s\)\); .*", one_error_line(proc))
+    assert sorted(os.listdir(tmp_path)) == ["poked.obj"]
+
+
+def test_a_full_disk_is_one_line_and_leaves_no_file(tmp_path, bound, monkeypatch, capsys):
+    # in process, with the writers made to fail as they do on a full disk: the binding's file write raises
+    # ENOSPC, and USD's Save returns False
+    import errno
+
+    from pxr import Sdf
+
+    from warp_stokes.cli import main
+
+    real_open = open
+
+    def full_disk_open(path, mode="r", *args, **kwargs):
+        if "w" in mode and os.path.basename(str(path)).startswith(".tmp-"):
+            raise OSError(errno.ENOSPC, "No space left on device", str(path))
+        return real_open(path, mode, *args, **kwargs)
+
+    out = tmp_path / "out"
+    out.mkdir()
+    with monkeypatch.context() as patch:
+        patch.setattr("builtins.open", full_disk_open)
+        rc = main(["bind", MESH, CAGE, "-o", str(out / "b.npz"), "--resolution", "16", "--device", "cpu"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and [line for line in err if not line.startswith("warning:")] == [
+        f"warp-stokes: error: {out / 'b.npz'}: could not write it: No space left on device"]
+    assert os.listdir(out) == []
+
+    with monkeypatch.context() as patch:
+        patch.setattr(Sdf.Layer, "Save", lambda self, *args: False)
+        rc = main(["animate", str(bound), str(EXAMPLE / "bend_poses.npy"), "-o", str(out / "a.usd"),
+                   "--device", "cpu"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and err == [f"warp-stokes: error: {out / 'a.usd'}: could not write the USD file (is the disk full "
+                               "or the folder gone?)"]
+    assert os.listdir(out) == []

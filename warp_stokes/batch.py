@@ -15,17 +15,26 @@ Manifest (TOML; JSON with the same keys works too, with ``"assets": [...]``)::
 
 For each asset the batch writes ``OUTDIR/<name>.npz`` and, with poses, ``OUTDIR/<name>.usd``. A failing asset
 is reported and the batch goes on; an asset whose outputs are newer than its inputs is skipped unless forced.
+An asset's outputs are written under temporary names and renamed together at its end, so a killed batch leaves
+an asset whole or missing (re-run, it completes what is missing and removes the killed run's temporary files).
+One batch at a time writes to a folder: a lock file ``OUTDIR/.warp-stokes.lock`` holds the owner's pid, and a
+second batch refuses the folder while that process lives (a lock left by a dead one is taken over).
+``OUTDIR/summary.json`` holds the software version and, per asset, its status, error and warnings.
 """
 
 from __future__ import annotations
 
+import contextlib
+import glob
 import json
 import os
 import sys
 import time
 import traceback
+import warnings
 from dataclasses import dataclass, field
 
+from . import __version__
 from .errors import WarpStokesError
 from .files import atomic_output
 
@@ -64,6 +73,52 @@ class Result:
     seconds: float = 0.0
     error: str = ""
     outputs: list = field(default_factory=list)
+    warnings: list = field(default_factory=list)
+
+
+LOCK_NAME = ".warp-stokes.lock"
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's live process
+        return True
+    return True
+
+
+@contextlib.contextmanager
+def folder_lock(outdir: str):
+    """Hold ``outdir``'s batch lock: created exclusively with this process's pid; a lock whose process is gone
+    is taken over; one held by a live process is a WarpStokesError naming it."""
+    path = os.path.join(outdir, LOCK_NAME)
+    for _ in range(2):
+        try:
+            fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+        except FileExistsError:
+            try:
+                with open(path, encoding="utf-8") as fh:
+                    owner = int(fh.read().strip() or 0)
+            except (OSError, ValueError):
+                owner = 0
+            if owner and owner != os.getpid() and _alive(owner):
+                raise WarpStokesError(
+                    f"{outdir}: another batch (pid {owner}) is writing to this folder; wait for it to finish "
+                    f"(or remove {path} if that process is not a warp-stokes batch)") from None
+            os.unlink(path)  # stale: its batch was killed
+            continue
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(str(os.getpid()))
+        break
+    else:
+        raise WarpStokesError(f"{outdir}: could not take the batch lock {path}")
+    try:
+        yield path
+    finally:
+        with contextlib.suppress(OSError):
+            os.unlink(path)
 
 
 def read_manifest(path) -> list[Asset]:
@@ -175,17 +230,29 @@ def run_batch(manifest, outdir, force: bool = False, device=None, progress=True)
     Returns
     -------
     list of Result, one per asset; ``summary.json`` in ``outdir`` holds the same
-    """
-    from .binding import bind
-    from .cage import check_cage
-    from .poses import load_poses
-    from .usd import write_animation
 
+    Raises
+    ------
+    WarpStokesError
+        When another live batch holds the folder's lock.
+    """
     if progress is True:
         progress = sys.stderr
     assets = read_manifest(manifest)
     outdir = os.fspath(outdir)
     os.makedirs(outdir, exist_ok=True)
+    with folder_lock(outdir):
+        # temporary files of a batch killed in this folder (it held the lock, so none is being written now)
+        for stale in glob.glob(os.path.join(outdir, ".tmp-*")):
+            with contextlib.suppress(OSError):
+                os.unlink(stale)
+        results = _run_assets(assets, outdir, manifest, force, device, progress)
+        _write_json(os.path.join(outdir, "summary.json"), {"warp_stokes_version": __version__,
+                                                           "assets": [r.__dict__ for r in results]})
+    return results
+
+
+def _run_assets(assets, outdir, manifest, force, device, progress) -> list[Result]:
     results = []
     for k, asset in enumerate(assets):
         npz = os.path.join(outdir, f"{asset.name}.npz")
@@ -193,7 +260,9 @@ def run_batch(manifest, outdir, force: bool = False, device=None, progress=True)
         outputs = [npz] + ([usd] if asset.poses else [])
         result = Result(asset.name, "ok", resolution=asset.resolution, outputs=outputs)
         start = time.perf_counter()
-        written = []
+        # the outputs under temporary names until the asset is complete, then renamed together
+        pending = {path: os.path.join(outdir, f".tmp-{os.path.basename(path)}") for path in outputs}
+        caught = []
         try:
             if not force and _up_to_date(asset, outputs, os.fspath(manifest)):
                 result.status = "skipped"
@@ -203,45 +272,63 @@ def run_batch(manifest, outdir, force: bool = False, device=None, progress=True)
                 continue
             if progress:
                 _progress(progress, k, len(assets), asset.name, "checking the cage")
-            cage = check_cage(asset.cage)
-            poses = None
-            if asset.poses:
-                if progress:
-                    _progress(progress, k, len(assets), asset.name, "reading poses")
-                poses = load_poses(asset.poses, cage.faces, cage.n_handles, cage.source_index)
-            if progress:
-                _progress(progress, k, len(assets), asset.name, f"binding at resolution {asset.resolution}")
-            binding = bind(asset.mesh, cage, resolution=asset.resolution, device=device, tol=asset.tol,
-                           boundary=asset.boundary, sampling=asset.sampling)
-            result.vertices, result.handles = binding.n_vertices, binding.n_handles
-            if not binding.stats["converged"]:
-                raise WarpStokesError(
-                    f"the solver did not converge (residual {binding.stats['residual']:.2g}, identity error "
-                    f"{binding.stats['identity_error']:.2g}, tol {asset.tol:g})"
-                )
-            binding.save(npz)
-            written.append(npz)
-            if poses is not None:
-                if progress:
-                    _progress(progress, k, len(assets), asset.name, f"writing {len(poses.frames)} frames of USD")
-                write_animation(usd, binding, poses, fps=asset.fps, with_cage=asset.with_cage,
-                                with_weights=asset.with_weights)
-                written.append(usd)
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                _bind_asset(asset, pending, device, progress, k, len(assets), result)
+            for path, tmp in pending.items():
+                os.replace(tmp, path)
         except Exception as exc:  # keep going: one asset's failure is reported, not raised
             result.status = "failed"
             known = isinstance(exc, (ValueError, OSError))
             result.error = str(exc) if known else f"{type(exc).__name__}: {exc}"
             if not known and progress:
                 traceback.print_exc(file=progress)
-            for path in written:  # an asset is written whole or not at all
-                if os.path.exists(path):
-                    os.unlink(path)
+        finally:
+            for tmp in pending.values():  # an asset is written whole or not at all
+                with contextlib.suppress(OSError):
+                    os.unlink(tmp)
+        # what the bind warned of, in the summary and (once the command has run) on stderr
+        result.warnings = list(dict.fromkeys(str(w.message) for w in caught))
+        for message in result.warnings:
+            warnings.warn(message, stacklevel=2)
         result.seconds = time.perf_counter() - start
         if progress:
             _progress(progress, k + 1, len(assets), asset.name, result.status)
         results.append(result)
-    _write_json(os.path.join(outdir, "summary.json"), [r.__dict__ for r in results])
     return results
+
+
+def _bind_asset(asset, pending: dict, device, progress, k: int, total: int, result: Result) -> None:
+    """Check, bind and (with poses) animate one asset, writing its outputs to their temporary names
+    (``pending``: final path -> temporary path, the binding first)."""
+    from .binding import bind
+    from .cage import check_cage
+    from .poses import load_poses
+    from .usd import write_animation
+
+    npz, *usd = pending
+    cage = check_cage(asset.cage)
+    poses = None
+    if asset.poses:
+        if progress:
+            _progress(progress, k, total, asset.name, "reading poses")
+        poses = load_poses(asset.poses, cage.faces, cage.n_handles, cage.source_index)
+    if progress:
+        _progress(progress, k, total, asset.name, f"binding at resolution {asset.resolution}")
+    binding = bind(asset.mesh, cage, resolution=asset.resolution, device=device, tol=asset.tol,
+                   boundary=asset.boundary, sampling=asset.sampling)
+    result.vertices, result.handles = binding.n_vertices, binding.n_handles
+    if not binding.stats["converged"]:
+        raise WarpStokesError(
+            f"the solver did not converge (residual {binding.stats['residual']:.2g}, identity error "
+            f"{binding.stats['identity_error']:.2g}, tol {asset.tol:g})"
+        )
+    binding.save(pending[npz])
+    if poses is not None:
+        if progress:
+            _progress(progress, k, total, asset.name, f"writing {len(poses.frames)} frames of USD")
+        write_animation(pending[usd[0]], binding, poses, fps=asset.fps, with_cage=asset.with_cage,
+                        with_weights=asset.with_weights)
 
 
 def _write_json(path: str, data) -> None:
