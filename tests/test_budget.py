@@ -88,3 +88,35 @@ def test_an_impossible_budget_fails_at_once_naming_a_resolution_that_fits(arm_ca
     # the suggestion does fit: one handle with the complement columns of a chunked solve
     estimate = ws.estimate_memory(grid, 2089, levels=ws.coarsen(grid, "cpu"), device="cpu")
     assert estimate.total(1 + ws.COMPLEMENT_COLUMNS) <= budget
+
+
+def test_cpu_estimate_counts_the_host_arrays_of_the_mesh_and_all_weights(arm_cage):
+    grid = ws.voxelize(arm_cage, 16, device="cpu")
+    levels = ws.coarsen(grid, "cpu")
+    small = ws.estimate_memory(grid, 1000, levels=levels, device="cpu", n_handles=58)
+    large = ws.estimate_memory(grid, 101000, levels=levels, device="cpu", n_handles=58)
+    # every column: +8 bytes per vertex (device output and its host copy); the base: 4 per vertex and handle
+    # (the weights) and the mesh's own arrays
+    assert large.total(1) - small.total(1) >= 100000 * (4 * 58 + 8)
+
+
+def test_identity_errors_in_blocks_match_a_whole_float64_sum():
+    from warp_stokes.binding import identity_errors
+
+    rng = np.random.default_rng(0)
+    handles = rng.normal(size=(12, 3))
+    weights = rng.random((1000, 12)).astype(np.float32)
+    weights /= weights.sum(axis=1, keepdims=True)
+    points = weights.astype(np.float64) @ handles + rng.normal(scale=1e-3, size=(1000, 3))
+    w = weights.astype(np.float64)
+    diag = np.linalg.norm(handles.max(0) - handles.min(0))
+    expected = (np.abs(w.sum(1) - 1).max(), np.linalg.norm(w @ handles - points, axis=1).max() / diag)
+    np.testing.assert_allclose(identity_errors(weights, handles, points, rows=64), expected, rtol=1e-12)
+
+
+def test_bench_host_memory_reports_peak_and_estimate(tmp_path):
+    proc = subprocess.run([sys.executable, str(EXAMPLE.parents[1] / "benchmarks" / "bench_host_memory.py"),
+                           "--meshes", "arm", "--resolution", "16", "--folder", str(tmp_path)],
+                          capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "| arm | 2,089 | 58 | 16 |" in proc.stdout

@@ -202,6 +202,28 @@ def load_binding(path, device=None) -> Binding:
     )
 
 
+def identity_errors(weights: np.ndarray, handles: np.ndarray, points: np.ndarray, rows: int = 1 << 16):
+    """The largest deviation from partition of unity, max |sum_l w_l - 1|, and from linear precision,
+    max |sum_l w_l c_l - p| relative to the handles' bounding-box diagonal, in float64 sums over blocks of
+    ``rows`` vertices (a float64 copy of all weights would double a large mesh's peak memory).
+
+    Examples
+    --------
+    >>> c = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]])
+    >>> identity_errors(np.array([[0.25, 0.25, 0.25, 0.25]], np.float32), c, np.array([[0.25, 0.25, 0.25]]))
+    (0.0, 0.0)
+    """
+    handles = np.asarray(handles, dtype=np.float64)
+    diag = float(np.linalg.norm(handles.max(axis=0) - handles.min(axis=0)))
+    pu = lp = 0.0
+    for start in range(0, len(weights), rows):
+        w = weights[start : start + rows].astype(np.float64)
+        if len(w):
+            pu = max(pu, float(np.abs(w.sum(axis=1) - 1.0).max()))
+            lp = max(lp, float(np.linalg.norm(w @ handles - points[start : start + rows], axis=1).max()) / diag)
+    return pu, lp
+
+
 def _suggest_resolution(resolution: int, spacing: float, distances: np.ndarray) -> int:
     """Resolution at which a feature whose points lie within `distances` of the surface spans ~3 cells."""
     thickness = max(2.0 * float(np.max(distances)), 1e-12)
@@ -291,7 +313,8 @@ def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_i
     grid = voxelize(checked, resolution, device=device)
     # the levels' sizes first (cheap), so that the plan counts the hierarchy before it is formed
     levels = coarsen(grid, device) if solver == "multigrid" else None
-    estimate = estimate_memory(grid, len(points), preconditioner=solver, levels=levels, device=device)
+    estimate = estimate_memory(grid, len(points), preconditioner=solver, levels=levels, device=device,
+                               n_handles=checked.n_handles)
     budget = available_memory(device) if memory_budget is None else int(memory_budget)
     chunks = plan_chunks(estimate, checked.n_handles, budget, resolution, name=checked.name)
     seconds["voxelize"] = time.perf_counter() - t
@@ -346,8 +369,7 @@ def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_i
     seconds["sample"] += time.perf_counter() - t
     seconds["total"] = sum(seconds.values())
 
-    diag = checked.diagonal
-    w64 = weights.astype(np.float64)
+    pu_error, lp_error = identity_errors(weights, checked.vertices, points)
     stats = {
         "device": device_name(device),
         "grid_shape": list(grid.shape),
@@ -373,8 +395,8 @@ def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_i
         "residual": max(r.residual for r in reports),
         "identity_error": max(r.identity_error for r in reports),
         "converged": all(r.converged for r in reports),
-        "partition_of_unity_error": float(np.abs(w64.sum(axis=1) - 1.0).max()),
-        "linear_precision_error": float(np.linalg.norm(w64 @ checked.vertices - points, axis=1).max() / diag),
+        "partition_of_unity_error": pu_error,
+        "linear_precision_error": lp_error,
         "seconds": seconds,
         "warnings": notes,
     }

@@ -14,8 +14,10 @@ mesh vertices:
 Shared by all columns: the grid's node index (4 per lattice node), node coordinates (12 N_a) and stencil work
 items (16 per patch), the multigrid hierarchy (27 blocks of 64 B per coarse node, its diagonal, coordinates and
 lattice indices: :func:`warp_stokes.multigrid.hierarchy_bytes`), and per stage the node positions for the MVC
-(24 N_a) or the sampling's per-vertex arrays (80 V). On the CPU the grid's host arrays (labels and index, 5 per
-lattice node, and 12 N_a) live in the same memory and are counted too.
+(24 N_a) or the sampling's per-vertex arrays (80 V). On the CPU the host arrays live in the same memory and are
+counted too: the grid's (labels and index, 5 per lattice node, and 12 N_a), the weights of all handles (4 V per
+handle), the mesh as loaded and its per-vertex checks (about 120 V), and the sampled columns' host copy (4 V per
+column).
 """
 
 from __future__ import annotations
@@ -72,7 +74,7 @@ class MemoryEstimate:
 
 
 def estimate_memory(grid: Grid, n_vertices: int = 0, preconditioner: str = "multigrid", levels=None,
-                    device=None) -> MemoryEstimate:
+                    device=None, n_handles: int = 0) -> MemoryEstimate:
     """Estimate the memory of solving and sampling on ``grid``, before allocating it.
 
     Parameters
@@ -83,7 +85,9 @@ def estimate_memory(grid: Grid, n_vertices: int = 0, preconditioner: str = "mult
     levels : list of multigrid levels (:func:`warp_stokes.multigrid.coarsen`), optional
         Their sizes make the hierarchy's share exact; without them coarse levels are estimated from
         ``COARSENING_RATIO``.
-    device : None | str, where the bind runs; on the CPU the grid's host arrays count too
+    device : None | str, where the bind runs; on the CPU the grid's host arrays count too, and so do the mesh's
+    n_handles : int, all the cage's handles: on the CPU the bind's weights (4 bytes per vertex and handle) live in
+        the same memory throughout
 
     Returns
     -------
@@ -115,13 +119,17 @@ def estimate_memory(grid: Grid, n_vertices: int = 0, preconditioner: str = "mult
     work = (2 * VEC4 * n_int + 4 * VEC4 * coarse) if multigrid else 0.0
     patches = 16 * n_int / 16  # an item per 2 x 2 columns and up to 64 planes: fewer than one per 16 nodes
     base = 4 * nodes + 12 * n_act + patches + hierarchy
-    if resolve_device(device).is_cpu:
-        base += 5 * nodes + 12 * n_act
+    on_cpu = resolve_device(device).is_cpu
+    if on_cpu:
+        # the grid's host arrays; the weights of all handles; the mesh as loaded (float64 vertices, about two
+        # int64 triangles per vertex), its classification and the vertex-sized arrays of the checks
+        base += 5 * nodes + 12 * n_act + 4 * n_v * int(n_handles) + 120 * n_v
     field_bytes = VEC4 * n_act
     stages = [
         (24 * n_act, field_bytes + work + 8 * n_act),  # boundary data: positions, MVC values in float64
         (0, field_bytes + work + 3 * VEC4 * n_int),  # solve: CG vectors
-        (80 * n_v, field_bytes + work + 4 * n_v),  # sampling: per-vertex cells and weights
+        # sampling: per-vertex cells and weights (on the CPU also their host copy)
+        (80 * n_v, field_bytes + work + (8 if on_cpu else 4) * n_v),
     ]
     stages = [(int(math.ceil(s)), int(math.ceil(c))) for s, c in stages]
     return MemoryEstimate(

@@ -1,0 +1,93 @@
+"""Peak memory of a bind on the CPU against the planner's estimate, from small to large meshes (issue 13).
+
+    python benchmarks/bench_host_memory.py --meshes arm ogre ogre:1 ogre:2 --resolution 32
+
+Each bind runs in a fresh process after a warm-up bind of the arm (kernels loaded); the peak is the growth of the
+process's maximum resident set size (``ru_maxrss``) over the bind, the estimate is ``stats["memory_estimate_bytes"]``
+(which on the CPU counts the host arrays: the grid's, the mesh's and all the weights). ``ogre:K`` is the ogre
+subdivided K times (each about 4x the vertices), inside the ogre's cage.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+DATA = Path(os.environ.get("WARP_STOKES_DATA", REPO.parent / "shared" / "data"))
+
+
+def mesh_files(name: str, folder: Path) -> tuple[Path, Path]:
+    if name == "arm":
+        return REPO / "examples/arm/arm.obj", REPO / "examples/arm/arm_cage.obj"
+    base, _, times = name.partition(":")
+    if base != "ogre":
+        raise SystemExit(f"unknown mesh {name!r}: arm, ogre or ogre:K")
+    mesh, cage = DATA / "ogre_qmvc" / "Ogre.obj", DATA / "ogre_qmvc" / "cage_tri.obj"
+    if times:
+        import trimesh
+
+        out = folder / f"ogre_sub{times}.obj"
+        if not out.exists():
+            m = trimesh.load(mesh, process=False, force="mesh")
+            for _ in range(int(times)):
+                m = m.subdivide()
+            m.export(out)
+        mesh = out
+    return mesh, cage
+
+
+def run_case(mesh: str, cage: str, resolution: int) -> dict:
+    import resource
+    import warnings
+
+    import warp_stokes as ws
+
+    def rss() -> int:
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024  # kB on Linux
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ws.bind(REPO / "examples/arm/arm.obj", REPO / "examples/arm/arm_cage.obj", resolution=16, device="cpu")
+        before = rss()
+        b = ws.bind(mesh, cage, resolution=resolution, device="cpu")
+    return {"vertices": b.n_vertices, "handles": b.n_handles, "resolution": resolution,
+            "estimate": b.stats["memory_estimate_bytes"], "peak_growth": rss() - before, "before": before}
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--meshes", nargs="+", default=["arm", "ogre", "ogre:1", "ogre:2"])
+    p.add_argument("--resolution", type=int, default=32)
+    p.add_argument("--folder", default="/tmp/warp_stokes_bench")
+    p.add_argument("--case", nargs=3, default=None, help=argparse.SUPPRESS)
+    args = p.parse_args(argv)
+    if args.case:
+        print(json.dumps(run_case(args.case[0], args.case[1], int(args.case[2]))))
+        return 0
+    folder = Path(args.folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for name in args.meshes:
+        mesh, cage = mesh_files(name, folder)
+        proc = subprocess.run([sys.executable, __file__, "--case", str(mesh), str(cage), str(args.resolution)],
+                              capture_output=True, text=True)
+        if proc.returncode:
+            print(proc.stderr[-2000:], file=sys.stderr)
+            return proc.returncode
+        rows.append({"mesh": name, **json.loads(proc.stdout.strip().splitlines()[-1])})
+        print(rows[-1], flush=True)
+    print("\nDevice: cpu. Peak = growth of the process's max RSS over the bind.\n")
+    print("| mesh | vertices | handles | n | estimate MiB | peak MiB | peak / estimate |\n|---|---|---|---|---|---|---|")
+    for r in rows:
+        print(f"| {r['mesh']} | {r['vertices']:,} | {r['handles']} | {r['resolution']} | {r['estimate'] / 2**20:.0f} | "
+              f"{r['peak_growth'] / 2**20:.0f} | {r['peak_growth'] / r['estimate']:.2f} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
