@@ -116,7 +116,11 @@ def test_identity_errors_in_blocks_match_a_whole_float64_sum():
 
 def test_bench_host_memory_reports_peak_and_estimate(tmp_path):
     proc = subprocess.run([sys.executable, str(EXAMPLE.parents[1] / "benchmarks" / "bench_host_memory.py"),
-                           "--meshes", "arm", "--resolution", "16", "--folder", str(tmp_path)],
+                           "--meshes", "arm", "--resolution", "48", "--folder", str(tmp_path)],
                           capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr[-2000:]
-    assert "| arm | 2,089 | 58 | 16 |" in proc.stdout
+    row = [line for line in proc.stdout.splitlines() if line.startswith("| arm | 2,089 | 58 | 48 |")]
+    # the small end of issue 13's range (2k to 500k vertices; the large end is in benchmarks/RESULTS.md): the
+    # process's peak within 1.5x of the estimate (measured 0.65 here; 0.70-1.04 up to 418k vertices)
+    ratio = float(row[0].split("|")[-2])
+    assert 0.2 < ratio <= 1.5, proc.stdout

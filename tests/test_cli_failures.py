@@ -71,6 +71,10 @@ def test_outputs_are_checked_before_the_solve(tmp_path):
     proc = warp_stokes("bind", str(mesh), CAGE, "-o", str(mesh), "--device", "cpu")
     assert proc.returncode == 2 and "the output is the input" in one_error_line(proc)
     assert hashlib.sha256(mesh.read_bytes()).hexdigest() == before
+    # a folder that takes no files (for root too, who passes every permission check)
+    proc = warp_stokes("bind", MESH, CAGE, "-o", "/proc/b.npz", "--device", "cpu")
+    assert proc.returncode == 2 and proc.stdout == ""
+    assert one_error_line(proc).startswith("warp-stokes: error: /proc/b.npz: the output folder /proc takes no new files")
     # nor a folder
     proc = warp_stokes("bind", MESH, CAGE, "-o", str(tmp_path), "--device", "cpu")
     assert proc.returncode == 2 and "the output is a folder" in one_error_line(proc)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import tempfile
 import warnings
 
 __all__ = ["main", "format_stats"]
@@ -70,8 +71,11 @@ def _check_output(path: str, inputs=(), folder: bool = False) -> None:
     parent = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(parent):
         raise WarpStokesError(f"{path}: the output folder {parent} does not exist")
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise WarpStokesError(f"{path}: the output folder {parent} is not writable")
+    try:  # a real file, not os.access: root passes that test in read-only and virtual (/proc) folders
+        with tempfile.NamedTemporaryFile(prefix=".tmp-", dir=parent):
+            pass
+    except OSError as exc:
+        raise WarpStokesError(f"{path}: the output folder {parent} takes no new files ({exc.strerror})") from None
     if folder:
         if os.path.exists(path) and not os.path.isdir(path):
             raise WarpStokesError(f"{path}: the output exists and is not a folder")

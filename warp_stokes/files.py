@@ -31,7 +31,10 @@ def atomic_output(path, suffix: str = ""):
     folder = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(folder):
         raise WarpStokesError(f"{path}: the folder {folder} does not exist")
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=suffix, dir=folder)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=suffix, dir=folder)
+    except OSError as exc:  # a folder that takes no new files (/proc, read-only): name the output
+        raise WarpStokesError(f"{path}: could not write it: {exc.strerror or exc}") from None
     os.close(fd)
     try:
         try:
