@@ -203,3 +203,16 @@ def test_a_full_disk_is_one_line_and_leaves_no_file(tmp_path, bound, monkeypatch
     assert rc == 2 and err == [f"warp-stokes: error: {out / 'a.usd'}: could not write the USD file (is the disk full "
                                "or the folder gone?)"]
     assert os.listdir(out) == []
+
+
+def test_a_full_disk_during_animate_in_a_subprocess(tmp_path, bound):
+    # the command as a user runs it, with USD's writer failing as on a full disk (Save returns False)
+    script = ("import sys; from pxr import Sdf; Sdf.Layer.Save = lambda self, *a: False; "
+              "from warp_stokes.cli import main; sys.exit(main(sys.argv[1:]))")
+    out = tmp_path / "out.usd"
+    proc = subprocess.run([sys.executable, "-c", script, "animate", str(bound), str(EXAMPLE / "bend_poses.npy"),
+                           "-o", str(out), "--device", "cpu"], capture_output=True, text=True)
+    assert proc.returncode == 2
+    assert one_error_line(proc) == f"warp-stokes: error: {out}: could not write the USD file (is the disk full or " \
+                                   "the folder gone?)"
+    assert os.listdir(tmp_path) == []
