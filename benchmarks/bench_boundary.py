@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 import warp_stokes as ws
-from warp_stokes.cage import folded_edges
+from warp_stokes.geometry.cage import folded_edges
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = Path(os.environ.get("WARP_STOKES_DATA", REPO.parent / "shared" / "data"))

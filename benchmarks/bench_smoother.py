@@ -37,7 +37,7 @@ def main(argv=None) -> int:
     import warp as wp
 
     import warp_stokes as ws
-    from warp_stokes import multigrid
+    from warp_stokes.solver import multigrid
 
     _, cage_file = pair_files(args.pair, Path(args.folder))
     cage = ws.check_cage(cage_file)

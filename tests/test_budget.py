@@ -69,10 +69,10 @@ def test_plan_chunks_balances_and_covers_all_handles():
     assert [c.stop - c.start for c in chunks] == [4, 4, 2]
     assert chunks[0].start == 0 and chunks[-1].stop == 10
     assert all(a.stop == b.start for a, b in zip(chunks, chunks[1:]))
-    assert ws.budget.chunk_columns(chunks) == 5
+    assert ws.solver.budget.chunk_columns(chunks) == 5
     assert ws.plan_chunks(est, 10, budget=10**9, resolution=64) == [slice(0, 10)]
     assert ws.plan_chunks(est, 10, budget=1000 + 10 * 100, resolution=64) == [slice(0, 10)]  # all fit: no complement
-    assert ws.budget.chunk_columns([slice(0, 10)]) == 10
+    assert ws.solver.budget.chunk_columns([slice(0, 10)]) == 10
     assert len(ws.plan_chunks(est, 10, budget=1000 + 2 * 100, resolution=64)) == 10  # one handle + 1 column
     with pytest.raises(ws.ResolutionError, match="one handle at a time"):
         ws.plan_chunks(est, 10, budget=1000 + 1 * 100, resolution=64)

@@ -120,14 +120,14 @@ def test_a_closed_cage_keeps_its_vertex_order_and_an_open_soup_is_still_refused(
 
 def test_merge_coincident_keeps_the_first_vertex_of_each_position():
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1e-9, 0], [0, 1, 0], [1, 1, 0]], float)
-    merged, faces, index = ws.cage.merge_coincident(v, np.array([[0, 1, 2], [3, 5, 4]]), 1e-6)
+    merged, faces, index = ws.geometry.cage.merge_coincident(v, np.array([[0, 1, 2], [3, 5, 4]]), 1e-6)
     assert index.tolist() == [0, 1, 2, 1, 2, 3] and faces.tolist() == [[0, 1, 2], [1, 3, 2]]
     np.testing.assert_array_equal(merged, v[[0, 1, 2, 5]])
 
 
 def test_crossing_faces_finds_self_intersections_and_only_them():
     import trimesh
-    from warp_stokes.cage import crossing_faces
+    from warp_stokes.geometry.cage import crossing_faces
 
     # real cages and clean solids: none (faces that share an edge or a corner are not crossings)
     for mesh in (trimesh.creation.icosphere(2), trimesh.creation.box(extents=[2, 2, 2]),

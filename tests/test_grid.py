@@ -32,7 +32,7 @@ def test_ring_and_band_match_morphological_dilation(arm_cage):
     interior = grid.labels == L.INTERIOR
     stencil = ndimage.generate_binary_structure(3, 2)  # the 18 face and edge neighbours + centre
     ring = ndimage.binary_dilation(interior, structure=stencil) & ~interior
-    band = ndimage.binary_dilation(interior, structure=np.ones((3, 3, 3)), iterations=ws.grid.BAND_WIDTH)
+    band = ndimage.binary_dilation(interior, structure=np.ones((3, 3, 3)), iterations=ws.geometry.grid.BAND_WIDTH)
     band &= ~interior & ~ring
     np.testing.assert_array_equal(grid.labels == L.RING, ring)
     np.testing.assert_array_equal(grid.labels == L.BAND, band)
@@ -48,7 +48,7 @@ def test_grid_covers_the_cage_with_margin(arm_cage):
     grid = ws.voxelize(arm_cage, resolution=32, device="cpu")
     lo = grid.centre + grid.origin
     hi = lo + grid.spacing * (np.array(grid.shape) - 1)
-    margin = ws.grid.MARGIN * grid.spacing * (1 - 1e-9)
+    margin = ws.geometry.grid.MARGIN * grid.spacing * (1 - 1e-9)
     assert (arm_cage.vertices.min(0) - lo >= margin).all() and (hi - arm_cage.vertices.max(0) >= margin).all()
     extent = arm_cage.vertices.max(0) - arm_cage.vertices.min(0)
     assert np.isclose(grid.spacing, extent.max() / 32)

@@ -10,8 +10,8 @@ import trimesh
 
 import warp_stokes as ws
 from conftest import EXAMPLE, box_cage
-from warp_stokes.cage import folded_edges, unit_normals
-from warp_stokes.local_boundary import cage_graph_distances, normal_derivatives
+from warp_stokes.geometry.cage import folded_edges, unit_normals
+from warp_stokes.geometry.local_boundary import cage_graph_distances, normal_derivatives
 
 SETTINGS = [ws.LocalData(), ws.LocalData(fold_radius=0.0), ws.LocalData(model="least-norm"),
             ws.LocalData(radius=3.0, least_norm_share=0.5)]

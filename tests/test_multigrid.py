@@ -56,7 +56,7 @@ def test_hierarchy_memory_is_known_before_it_is_formed(arm_hierarchy):
     levels = ws.coarsen(grid, "cpu", coarsest_nodes=60)
     assert [lev.n for lev in levels] == mg.level_sizes
     # the planner's figure, from the level sizes alone, is what the formed hierarchy's arrays hold
-    assert ws.multigrid.hierarchy_bytes(levels) == mg.operator_bytes()
+    assert ws.solver.multigrid.hierarchy_bytes(levels) == mg.operator_bytes()
 
 
 def test_a_grid_beyond_the_row_limit_is_refused_naming_a_resolution_that_fits(arm_cage):

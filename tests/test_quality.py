@@ -13,7 +13,7 @@ import warp_stokes as ws
 from conftest import EXAMPLE, REPO, pair
 from test_local_boundary import u_cage
 from warp_stokes import quality
-from warp_stokes.local_boundary import cage_graph_distances
+from warp_stokes.geometry.local_boundary import cage_graph_distances
 
 
 def grid_mesh(n=4):

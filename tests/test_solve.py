@@ -232,7 +232,7 @@ def test_failing_identity_check_keeps_cg_correct_and_stops_at_stagnation(arm_cag
     field = ws.boundary_field(grid, arm_cage, device="cpu")
     known = to_dense(grid, field, np.zeros(grid.shape + (arm_cage.n_handles, 4)))
     ref = reference_solve(grid.labels == 1, known)
-    real_check = ws.solve._identity_check
+    real_check = ws.solver.solve._identity_check
     checks = []
 
     def wrong_identity_check(grid, field, handles, device, chunk=None):
@@ -244,12 +244,12 @@ def test_failing_identity_check_keeps_cg_correct_and_stops_at_stagnation(arm_cag
 
         return counted
 
-    monkeypatch.setattr(ws.solve, "_identity_check", wrong_identity_check)
+    monkeypatch.setattr(ws.solver.solve, "_identity_check", wrong_identity_check)
     with pytest.warns(UserWarning, match="identity deviation"):
         report = ws.solve_biharmonic(grid, field, tol=1e-6, handles=arm_cage.vertices, device="cpu",
                                      preconditioner=make_preconditioner("multigrid", grid))
     assert not report.converged and report.identity_error > 1e-3
-    assert report.restarts == ws.solve.MAX_RESTARTS and report.iterations < 120
+    assert report.restarts == ws.solver.solve.MAX_RESTARTS and report.iterations < 120
     # the check ran after every iteration once the residuals were small, not only at the end of each round
     assert len(checks) > 2 * (report.restarts + 1)
     inside = grid.labels == 1
@@ -291,7 +291,7 @@ def manufactured_error(n):
     """Max error in q for q = sin kx sin ky sin kz on the box [0, 1]^3 with k = 2 pi (a full period, so the
     discretisation error stands well above float32 round-off); its bilaplacian is 9 k^4 q."""
     h = 1.0 / n
-    m = ws.grid.MARGIN
+    m = ws.geometry.grid.MARGIN
     size = n + 1 + 2 * m
     mask = np.zeros((size,) * 3, bool)
     mask[m + 1 : m + n, m + 1 : m + n, m + 1 : m + n] = True

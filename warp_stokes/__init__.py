@@ -23,21 +23,18 @@ wp.config.log_level = wp.LOG_WARNING
 __version__ = "0.1.0"
 
 from .errors import BindingError, CageError, MeshError, ResolutionError, WarpStokesError  # noqa: E402
-from .load import Surface, load_surface  # noqa: E402
-from .cage import Cage, check_cage, signed_volume  # noqa: E402
-from .grid import Grid, voxelize, grid_from_mask, classify_points  # noqa: E402
-from .local_boundary import LocalData  # noqa: E402
-from .boundary import COMPLEMENT_COLUMNS, mean_value_coordinates, boundary_field  # noqa: E402
-from .multigrid import Multigrid, coarsen  # noqa: E402
-from .budget import MemoryEstimate, estimate_memory, available_memory, plan_chunks  # noqa: E402
-from .solve import SolveReport, solve_biharmonic, apply_operator  # noqa: E402
-from .sample import sample_weights  # noqa: E402
-from .deform import deform_vertices  # noqa: E402
-from .quality import deformation_quality, mean_value_quality  # noqa: E402
-from .binding import Binding, bind, load_binding  # noqa: E402
 from .device import resolve_device, device_name  # noqa: E402
-from .poses import Poses, load_poses  # noqa: E402
-from .usd import write_animation  # noqa: E402
+from .io import Surface, load_surface, Poses, load_poses, write_animation  # noqa: E402
+from .geometry import (  # noqa: E402
+    Cage, check_cage, signed_volume, Grid, voxelize, grid_from_mask, classify_points, LocalData, COMPLEMENT_COLUMNS,
+    mean_value_coordinates, boundary_field,
+)
+from .solver import (  # noqa: E402
+    Multigrid, coarsen, MemoryEstimate, estimate_memory, available_memory, plan_chunks, SolveReport,
+    solve_biharmonic, apply_operator,
+)
+from .binding import Binding, bind, load_binding, sample_weights, deform_vertices  # noqa: E402
+from .quality import deformation_quality, mean_value_quality  # noqa: E402
 from .batch import read_manifest, run_batch  # noqa: E402
 
 __all__ = [

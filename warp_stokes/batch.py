@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 
 from . import __version__
 from .errors import WarpStokesError
-from .files import atomic_output
+from .io.files import atomic_output
 
 __all__ = ["Asset", "read_manifest", "run_batch", "format_summary"]
 
@@ -302,9 +302,9 @@ def _bind_asset(asset, pending: dict, device, progress, k: int, total: int, resu
     """Check, bind and (with poses) animate one asset, writing its outputs to their temporary names
     (``pending``: final path -> temporary path, the binding first)."""
     from .binding import bind
-    from .cage import check_cage
-    from .poses import load_poses
-    from .usd import write_animation
+    from .geometry.cage import check_cage
+    from .io.poses import load_poses
+    from .io.usd import write_animation
 
     npz, *usd = pending
     cage = check_cage(asset.cage)

@@ -118,7 +118,7 @@ def _deform(args) -> int:
     binding = ws.load_binding(args.binding, device=args.device)
     vertices = binding.deform(_pose(args.cage, binding.n_handles))
     mesh = trimesh.Trimesh(vertices=vertices, faces=binding.mesh_faces, process=False)
-    from warp_stokes.files import atomic_output
+    from warp_stokes.io.files import atomic_output
 
     with atomic_output(args.output, "." + ext) as tmp:
         mesh.export(tmp, file_type=ext)

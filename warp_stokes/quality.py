@@ -30,10 +30,11 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from .cage import Cage, interior_edges, pose_vertices
+from .geometry.cage import Cage, interior_edges
+from .io.poses import pose_vertices
 from .device import resolve_device
 from .kernels import voxel
-from .load import load_surface
+from .io.load import load_surface
 
 __all__ = ["conformal_distortion", "interior_edges", "dihedral_angles", "dihedral_change", "percentile_summary",
            "region_triangles", "region_edges", "negative_weight_fraction", "nearest_faces", "distant_handles",
@@ -276,7 +277,7 @@ def negative_weight_fraction(weights: np.ndarray, tolerance: float = NEGATIVE_TO
 
 def nearest_faces(cage: Cage, points: np.ndarray, device=None) -> np.ndarray:
     """(N,) index of the cage face nearest to each point (Warp's BVH query, float32)."""
-    from .grid import _cage_mesh
+    from .geometry.grid import _cage_mesh
 
     device = resolve_device(device)
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
@@ -314,7 +315,7 @@ def distant_handles(cage: Cage, fraction: float = DISTANT_FRACTION) -> tuple[np.
     >>> distant.astype(int).tolist(), round(threshold, 4)       # 1 or sqrt(2) from the face's nearest corner
     ([[0, 0, 0, 1], [0, 0, 1, 0], [0, 1, 0, 0], [1, 0, 0, 0]], 0.7071)
     """
-    from .local_boundary import cage_graph_distances
+    from .geometry.local_boundary import cage_graph_distances
 
     graph = cage_graph_distances(cage)
     threshold = float(fraction * graph.max())
@@ -471,7 +472,7 @@ def deformation_quality(weights, mesh_vertices=None, mesh_faces=None, cage=None,
     if mesh_vertices is None or mesh_faces is None or cage is None:
         raise ValueError("deformation_quality needs the mesh and the cage (or a Binding)")
     if not isinstance(cage, Cage):
-        from .cage import check_cage
+        from .geometry.cage import check_cage
 
         cage = check_cage(cage)
     vertices = np.asarray(mesh_vertices, dtype=np.float64)
@@ -551,10 +552,10 @@ def mean_value_quality(mesh_vertices, mesh_faces, cage, pose=None, reference=Non
     >>> q["regions"]["all"]["conformal"]["p95"], q["regions"]["all"]["dihedral_change"]["p95"]  # doctest: +SKIP
     (1.647, 10.0)
     """
-    from .boundary import mean_value_coordinates
+    from .geometry.boundary import mean_value_coordinates
 
     if not isinstance(cage, Cage):
-        from .cage import check_cage
+        from .geometry.cage import check_cage
 
         cage = check_cage(cage)
     weights = mean_value_coordinates(cage, mesh_vertices, device=device)

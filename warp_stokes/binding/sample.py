@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from .device import resolve_device
-from .grid import Grid
-from .kernels import sample
+from ..device import resolve_device
+from ..geometry.grid import Grid
+from ..kernels import sample
 
 __all__ = ["sample_weights", "SAMPLINGS"]
 

@@ -6,7 +6,7 @@ import contextlib
 import os
 import tempfile
 
-from .errors import WarpStokesError
+from ..errors import WarpStokesError
 
 __all__ = ["atomic_output"]
 

@@ -8,11 +8,11 @@ import numpy as np
 import warp as wp
 
 from .cage import Cage
-from .device import available_memory, resolve_device
-from .errors import ResolutionError
-from .kernels import labels as L
-from .kernels import stencil
-from .kernels import voxel
+from ..device import available_memory, resolve_device
+from ..errors import ResolutionError
+from ..kernels import labels as L
+from ..kernels import stencil
+from ..kernels import voxel
 
 __all__ = ["Grid", "voxelize", "check_resolution", "grid_from_mask", "classify_points", "MARGIN", "BAND_WIDTH",
            "PATCH_LENGTH", "MAX_ROWS"]

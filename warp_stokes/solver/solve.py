@@ -1,9 +1,9 @@
 """Solving the compact coupled biharmonic scheme for all handles at once.
 
 The interior block A_II of the scheme is symmetric positive definite, so conjugate gradients apply directly,
-preconditioned by the multigrid V-cycle (``warp_stokes.multigrid``) or by the inverse diagonal. Every handle is
+preconditioned by the multigrid V-cycle (``warp_stokes.solver.multigrid``) or by the inverse diagonal. Every handle is
 a column of one (node, handle) array: each operator application is one launch over all interior nodes and all
-handles (``warp_stokes.operator``); the CG kernels are in ``warp_stokes.kernels.cg``.
+handles (``warp_stokes.solver.operator``); the CG kernels are in ``warp_stokes.kernels.cg``.
 
 Stopping rule. For handle h let b_h = f_h - A_IK x_K be the right-hand side (boundary forcing) and
 r_h = b_h - A_II x_I the residual, with ``||v||_M^2 = v^T M v`` (M the preconditioner). A handle iterates until
@@ -33,10 +33,10 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from .boundary import COMPLEMENT_COLUMNS
-from .device import reduction_threads, resolve_device
-from .grid import Grid
-from .kernels import cg, checks
+from ..geometry.boundary import COMPLEMENT_COLUMNS
+from ..device import reduction_threads, resolve_device
+from ..geometry.grid import Grid
+from ..kernels import cg, checks
 from .multigrid import Multigrid
 from .operator import apply_operator
 
@@ -105,7 +105,7 @@ def solve_biharmonic(
         Cage vertices (absolute positions) when the columns are the cage coordinates: enables the identity
         check.
     preconditioner : "multigrid" | "jacobi" | Multigrid
-        The V-cycle of :class:`warp_stokes.multigrid.Multigrid` (built here unless given), or the inverse
+        The V-cycle of :class:`warp_stokes.solver.multigrid.Multigrid` (built here unless given), or the inverse
         diagonal.
     device : None | str
     callback : callable, optional
@@ -161,7 +161,7 @@ def solve_biharmonic(
         r = wp.empty((n, n_cols), dtype=wp.vec4f)
         p = wp.empty((n, n_cols), dtype=wp.vec4f)
         # A p is needed until x and r are updated, M r only after: they share storage (three vectors per column
-        # instead of four, see warp_stokes.budget)
+        # instead of four, see warp_stokes.solver.budget)
         ap = wp.empty((n, n_cols), dtype=wp.vec4f)
         z = ap
 

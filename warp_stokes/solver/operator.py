@@ -8,9 +8,9 @@ from __future__ import annotations
 
 import warp as wp
 
-from .device import resolve_device
-from .grid import Grid
-from .kernels import stencil
+from ..device import resolve_device
+from ..geometry.grid import Grid
+from ..kernels import stencil
 
 __all__ = ["apply_operator"]
 

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import MeshError
+from ..errors import MeshError
 
 __all__ = ["Surface", "load_surface"]
 

@@ -13,9 +13,9 @@ import numpy as np
 import warp as wp
 
 from .cage import Cage
-from .device import resolve_device
+from ..device import resolve_device
 from .grid import Grid
-from .kernels import mvc, stencil
+from ..kernels import mvc, stencil
 from .local_boundary import LocalData, local_field
 
 __all__ = ["mean_value_coordinates", "boundary_field", "COMPLEMENT_COLUMNS"]
@@ -99,7 +99,7 @@ def boundary_field(grid: Grid, cage: Cage, device=None, handles: slice = slice(N
         column; linear precision is checked on the sampled weights once every chunk is solved.
     data : "mvc" | "local" | LocalData
         Ring and band data: mean value coordinates of the nodes, or the local data of
-        :mod:`warp_stokes.local_boundary` (the hat functions at the closest cage point, Taylor-extended; "local"
+        :mod:`warp_stokes.geometry.local_boundary` (the hat functions at the closest cage point, Taylor-extended; "local"
         is ``LocalData()``). Both reproduce constants and linear functions exactly.
 
     Returns

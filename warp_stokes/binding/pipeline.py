@@ -1,205 +1,28 @@
-"""Binding a mesh to a cage (load -> grid -> solve -> sample), and the Binding that deforms it afterwards."""
+"""Binding a mesh to a cage: load -> grid -> solve -> sample, the weights of every vertex in a :class:`Binding`."""
 
 from __future__ import annotations
 
-import hashlib
-import json
 import math
-import os
 import time
 import warnings
 
 import numpy as np
 import warp as wp
 
-from . import __version__
-from .boundary import boundary_field, mean_value_coordinates
-from .cage import Cage, check_cage, pose_vertices
-from .deform import deform_vertices
-from .device import device_name, resolve_device
-from .errors import BindingError, MeshError, WarpStokesError
-from .files import atomic_output
-from .budget import available_memory, chunk_columns, estimate_memory, plan_chunks
-from .grid import check_resolution, classify_points, voxelize
-from .multigrid import Multigrid, coarsen
-from .load import Surface, load_surface
-from .local_boundary import LocalData
+from ..device import device_name, resolve_device
+from ..errors import MeshError, WarpStokesError
+from ..geometry.boundary import boundary_field, mean_value_coordinates
+from ..geometry.cage import Cage, check_cage
+from ..geometry.grid import check_resolution, classify_points, voxelize
+from ..geometry.local_boundary import LocalData
+from ..io.load import load_surface
+from ..solver.budget import available_memory, chunk_columns, estimate_memory, plan_chunks
+from ..solver.multigrid import Multigrid, coarsen
+from ..solver.solve import solve_biharmonic
 from .sample import SAMPLINGS, sample_weights
-from .solve import solve_biharmonic
+from .store import Binding
 
-__all__ = ["Binding", "bind", "load_binding", "FORMAT"]
-
-#: identifies files written by Binding.save; bump the number when the layout changes
-FORMAT = "warp-stokes-binding/1"
-
-
-def fingerprint(vertices: np.ndarray, faces: np.ndarray) -> str:
-    """SHA-256 of a mesh's vertex positions (float64) and faces (int64), as hex."""
-    h = hashlib.sha256()
-    h.update(np.ascontiguousarray(vertices, dtype=np.float64).tobytes())
-    h.update(np.ascontiguousarray(faces, dtype=np.int64).tobytes())
-    return h.hexdigest()
-
-
-class Binding:
-    """Weights of a mesh with respect to a cage, and what is needed to deform the mesh with it.
-
-    Attributes
-    ----------
-    weights : (V, L) float32 numpy array; row j holds vertex j's weight for each handle, rows sum to one
-    cage_vertices, cage_faces : the rest cage (faces outward oriented)
-    mesh_vertices, mesh_faces : the rest mesh
-    mesh_normals : (V, 3) rest normals when the mesh file had them, else None
-    cage_source_index : for a cage merged from a triangle soup, the handle of each of its source's vertices
-    settings : dict of the grid and solver settings used
-    stats : dict of what binding measured (grid shape, node counts, iterations, residual, errors, timings)
-    device : the Warp device ``deform`` runs on
-    """
-
-    def __init__(self, weights, cage_vertices, cage_faces, mesh_vertices, mesh_faces, settings, stats,
-                 device=None, mesh_normals=None, cage_source_index=None):
-        self.weights = np.ascontiguousarray(weights, dtype=np.float32)
-        self.cage_vertices = np.asarray(cage_vertices, dtype=np.float64)
-        self.cage_faces = np.asarray(cage_faces, dtype=np.int64)
-        self.mesh_vertices = np.asarray(mesh_vertices, dtype=np.float64)
-        self.mesh_faces = np.asarray(mesh_faces, dtype=np.int64)
-        self.mesh_normals = None if mesh_normals is None else np.asarray(mesh_normals, dtype=np.float64)
-        self.cage_source_index = None if cage_source_index is None else np.asarray(cage_source_index, dtype=np.int64)
-        self.settings = dict(settings)
-        self.stats = dict(stats)
-        self.device = resolve_device(device)
-        self._weights_t = None
-
-    @property
-    def n_vertices(self) -> int:
-        return self.weights.shape[0]
-
-    @property
-    def n_handles(self) -> int:
-        return self.weights.shape[1]
-
-    def __repr__(self) -> str:
-        return f"Binding({self.n_vertices} vertices, {self.n_handles} handles, resolution {self.settings.get('resolution')})"
-
-    def _check_topology(self, surface: Surface) -> np.ndarray:
-        return pose_vertices(surface.vertices, surface.faces, self.cage_faces, self.cage_source_index, surface.name)
-
-    def deform(self, poses):
-        """Deformed mesh vertices ``p' = W c'`` for one cage pose or a batch.
-
-        Parameters
-        ----------
-        poses : (L, 3) or (F, L, 3) array, a Warp vec3 array (L,) or (F, L), or a deformed cage with the bound
-            cage's topology (a path, a trimesh.Trimesh or a ``(vertices, faces)`` tuple)
-
-        Returns
-        -------
-        (V, 3) or (F, V, 3) float32 numpy array (a Warp vec3 array on ``self.device`` for Warp input)
-
-        Raises
-        ------
-        BindingError
-            When a deformed cage's vertex count or faces differ from the bound cage's.
-        WarpStokesError
-            When an array has the wrong shape or non-finite values.
-
-        Examples
-        --------
-        >>> rest = b.deform(b.cage_vertices)                       # doctest: +SKIP
-        >>> frames = b.deform(np.stack([cage0, cage1, cage2]))       # doctest: +SKIP
-        """
-        is_cage = isinstance(poses, (str, os.PathLike)) or type(poses).__name__ == "Trimesh" or (
-            isinstance(poses, tuple) and len(poses) == 2 and np.issubdtype(np.asarray(poses[1]).dtype, np.integer)
-        )
-        if is_cage:
-            poses = self._check_topology(load_surface(poses))
-        if self._weights_t is None:
-            self._weights_t = wp.array(np.ascontiguousarray(self.weights.T), dtype=wp.float32, device=self.device)
-        return deform_vertices(self._weights_t, poses, device=self.device)
-
-    def save(self, path) -> None:
-        """Write the binding to ``path`` (a .npz file), atomically: a temporary file renamed when complete.
-
-        Parameters
-        ----------
-        path : str | os.PathLike
-        """
-        path = os.fspath(path)
-        meta = {
-            "format": FORMAT,
-            "version": __version__,
-            "settings": self.settings,
-            "stats": self.stats,
-            "cage_fingerprint": fingerprint(self.cage_vertices, self.cage_faces),
-            "mesh_fingerprint": fingerprint(self.mesh_vertices, self.mesh_faces),
-        }
-        try:
-            with atomic_output(path, ".npz") as tmp, open(tmp, "wb") as fh:
-                np.savez(
-                    fh,
-                    weights=self.weights,
-                    cage_vertices=self.cage_vertices,
-                    cage_faces=self.cage_faces,
-                    mesh_vertices=self.mesh_vertices,
-                    mesh_faces=self.mesh_faces,
-                    meta=np.array(json.dumps(meta)),
-                    **({} if self.mesh_normals is None else {"mesh_normals": self.mesh_normals}),
-                    **({} if self.cage_source_index is None else {"cage_source_index": self.cage_source_index}),
-                )
-        except WarpStokesError as exc:
-            raise BindingError(str(exc)) from None
-
-
-def load_binding(path, device=None) -> Binding:
-    """Read a binding written by :meth:`Binding.save`.
-
-    Parameters
-    ----------
-    path : str | os.PathLike
-    device : None | str, where ``deform`` will run (default: CUDA when present)
-
-    Returns
-    -------
-    Binding
-
-    Raises
-    ------
-    BindingError
-        Missing or unreadable file, not a warp-stokes binding, or inconsistent contents.
-
-    Examples
-    --------
-    >>> b = load_binding("arm.npz")   # doctest: +SKIP
-    """
-    path = os.fspath(path)
-    if not os.path.exists(path):
-        raise BindingError(f"{path}: no such file")
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            arrays = {k: data[k] for k in data.files}
-    except Exception as exc:
-        raise BindingError(f"{path}: not a readable binding file ({type(exc).__name__}: {exc})") from None
-    needed = {"weights", "cage_vertices", "cage_faces", "mesh_vertices", "mesh_faces", "meta"}
-    if not needed <= set(arrays):
-        raise BindingError(f"{path}: not a warp-stokes binding (missing {sorted(needed - set(arrays))})")
-    try:
-        meta = json.loads(str(arrays["meta"]))
-    except json.JSONDecodeError:
-        raise BindingError(f"{path}: the binding's metadata is corrupt") from None
-    if meta.get("format") != FORMAT:
-        raise BindingError(f"{path}: unsupported binding format {meta.get('format')!r} (this version reads {FORMAT})")
-    w = arrays["weights"]
-    if w.ndim != 2 or w.shape != (len(arrays["mesh_vertices"]), len(arrays["cage_vertices"])):
-        raise BindingError(f"{path}: weights of shape {w.shape} do not match the stored mesh and cage")
-    if fingerprint(arrays["cage_vertices"], arrays["cage_faces"]) != meta.get("cage_fingerprint") or fingerprint(
-        arrays["mesh_vertices"], arrays["mesh_faces"]
-    ) != meta.get("mesh_fingerprint"):
-        raise BindingError(f"{path}: the stored cage or mesh does not match its fingerprint (file modified?)")
-    return Binding(
-        w, arrays["cage_vertices"], arrays["cage_faces"], arrays["mesh_vertices"], arrays["mesh_faces"],
-        meta["settings"], meta["stats"], device=device, mesh_normals=arrays.get("mesh_normals"),
-        cage_source_index=arrays.get("cage_source_index"),
-    )
+__all__ = ["bind", "identity_errors"]
 
 
 def identity_errors(weights: np.ndarray, handles: np.ndarray, points: np.ndarray, rows: int = 1 << 16):
@@ -261,7 +84,7 @@ def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_i
         the CPU). Handles are solved in chunks that fit it.
     boundary : "local" | "mvc" | LocalData
         The data at ring and band nodes (see :func:`warp_stokes.boundary_field`): the local data of
-        :mod:`warp_stokes.local_boundary` (default, ``LocalData()``), or mean value coordinates.
+        :mod:`warp_stokes.geometry.local_boundary` (default, ``LocalData()``), or mean value coordinates.
     sampling : "hermite" | "trilinear"
         How the weights are interpolated at the vertices (see :func:`warp_stokes.sample_weights`): C1 tricubic
         Hermite of the values and gradients (default), or C0 trilinear of the values.

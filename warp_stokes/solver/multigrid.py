@@ -30,9 +30,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import warp as wp
 
-from .device import reduction_threads, resolve_device
-from .grid import Grid
-from .kernels import cg, multigrid as mg
+from ..device import reduction_threads, resolve_device
+from ..geometry.grid import Grid
+from ..kernels import cg, multigrid as mg
 from .operator import apply_operator
 
 __all__ = ["Multigrid", "coarsen", "hierarchy_bytes", "SMOOTHER_DEGREES", "COARSEST_NODES"]

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from .device import resolve_device
-from .errors import WarpStokesError
-from .kernels import deform
+from ..device import resolve_device
+from ..errors import WarpStokesError
+from ..kernels import deform
 
 __all__ = ["deform_vertices"]
 

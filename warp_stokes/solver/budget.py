@@ -1,7 +1,7 @@
 """Memory budget of a bind: what the solve will allocate, estimated before allocating it, and handle chunks.
 
 Every large allocation is known once the grid is voxelised and its multigrid levels are coarsened (sizes, not
-operators: :func:`warp_stokes.multigrid.coarsen`). Per column (a handle, or the column that stands for
+operators: :func:`warp_stokes.solver.multigrid.coarsen`). Per column (a handle, or the column that stands for
 the rest of the cage in a chunk), in bytes, with N_a active, N_i interior nodes, N_l nodes of coarse level l, V
 mesh vertices:
 
@@ -13,7 +13,7 @@ mesh vertices:
 
 Shared by all columns: the grid's node index (4 per lattice node), node coordinates (12 N_a) and stencil work
 items (16 per patch), the multigrid hierarchy (27 blocks of 64 B per coarse node, its diagonal, coordinates and
-lattice indices: :func:`warp_stokes.multigrid.hierarchy_bytes`), and per stage the node positions for the MVC
+lattice indices: :func:`warp_stokes.solver.multigrid.hierarchy_bytes`), and per stage the node positions for the MVC
 (24 N_a) or the sampling's per-vertex arrays (80 V). On the CPU the host arrays live in the same memory and are
 counted too: the grid's (labels and index, 5 per lattice node, and 12 N_a), the weights of all handles (4 V per
 handle), the mesh as loaded and its per-vertex checks (about 120 V), and the sampled columns' host copy (4 V per
@@ -27,10 +27,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .boundary import COMPLEMENT_COLUMNS
-from .device import available_memory, resolve_device  # noqa: F401 (re-exported)
-from .errors import ResolutionError
-from .grid import Grid
+from ..geometry.boundary import COMPLEMENT_COLUMNS
+from ..device import available_memory, resolve_device  # noqa: F401 (re-exported)
+from ..errors import ResolutionError
+from ..geometry.grid import Grid
 from . import multigrid
 from .multigrid import COARSEST_NODES, hierarchy_bytes
 
@@ -82,7 +82,7 @@ def estimate_memory(grid: Grid, n_vertices: int = 0, preconditioner: str = "mult
     grid : Grid
     n_vertices : int, mesh vertices to sample
     preconditioner : "multigrid" | "jacobi"
-    levels : list of multigrid levels (:func:`warp_stokes.multigrid.coarsen`), optional
+    levels : list of multigrid levels (:func:`warp_stokes.solver.multigrid.coarsen`), optional
         Their sizes make the hierarchy's share exact; without them coarse levels are estimated from
         ``COARSENING_RATIO``.
     device : None | str, where the bind runs; on the CPU the grid's host arrays count too, and so do the mesh's
@@ -145,7 +145,7 @@ def plan_chunks(estimate: MemoryEstimate, n_handles: int, budget: int, resolutio
                 name: str = "the cage") -> list[slice]:
     """Split the handles into chunks that fit the budget (one chunk when all fit).
 
-    A chunk's field carries :data:`~warp_stokes.boundary.COMPLEMENT_COLUMNS` more columns than it has handles
+    A chunk's field carries :data:`~warp_stokes.geometry.boundary.COMPLEMENT_COLUMNS` more columns than it has handles
     (the rest of the cage, for the solver's identity check), which the chunk sizes leave room for.
 
     Raises

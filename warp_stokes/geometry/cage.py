@@ -7,12 +7,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import CageError
-from .load import load_surface
+from ..errors import CageError
+from ..io.load import load_surface
 
 __all__ = ["Cage", "check_cage", "signed_volume", "unit_normals", "face_edges", "interior_edges", "folded_edges",
            "merge_coincident",
-           "pose_vertices", "FOLD_DEGREES", "MERGE_TOLERANCE"]
+           "FOLD_DEGREES", "MERGE_TOLERANCE"]
 
 #: an edge where the two faces' normals are more than this many degrees apart is folded: the cage folds back on
 #: itself there, leaving a wedge of outside (or inside) space thinner than any grid cell near the edge
@@ -75,44 +75,6 @@ def signed_volume(vertices: np.ndarray, faces: np.ndarray) -> float:
     return float(np.einsum("ij,ij->i", a, np.cross(b, d)).sum() / 6.0)
 
 
-def pose_vertices(vertices: np.ndarray, faces: np.ndarray, cage_faces: np.ndarray,
-                  source_index: np.ndarray | None, name: str) -> np.ndarray:
-    """The handles' positions in a deformed cage with the bound cage's topology: its vertices as they are, or, for
-    a triangle soup laid out like the bound cage's source, merged by the same map.
-
-    Parameters
-    ----------
-    vertices, faces : the deformed cage as loaded
-    cage_faces : (F, 3) the bound cage's faces (outward)
-    source_index : the bound cage's map from source vertices to handles, or None
-    name : str, for messages
-
-    Returns
-    -------
-    (L, 3) float64
-
-    Raises
-    ------
-    BindingError
-        When the vertex count or the faces differ from the bound cage's.
-    """
-    from .errors import BindingError
-
-    n_handles = int(cage_faces.max()) + 1
-    vertices, faces = np.asarray(vertices, dtype=np.float64), np.asarray(faces)
-    if source_index is not None and len(vertices) == len(source_index) and len(vertices) != n_handles:
-        faces = source_index[faces]
-        merged = np.zeros((n_handles, 3))
-        np.add.at(merged, source_index, vertices)
-        vertices = merged / np.bincount(source_index, minlength=n_handles)[:, None]
-    if len(vertices) != n_handles:
-        raise BindingError(f"{name}: the pose has {len(vertices)} vertices, the bound cage has {n_handles}")
-    if not same_triangles(faces, cage_faces):
-        raise BindingError(f"{name}: the pose's faces differ from the bound cage's (different topology: "
-                           f"{len(faces)} faces against {len(cage_faces)}, or other vertex triples)")
-    return vertices
-
-
 def crossing_faces(vertices: np.ndarray, faces: np.ndarray, device="cpu") -> np.ndarray:
     """Pairs of faces that cross each other (an edge of one passes through the other), found with a BVH.
 
@@ -137,8 +99,8 @@ def crossing_faces(vertices: np.ndarray, faces: np.ndarray, device="cpu") -> np.
     """
     import warp as wp
 
-    from .device import resolve_device
-    from .kernels import intersect
+    from ..device import resolve_device
+    from ..kernels import intersect
 
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int32)
@@ -158,32 +120,6 @@ def crossing_faces(vertices: np.ndarray, faces: np.ndarray, device="cpu") -> np.
         first = first.numpy()
     i = np.flatnonzero(first >= 0)
     return np.column_stack([i, first[i]]).astype(np.int64)
-
-
-def same_triangles(faces: np.ndarray, other: np.ndarray) -> bool:
-    """Whether two face lists hold the same triangles over the same vertices, in any order, each triangle's
-    corners rotated in any way, and with the orientation of all of them flipped or not (an exporter may list
-    faces in another order or wind them the other way; the vertices are what a pose moves).
-
-    Examples
-    --------
-    >>> f = np.array([[0, 1, 2], [0, 2, 3], [0, 3, 1], [1, 3, 2]])
-    >>> same_triangles(f[::-1], f), same_triangles(np.roll(f, 1, axis=1), f), same_triangles(f[:, ::-1], f)
-    (True, True, True)
-    >>> same_triangles(np.array([[0, 1, 2], [0, 1, 3], [0, 3, 1], [1, 3, 2]]), f)
-    False
-    """
-    faces, other = np.asarray(faces), np.asarray(other)
-    if faces.shape != other.shape or faces.ndim != 2 or faces.shape[1] != 3:
-        return False
-
-    def canonical(f: np.ndarray) -> np.ndarray:
-        # rotate each triangle so that its smallest index comes first (keeps the winding), then sort the rows
-        f = np.take_along_axis(f, (np.argmin(f, axis=1)[:, None] + np.arange(3)) % 3, axis=1)
-        return f[np.lexsort(f.T[::-1])]
-
-    target = canonical(other)
-    return bool(np.array_equal(canonical(faces), target) or np.array_equal(canonical(faces[:, ::-1]), target))
 
 
 def unit_normals(cage: Cage) -> np.ndarray:

@@ -8,11 +8,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import BindingError
-from .cage import pose_vertices, same_triangles
+from ..errors import BindingError
 from .load import load_surface
 
-__all__ = ["Poses", "load_poses", "natural_key"]
+__all__ = ["Poses", "load_poses", "natural_key", "pose_vertices", "same_triangles"]
 
 
 @dataclass
@@ -29,6 +28,70 @@ class Poses:
     positions: np.ndarray
     frames: np.ndarray
     name: str
+
+
+def pose_vertices(vertices: np.ndarray, faces: np.ndarray, cage_faces: np.ndarray,
+                  source_index: np.ndarray | None, name: str) -> np.ndarray:
+    """The handles' positions in a deformed cage with the bound cage's topology: its vertices as they are, or, for
+    a triangle soup laid out like the bound cage's source, merged by the same map.
+
+    Parameters
+    ----------
+    vertices, faces : the deformed cage as loaded
+    cage_faces : (F, 3) the bound cage's faces (outward)
+    source_index : the bound cage's map from source vertices to handles, or None
+    name : str, for messages
+
+    Returns
+    -------
+    (L, 3) float64
+
+    Raises
+    ------
+    BindingError
+        When the vertex count or the faces differ from the bound cage's.
+    """
+    from ..errors import BindingError
+
+    n_handles = int(cage_faces.max()) + 1
+    vertices, faces = np.asarray(vertices, dtype=np.float64), np.asarray(faces)
+    if source_index is not None and len(vertices) == len(source_index) and len(vertices) != n_handles:
+        faces = source_index[faces]
+        merged = np.zeros((n_handles, 3))
+        np.add.at(merged, source_index, vertices)
+        vertices = merged / np.bincount(source_index, minlength=n_handles)[:, None]
+    if len(vertices) != n_handles:
+        raise BindingError(f"{name}: the pose has {len(vertices)} vertices, the bound cage has {n_handles}")
+    if not same_triangles(faces, cage_faces):
+        raise BindingError(f"{name}: the pose's faces differ from the bound cage's (different topology: "
+                           f"{len(faces)} faces against {len(cage_faces)}, or other vertex triples)")
+    return vertices
+
+
+def same_triangles(faces: np.ndarray, other: np.ndarray) -> bool:
+    """Whether two face lists hold the same triangles over the same vertices, in any order, each triangle's
+    corners rotated in any way, and with the orientation of all of them flipped or not (an exporter may list
+    faces in another order or wind them the other way; the vertices are what a pose moves).
+
+    Examples
+    --------
+    >>> f = np.array([[0, 1, 2], [0, 2, 3], [0, 3, 1], [1, 3, 2]])
+    >>> same_triangles(f[::-1], f), same_triangles(np.roll(f, 1, axis=1), f), same_triangles(f[:, ::-1], f)
+    (True, True, True)
+    >>> same_triangles(np.array([[0, 1, 2], [0, 1, 3], [0, 3, 1], [1, 3, 2]]), f)
+    False
+    """
+    faces, other = np.asarray(faces), np.asarray(other)
+    if faces.shape != other.shape or faces.ndim != 2 or faces.shape[1] != 3:
+        return False
+
+    def canonical(f: np.ndarray) -> np.ndarray:
+        # rotate each triangle so that its smallest index comes first (keeps the winding), then sort the rows
+        f = np.take_along_axis(f, (np.argmin(f, axis=1)[:, None] + np.arange(3)) % 3, axis=1)
+        return f[np.lexsort(f.T[::-1])]
+
+    target = canonical(other)
+    return bool(np.array_equal(canonical(faces), target) or np.array_equal(canonical(faces[:, ::-1]), target))
 
 
 def natural_key(name: str):

@@ -6,7 +6,7 @@ import os
 
 import numpy as np
 
-from .errors import WarpStokesError
+from ..errors import WarpStokesError
 from .files import atomic_output
 from .poses import Poses
 

@@ -24,9 +24,9 @@ import numpy as np
 import warp as wp
 
 from .cage import FOLD_DEGREES, Cage, face_edges, folded_edges, unit_normals
-from .device import resolve_device
+from ..device import resolve_device
 from .grid import Grid
-from .kernels import local_boundary
+from ..kernels import local_boundary
 
 __all__ = ["LocalData", "cage_graph_distances", "normal_derivatives", "local_field"]
 
@@ -88,7 +88,7 @@ def cage_graph_distances(cage: Cage) -> np.ndarray:
 
     Examples
     --------
-    >>> from warp_stokes.cage import Cage
+    >>> from warp_stokes.geometry.cage import Cage
     >>> v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
     >>> d = cage_graph_distances(Cage(v, np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]), "tetrahedron"))
     >>> bool(np.isclose(d[1, 2], np.sqrt(2)))

@@ -1,0 +1,55 @@
+"""The package's layout: data flows one way (io -> geometry -> solver -> binding -> commands), nothing imports
+upward, and the kernels import nothing of the package."""
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGE = ROOT / "warp_stokes"
+#: each folder's place in the flow; a module may import from its own place and the ones before it
+LAYERS = {"errors": 0, "device": 0, "kernels": 0, "io": 1, "geometry": 2, "solver": 3, "binding": 4,
+          "quality": 5, "batch": 5, "cli": 5}
+
+
+def layer_of(parts: tuple[str, ...]) -> int:
+    """The layer of a module given by its path inside the package, e.g. ("geometry", "grid")."""
+    return LAYERS[parts[0]] if parts and parts[0] in LAYERS else 6  # the package's __init__ is on top
+
+
+def imported_modules(path: Path):
+    """(line, module path inside the package) for every relative import of the file at ``path``."""
+    here = path.relative_to(PACKAGE).with_suffix("").parts
+    package = here[:-1]
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom) and node.level:
+            base = package[: len(package) - (node.level - 1)]
+            target = base + (tuple(node.module.split(".")) if node.module else ())
+            if node.module is None:  # from . import name: each name is a module of that package, or a name of it
+                for alias in node.names:
+                    yield node.lineno, target + (alias.name,)
+            else:
+                yield node.lineno, target
+
+
+MODULES = sorted(p for p in PACKAGE.rglob("*.py") if p.name != "__init__.py")
+
+
+@pytest.mark.parametrize("path", MODULES, ids=lambda p: str(p.relative_to(PACKAGE)))
+def test_nothing_imports_upward(path):
+    own = layer_of(path.relative_to(PACKAGE).with_suffix("").parts)
+    for line, target in imported_modules(path):
+        if target in ((), ("__version__",)):
+            continue  # the package's version
+        assert layer_of(target) <= own, f"{path.relative_to(ROOT)}:{line} imports {'.'.join(target)} from above"
+
+
+def test_the_kernels_are_math_only():
+    for path in (ROOT / "kernels").glob("*.py"):
+        tree = ast.parse(path.read_text())
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom) and node.level > 1:
+                raise AssertionError(f"{path.name}:{node.lineno} imports from the package")
+            if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("warp_stokes"):
+                raise AssertionError(f"{path.name}:{node.lineno} imports the package")

@@ -1,0 +1,9 @@
+"""A mesh bound to a cage: :func:`bind` (load -> grid -> solve -> sample), the :class:`Binding` it returns (weights
+that deform the mesh, saved as ``.npz``), and the sampling and deformation kernels' launch code."""
+
+from .deform import deform_vertices
+from .pipeline import bind, identity_errors
+from .sample import sample_weights
+from .store import FORMAT, Binding, load_binding
+
+__all__ = ["bind", "identity_errors", "Binding", "load_binding", "FORMAT", "sample_weights", "deform_vertices"]

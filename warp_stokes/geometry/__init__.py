@@ -1,0 +1,10 @@
+"""The geometry of a bind: the checked cage, the voxel grid inside it, and the boundary data on its ring and band
+(mean value coordinates, local data)."""
+
+from .boundary import COMPLEMENT_COLUMNS, boundary_field, mean_value_coordinates
+from .cage import Cage, check_cage, crossing_faces, folded_edges, signed_volume
+from .grid import Grid, classify_points, grid_from_mask, voxelize
+from .local_boundary import LocalData
+
+__all__ = ["COMPLEMENT_COLUMNS", "boundary_field", "mean_value_coordinates", "Cage", "check_cage", "crossing_faces",
+           "folded_edges", "signed_volume", "Grid", "classify_points", "grid_from_mask", "voxelize", "LocalData"]
