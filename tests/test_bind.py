@@ -36,7 +36,10 @@ def test_vertex_beyond_the_band_gets_mvc_and_a_warning(arm_cage):
     mesh = ws.load_surface(EXAMPLE / "arm.obj")
     far = arm_cage.vertices.max(0) + 0.5 * arm_cage.diagonal
     vertices = np.vstack([mesh.vertices, far])
-    with pytest.warns(UserWarning, match="1 vertices lie outside .* beyond the grid's band"):
+    # the count and the largest distance, also relative to the cage's diagonal (the vertex is half a diagonal
+    # beyond the bounding box's corner on every axis: 1.2 diagonals from the surface)
+    with pytest.warns(UserWarning, match=r"1 vertices lie outside .* beyond the grid's band \(up to [\d.]+ from the "
+                                         r"cage, 1\.2 of its diagonal\)"):
         b = ws.bind((vertices, None), arm_cage, resolution=16, device="cpu")
     mvc = ws.mean_value_coordinates(arm_cage, far[None], device="cpu")[0]
     np.testing.assert_allclose(b.weights[-1], mvc, rtol=1e-5, atol=1e-6)
