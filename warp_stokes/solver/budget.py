@@ -157,7 +157,7 @@ def plan_chunks(estimate: MemoryEstimate, n_handles: int, budget: int, resolutio
     Examples
     --------
     >>> plan_chunks(MemoryEstimate(per_handle=100, shared=1000), 10, budget=1800, resolution=64)
-    [slice(0, 4, None), slice(4, 8, None), slice(8, 10, None)]
+    [slice(0, 5, None), slice(5, 10, None)]
     """
     if estimate.total(n_handles) <= budget:
         return [slice(0, n_handles)]
