@@ -31,7 +31,7 @@ def pair(name):
 
 
 def cuda_available() -> bool:
-    wp.init()
+    ws.device.init_warp()  # quiet: no CUDA-driver warning on a machine without a GPU
     return wp.is_cuda_available()
 
 

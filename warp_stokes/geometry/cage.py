@@ -75,7 +75,7 @@ def signed_volume(vertices: np.ndarray, faces: np.ndarray) -> float:
     return float(np.einsum("ij,ij->i", a, np.cross(b, d)).sum() / 6.0)
 
 
-def crossing_faces(vertices: np.ndarray, faces: np.ndarray, device="cpu") -> np.ndarray:
+def crossing_faces(vertices: np.ndarray, faces: np.ndarray, device=None) -> np.ndarray:
     """Pairs of faces that cross each other (an edge of one passes through the other), found with a BVH.
 
     Faces that share an edge are not tested (they meet along it); faces that share a corner are, away from it.
@@ -85,7 +85,7 @@ def crossing_faces(vertices: np.ndarray, faces: np.ndarray, device="cpu") -> np.
     ----------
     vertices : (L, 3) array
     faces : (F, 3) int array
-    device : the Warp device of the test (the CPU by default: cages are small)
+    device : the Warp device of the test (default: CUDA when present, else the CPU)
 
     Returns
     -------
