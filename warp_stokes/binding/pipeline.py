@@ -58,9 +58,10 @@ def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_i
          sampling: str = "hermite") -> Binding:
     """Compute Stokes cage coordinates of a mesh's vertices with respect to a cage.
 
-    Load -> voxelise (winding number) -> boundary data (mean value coordinates) -> batched solve of the
-    compact biharmonic scheme for all handles -> trilinear sampling at the vertices. Vertices outside the cage
-    but within the grid's band are sampled too; vertices beyond it get their mean value coordinates (warning).
+    Load -> voxelise (winding number) -> boundary data (local data by default) -> batched solve of the compact
+    biharmonic scheme for all handles (in chunks when memory asks for it) -> sampling at the vertices (tricubic
+    Hermite by default). Vertices outside the cage but within the grid's band are sampled too; vertices beyond it
+    get their mean value coordinates (warning).
 
     Parameters
     ----------
@@ -104,16 +105,7 @@ def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_i
     >>> b.weights.shape  # doctest: +SKIP
     (2089, 58)
     """
-    if not (isinstance(tol, (int, float)) and 0 < tol < 1):
-        raise WarpStokesError(f"tol must be a number between 0 and 1, got {tol!r}")
-    if memory_budget is not None and not (isinstance(memory_budget, (int, float)) and memory_budget > 0):
-        raise WarpStokesError(f"memory_budget must be a positive number of bytes, got {memory_budget!r}")
-    if solver not in ("multigrid", "jacobi"):
-        raise WarpStokesError(f"solver must be 'multigrid' or 'jacobi', got {solver!r}")
-    if not (boundary in ("mvc", "local") or isinstance(boundary, LocalData)):
-        raise WarpStokesError(f"boundary must be 'mvc', 'local' or a LocalData, got {boundary!r}")
-    if sampling not in SAMPLINGS:
-        raise WarpStokesError(f"sampling must be 'hermite' or 'trilinear', got {sampling!r}")
+    _check_arguments(tol, memory_budget, solver, boundary, sampling)
     resolution = check_resolution(resolution)  # arguments first: before the inputs are loaded and checked
     device = resolve_device(device)
     seconds = {}
@@ -121,15 +113,8 @@ def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_i
     surface = load_surface(mesh)
     checked: Cage = check_cage(cage)
     points = surface.vertices
-    # a mesh mostly outside its cage is in other units or another place (a transform not applied): refused before
-    # the solve, instead of weights that extrapolate far beyond [0, 1]
     inside, distance = classify_points(checked, points, device=device)
-    outside = int((~inside).sum())
-    if outside > 0.5 * len(points):
-        raise MeshError(
-            f"{surface.name}: {outside} of {len(points)} vertices ({100 * outside / len(points):.0f}%) lie outside "
-            f"{checked.name}, up to {distance[~inside].max() / checked.diagonal:.3g} cage diagonals away; is the mesh "
-            "in the cage's units and place?")
+    _refuse_mesh_outside(surface, checked, inside, distance)
     seconds["load"] = time.perf_counter() - t
 
     t = time.perf_counter()
@@ -146,49 +131,12 @@ def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_i
     preconditioner = Multigrid(grid, device=device, levels=levels) if solver == "multigrid" else "jacobi"
     wp.synchronize_device(device)
     seconds["setup"] = time.perf_counter() - t
-    seconds["boundary"] = seconds["solve"] = seconds["sample"] = 0.0
 
-    weights = np.empty((len(points), checked.n_handles), dtype=np.float32)
-    reports = []
-    chunked = len(chunks) > 1
-    for chunk in chunks:
-        t = time.perf_counter()
-        # a chunk carries the rest of the cage in one more column, so that its solve checks partition of unity
-        field = boundary_field(grid, checked, device=device, handles=chunk, complement=chunked, data=boundary)
-        wp.synchronize_device(device)
-        seconds["boundary"] += time.perf_counter() - t
-        report = solve_biharmonic(
-            grid, field, tol=tol, max_iterations=max_iterations, handles=checked.vertices,
-            chunk=chunk if chunked else None, preconditioner=preconditioner, device=device,
-        )
-        reports.append(report)
-        seconds["solve"] += report.seconds
-        t = time.perf_counter()
-        sampled_columns, corners = sample_weights(grid, field, points, device=device, method=sampling)
-        weights[:, chunk] = sampled_columns[:, : chunk.stop - chunk.start]
-        seconds["sample"] += time.perf_counter() - t
-        del field
-
+    weights, corners, reports = _solve_and_sample(grid, checked, points, chunks, preconditioner, tol, max_iterations,
+                                                  boundary, sampling, device, seconds)
     t = time.perf_counter()
-    sampled = (corners >= 0).all(axis=1)
-    beyond = ~sampled
-    notes = list(checked.notes)  # what the user is warned of, kept in the stats
-    if beyond.any():
-        weights[beyond] = mean_value_coordinates(checked, points[beyond], device=device).astype(np.float32)
-        notes.append(
-            f"{surface.name}: {int(beyond.sum())} vertices lie outside {checked.name} beyond the grid's band "
-            f"(up to {distance[beyond].max():.3g} from the cage, {distance[beyond].max() / checked.diagonal:.3g} of its "
-            "diagonal); they get mean value coordinates")
-        warnings.warn(notes[-1], stacklevel=2)
-    # a vertex inside the cage whose cell has no interior node sits in a feature the grid does not resolve
-    thin = inside & sampled & ~((corners >= 0) & (corners < grid.n_interior)).any(axis=1)
-    if thin.any():
-        suggestion = _suggest_resolution(resolution, grid.spacing, distance[thin])
-        notes.append(
-            f"{checked.name}: {int(thin.sum())} mesh vertices lie in parts of the cage thinner than about two grid "
-            f"cells at resolution {resolution}; their weights come from the boundary data alone. "
-            f"resolution={suggestion} would resolve them")
-        warnings.warn(notes[-1], stacklevel=2)
+    notes, beyond, thin = _vertices_off_the_grid(surface, checked, grid, resolution, weights, corners, inside,
+                                                 distance, device)
     seconds["sample"] += time.perf_counter() - t
     seconds["total"] = sum(seconds.values())
 
@@ -210,14 +158,7 @@ def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_i
         "multigrid_seconds": preconditioner.seconds if solver == "multigrid" else {},
         "chunks": len(chunks),
         "memory_estimate_bytes": estimate.total(chunk_columns(chunks)),
-        "iterations": max(r.iterations for r in reports),
-        "restarts": max(r.restarts for r in reports),
-        "solver_rounds": reports[0].rounds,
-        "chunk_iterations": [r.iterations for r in reports],
-        "chunk_rounds": [r.rounds for r in reports],
-        "residual": max(r.residual for r in reports),
-        "identity_error": max(r.identity_error for r in reports),
-        "converged": all(r.converged for r in reports),
+        **_solver_stats(reports),
         "partition_of_unity_error": pu_error,
         "linear_precision_error": lp_error,
         "seconds": seconds,
@@ -241,3 +182,97 @@ def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_i
     }
     return Binding(weights, checked.vertices, checked.faces, points, surface.faces, settings, stats, device=device,
                    mesh_normals=surface.normals, cage_source_index=checked.source_index)
+
+
+def _check_arguments(tol, memory_budget, solver, boundary, sampling) -> None:
+    if not (isinstance(tol, (int, float)) and 0 < tol < 1):
+        raise WarpStokesError(f"tol must be a number between 0 and 1, got {tol!r}")
+    if memory_budget is not None and not (isinstance(memory_budget, (int, float)) and memory_budget > 0):
+        raise WarpStokesError(f"memory_budget must be a positive number of bytes, got {memory_budget!r}")
+    if solver not in ("multigrid", "jacobi"):
+        raise WarpStokesError(f"solver must be 'multigrid' or 'jacobi', got {solver!r}")
+    if not (boundary in ("mvc", "local") or isinstance(boundary, LocalData)):
+        raise WarpStokesError(f"boundary must be 'mvc', 'local' or a LocalData, got {boundary!r}")
+    if sampling not in SAMPLINGS:
+        raise WarpStokesError(f"sampling must be 'hermite' or 'trilinear', got {sampling!r}")
+
+
+def _refuse_mesh_outside(surface, checked: Cage, inside: np.ndarray, distance: np.ndarray) -> None:
+    """A mesh mostly outside its cage is in other units or another place (a transform not applied): refused
+    before the solve, instead of weights that extrapolate far beyond [0, 1]."""
+    outside = int((~inside).sum())
+    if outside > 0.5 * len(inside):
+        raise MeshError(
+            f"{surface.name}: {outside} of {len(inside)} vertices ({100 * outside / len(inside):.0f}%) lie outside "
+            f"{checked.name}, up to {distance[~inside].max() / checked.diagonal:.3g} cage diagonals away; is the mesh "
+            "in the cage's units and place?")
+
+
+def _solve_and_sample(grid, checked: Cage, points, chunks, preconditioner, tol, max_iterations, boundary, sampling,
+                      device, seconds: dict):
+    """Boundary data, solve and sampling, one chunk of handles at a time: the weights (V, L), the sampling cells'
+    corner rows of the last chunk (the same for every chunk) and the solve reports; adds to ``seconds``."""
+    seconds["boundary"] = seconds["solve"] = seconds["sample"] = 0.0
+    weights = np.empty((len(points), checked.n_handles), dtype=np.float32)
+    reports = []
+    chunked = len(chunks) > 1
+    for chunk in chunks:
+        t = time.perf_counter()
+        # a chunk carries the rest of the cage in one more column, so that its solve checks partition of unity
+        field = boundary_field(grid, checked, device=device, handles=chunk, complement=chunked, data=boundary)
+        wp.synchronize_device(device)
+        seconds["boundary"] += time.perf_counter() - t
+        report = solve_biharmonic(
+            grid, field, tol=tol, max_iterations=max_iterations, handles=checked.vertices,
+            chunk=chunk if chunked else None, preconditioner=preconditioner, device=device,
+        )
+        reports.append(report)
+        seconds["solve"] += report.seconds
+        t = time.perf_counter()
+        sampled_columns, corners = sample_weights(grid, field, points, device=device, method=sampling)
+        weights[:, chunk] = sampled_columns[:, : chunk.stop - chunk.start]
+        seconds["sample"] += time.perf_counter() - t
+        del field
+    return weights, corners, reports
+
+
+def _vertices_off_the_grid(surface, checked: Cage, grid, resolution: int, weights: np.ndarray, corners: np.ndarray,
+                           inside: np.ndarray, distance: np.ndarray, device):
+    """Vertices beyond the grid's band get mean value coordinates (in ``weights``), and vertices in features
+    thinner than the grid resolves are counted; both are warned of. Returns (notes, beyond, thin): the cage's
+    notes and these warnings, and the two vertex masks."""
+    sampled = (corners >= 0).all(axis=1)
+    beyond = ~sampled
+    notes = list(checked.notes)  # what the user is warned of, kept in the stats
+    if beyond.any():
+        points = surface.vertices
+        weights[beyond] = mean_value_coordinates(checked, points[beyond], device=device).astype(np.float32)
+        notes.append(
+            f"{surface.name}: {int(beyond.sum())} vertices lie outside {checked.name} beyond the grid's band "
+            f"(up to {distance[beyond].max():.3g} from the cage, {distance[beyond].max() / checked.diagonal:.3g} of its "
+            "diagonal); they get mean value coordinates")
+        warnings.warn(notes[-1], stacklevel=3)
+    # a vertex inside the cage whose cell has no interior node sits in a feature the grid does not resolve
+    thin = inside & sampled & ~((corners >= 0) & (corners < grid.n_interior)).any(axis=1)
+    if thin.any():
+        suggestion = _suggest_resolution(resolution, grid.spacing, distance[thin])
+        notes.append(
+            f"{checked.name}: {int(thin.sum())} mesh vertices lie in parts of the cage thinner than about two grid "
+            f"cells at resolution {resolution}; their weights come from the boundary data alone. "
+            f"resolution={suggestion} would resolve them")
+        warnings.warn(notes[-1], stacklevel=3)
+    return notes, beyond, thin
+
+
+def _solver_stats(reports) -> dict:
+    """The solve reports of all chunks, summed up for the binding's stats."""
+    return {
+        "iterations": max(r.iterations for r in reports),
+        "restarts": max(r.restarts for r in reports),
+        "solver_rounds": reports[0].rounds,
+        "chunk_iterations": [r.iterations for r in reports],
+        "chunk_rounds": [r.rounds for r in reports],
+        "residual": max(r.residual for r in reports),
+        "identity_error": max(r.identity_error for r in reports),
+        "converged": all(r.converged for r in reports),
+    }
