@@ -12,22 +12,19 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import subprocess
 import sys
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
-DATA = Path(os.environ.get("WARP_STOKES_DATA", REPO.parent / "shared" / "data"))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_large import REPO, pair_files  # noqa: E402
 
 
 def mesh_files(name: str, folder: Path) -> tuple[Path, Path]:
-    if name == "arm":
-        return REPO / "examples/arm/arm.obj", REPO / "examples/arm/arm_cage.obj"
     base, _, times = name.partition(":")
-    if base != "ogre":
+    if base not in ("arm", "ogre") or (times and base != "ogre"):
         raise SystemExit(f"unknown mesh {name!r}: arm, ogre or ogre:K")
-    mesh, cage = DATA / "ogre_qmvc" / "Ogre.obj", DATA / "ogre_qmvc" / "cage_tri.obj"
+    mesh, cage = pair_files(base, folder)
     if times:
         import trimesh
 
@@ -53,7 +50,7 @@ def run_case(mesh: str, cage: str, resolution: int) -> dict:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         # warm-up: every kernel loaded; at n = 16, so that its own peak stays below the measured binds' (measure
-        # at n >= 32: max RSS only grows past the highest peak so far)
+        # at n = 48 or more: max RSS only grows past the highest peak so far; the arm at 32 reads 0)
         ws.bind(REPO / "examples/arm/arm.obj", REPO / "examples/arm/arm_cage.obj", resolution=16, device="cpu")
         before = rss()
         b = ws.bind(mesh, cage, resolution=resolution, device="cpu")

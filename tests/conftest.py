@@ -57,6 +57,13 @@ def bindings():
     return get
 
 
+def write_obj(path, vertices, faces):
+    """A triangle mesh as an OBJ file (1-based faces), the way users' tools write one."""
+    with open(path, "w") as fh:
+        fh.writelines(f"v {x} {y} {z}\n" for x, y, z in vertices)
+        fh.writelines(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in faces)
+
+
 def box_cage(lo=(-1.0, -1.0, -1.0), hi=(1.0, 1.0, 1.0)):
     """An axis-aligned box as (vertices, outward triangles)."""
     lo, hi = np.asarray(lo, float), np.asarray(hi, float)

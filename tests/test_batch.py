@@ -8,8 +8,7 @@ import pytest
 
 import warp_stokes as ws
 from warp_stokes.cli import main
-from conftest import EXAMPLE
-from test_usd import write_obj
+from conftest import EXAMPLE, write_obj
 
 
 def poses_npy(path, cage, n_frames=3, drop=0):

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import warp_stokes as ws
-from conftest import EXAMPLE, cuda_available
+from conftest import EXAMPLE, cuda_available, write_obj
 
 MESH, CAGE = str(EXAMPLE / "arm.obj"), str(EXAMPLE / "arm_cage.obj")
 
@@ -86,9 +86,7 @@ def test_a_mesh_far_outside_its_cage_is_refused(tmp_path):
     cage = ws.check_cage(CAGE)
     mesh = ws.load_surface(MESH)
     far = tmp_path / "far.obj"
-    with open(far, "w") as fh:
-        fh.writelines(f"v {x} {y} {z}\n" for x, y, z in mesh.vertices + [100 * cage.diagonal, 0, 0])
-        fh.writelines(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in mesh.faces)
+    write_obj(far, mesh.vertices + [100 * cage.diagonal, 0, 0], mesh.faces)
     proc = warp_stokes("bind", str(far), CAGE, "-o", str(tmp_path / "b.npz"), "--device", "cpu")
     assert proc.returncode == 2
     line = one_error_line(proc)
@@ -105,9 +103,7 @@ def test_deform_takes_reordered_faces_and_plain_positions(tmp_path, bound):
     rng = np.random.default_rng(3)
     faces = np.roll(cage.faces[rng.permutation(len(cage.faces))], 1, axis=1)
     shuffled = tmp_path / "shuffled.obj"
-    with open(shuffled, "w") as fh:
-        fh.writelines(f"v {x} {y} {z}\n" for x, y, z in moved)
-        fh.writelines(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in faces)
+    write_obj(shuffled, moved, faces)
     positions = tmp_path / "moved.npy"
     np.save(positions, moved)
     for source, name in ((shuffled, "a.obj"), (positions, "b.obj")):
@@ -119,9 +115,7 @@ def test_deform_takes_reordered_faces_and_plain_positions(tmp_path, bound):
     other = tmp_path / "other.obj"
     faces = cage.faces.copy()
     faces[0] = [faces[0][0], faces[0][1], faces[5][2] if faces[5][2] not in faces[0] else faces[7][2]]
-    with open(other, "w") as fh:
-        fh.writelines(f"v {x} {y} {z}\n" for x, y, z in moved)
-        fh.writelines(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in faces)
+    write_obj(other, moved, faces)
     proc = warp_stokes("deform", str(bound), str(other), "-o", str(tmp_path / "c.obj"), "--device", "cpu")
     assert proc.returncode == 2 and "the pose's faces differ from the bound cage's" in one_error_line(proc)
     np.save(tmp_path / "short.npy", moved[:-1])

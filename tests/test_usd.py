@@ -8,7 +8,7 @@ import pytest
 from pxr import Usd, UsdGeom, UsdValidation
 
 import warp_stokes as ws
-from conftest import EXAMPLE, pair
+from conftest import EXAMPLE, pair, write_obj
 from warp_stokes.cli import main
 
 
@@ -79,12 +79,6 @@ def test_cage_weights_and_text_format(arm, tmp_path):
     primvar = UsdGeom.PrimvarsAPI(stage.GetPrimAtPath("/Root/Mesh")).GetPrimvar("stokesWeights")
     assert primvar.GetInterpolation() == UsdGeom.Tokens.vertex and primvar.GetElementSize() == arm.n_handles
     np.testing.assert_array_equal(np.asarray(primvar.Get()).reshape(arm.weights.shape), arm.weights)
-
-
-def write_obj(path, vertices, faces):
-    with open(path, "w") as fh:
-        fh.writelines(f"v {x} {y} {z}\n" for x, y, z in vertices)
-        fh.writelines(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in faces)
 
 
 def test_poses_from_obj_frames_sorted_naturally(arm, tmp_path):

@@ -44,7 +44,7 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message}\n")
 
 
-def _number(kind, low=None, high=None, low_open=False, what=""):
+def _number(kind, low=None, high=None, low_open=False):
     """An argparse type: ``kind`` (int or float) within [low, high] (low excluded with ``low_open``)."""
 
     def parse(text):
@@ -56,7 +56,7 @@ def _number(kind, low=None, high=None, low_open=False, what=""):
                 high is not None and value > high):
             bound = (f"> {low:g}" if low_open else f">= {low:g}") if low is not None else ""
             bound += (" and " if bound and high is not None else "") + (f"<= {high:g}" if high is not None else "")
-            raise argparse.ArgumentTypeError(f"must be {what or bound}, got {text}")
+            raise argparse.ArgumentTypeError(f"must be {bound}, got {text}")
         return value
 
     parse.__name__ = kind.__name__  # what argparse names in "invalid int value"
