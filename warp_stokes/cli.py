@@ -95,9 +95,12 @@ def _bind(args) -> int:
     budget = None if args.memory_gb is None else args.memory_gb * 2**30
     binding = ws.bind(args.mesh, args.cage, resolution=args.resolution, device=args.device, tol=args.tol,
                       max_iterations=args.max_iterations, solver=args.solver, memory_budget=budget,
-                      boundary=args.boundary, sampling=args.sampling)
+                      boundary=args.boundary, sampling=args.sampling, cage_prim=args.cage_prim,
+                      mesh_prims=args.mesh_prim, rest_time=args.rest_time)
     binding.save(args.output)
     print(format_stats(binding.stats))
+    if len(binding.parts) > 1:
+        print(f"{len(binding.parts)} meshes: " + ", ".join(f"{p['path']} ({p['vertices']})" for p in binding.parts))
     print(f"wrote {args.output}")
     if not binding.stats["converged"]:
         print(f"warp-stokes: error: the solver did not converge to tol {args.tol:g}; {args.output} holds its last "
@@ -148,13 +151,20 @@ def _pose(source: str, n_handles: int):
 def _animate(args) -> int:
     import warp_stokes as ws
 
-    _check_output(args.output, (args.binding, args.poses))
+    _check_output(args.output, (args.binding, args.poses, args.asset))
     binding = ws.load_binding(args.binding, device=args.device)
-    poses = ws.load_poses(args.poses, binding.cage_faces, binding.n_handles, binding.cage_source_index)
+    poses = ws.load_poses(args.poses, binding.cage_faces, binding.n_handles, binding.cage_source_index,
+                          cage_prim=args.cage_prim)
     ws.write_animation(args.output, binding, poses, fps=args.fps, with_cage=args.with_cage,
-                       with_weights=args.with_weights, up_axis=args.up_axis, meters_per_unit=args.meters_per_unit)
-    print(f"wrote {args.output}: {len(poses.frames)} frames ({poses.frames.min():g} to {poses.frames.max():g}) "
-          f"at {args.fps:g} fps, {binding.n_vertices} vertices")
+                       with_weights=args.with_weights, up_axis=args.up_axis, meters_per_unit=args.meters_per_unit,
+                       asset=args.asset)
+    from pxr import Usd
+
+    stage = Usd.Stage.Open(args.output)
+    form = f"a layer over {stage.GetRootLayer().subLayerPaths[0]}" if binding.asset or args.asset else "a stage"
+    print(f"wrote {args.output} ({form}): {len(poses.frames)} frames ({poses.frames.min():g} to "
+          f"{poses.frames.max():g}) at {stage.GetTimeCodesPerSecond():g} fps, {binding.n_vertices} vertices in "
+          f"{len(binding.parts)} mesh(es)")
     return 0
 
 
@@ -189,8 +199,15 @@ def _main(argv) -> int:
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
     p = sub.add_parser("bind", help="compute the weights of a mesh's vertices with respect to a cage")
-    p.add_argument("mesh", help="mesh file (OBJ, PLY, OFF, STL, glTF/GLB, ...)")
-    p.add_argument("cage", help="closed cage mesh file")
+    p.add_argument("mesh", help="mesh file (OBJ, PLY, OFF, STL, glTF/GLB, ...) or a USD asset (all its meshes)")
+    p.add_argument("cage", nargs="?", default=None,
+                   help="closed cage mesh file, or a USD file with --cage-prim (optional when --cage-prim names a prim "
+                        "of the mesh's USD asset)")
+    p.add_argument("--cage-prim", default=None, metavar="PATH", help="the cage's mesh prim in the USD stage")
+    p.add_argument("--mesh-prim", action="append", default=None, metavar="PATH",
+                   help="a mesh prim of the USD asset to bind (repeat for several; default: all but the cage)")
+    p.add_argument("--rest-time", type=_number(float), default=None,
+                   help="USD time code of the rest pose (default: the cage prim's first time sample)")
     p.add_argument("-o", "--output", required=True, help="binding file to write (.npz)")
     p.add_argument("--resolution", type=_number(int, 1), default=64, help="grid cells along the cage's longest axis (64)")
     p.add_argument("--device", default=None, help="cpu, cuda or cuda:N (default: CUDA when present, else CPU)")
@@ -216,13 +233,20 @@ def _main(argv) -> int:
 
     p = sub.add_parser("animate", help="write the bound mesh, deformed by a sequence of cage poses, as animated USD")
     p.add_argument("binding", help="binding file written by 'warp-stokes bind'")
-    p.add_argument("poses", help="cage poses: a folder of OBJ frames, a .npy/.npz array (F, L, 3) or a USD file")
-    p.add_argument("-o", "--output", required=True, help="USD file to write (.usd/.usdc binary, .usda text)")
-    p.add_argument("--fps", type=_number(float, 0.0, low_open=True), default=24.0, help="time codes per second (24)")
+    p.add_argument("poses", help="cage poses: a folder of OBJ frames, a .npy/.npz array (F, L, 3) or a USD file "
+                                 "(one pose per time sample of --cage-prim)")
+    p.add_argument("-o", "--output", required=True, help="USD file to write (.usd/.usdc binary, .usda text); for a "
+                                                         "binding of a USD asset, a layer over it")
+    p.add_argument("--cage-prim", default=None, metavar="PATH",
+                   help="the cage's prim in the poses' USD file (default: the first mesh with the cage's point count)")
+    p.add_argument("--asset", default=None, help="the bound USD asset, where it is not at the path the binding records")
+    p.add_argument("--fps", type=_number(float, 0.0, low_open=True), default=None,
+                   help="time codes per second (default: the poses' USD stage's, else 24)")
     p.add_argument("--with-cage", action="store_true", help="also write the animated cage (/Root/Cage)")
     p.add_argument("--with-weights", action="store_true", help="write the weights as a primvar")
-    p.add_argument("--up-axis", choices=["Y", "Z"], default="Y", help="stage up axis (Y)")
-    p.add_argument("--meters-per-unit", type=_number(float, 0.0, low_open=True), default=1.0, help="stage metersPerUnit (1.0)")
+    p.add_argument("--up-axis", choices=["Y", "Z"], default=None, help="stage up axis (Y; over an asset, the asset's)")
+    p.add_argument("--meters-per-unit", type=_number(float, 0.0, low_open=True), default=None,
+                   help="stage metersPerUnit (1.0; over an asset, the asset's)")
     p.add_argument("--device", default=None, help="cpu, cuda or cuda:N")
     p.set_defaults(run=_animate)
 

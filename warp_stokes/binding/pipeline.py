@@ -10,12 +10,12 @@ import numpy as np
 import warp as wp
 
 from ..device import device_name, resolve_device
-from ..errors import MeshError, WarpStokesError
+from ..errors import CageError, MeshError, WarpStokesError
 from ..geometry.boundary import boundary_field, mean_value_coordinates
 from ..geometry.cage import Cage, check_cage
 from ..geometry.grid import check_resolution, classify_points, voxelize
 from ..geometry.local_boundary import LocalData
-from ..io.load import load_surface
+from ..io.scene import Scene, is_usd, load_scene
 from ..solver.budget import available_memory, chunk_columns, estimate_memory, plan_chunks
 from ..solver.multigrid import Multigrid, coarsen
 from ..solver.solve import solve_biharmonic
@@ -53,9 +53,9 @@ def _suggest_resolution(resolution: int, spacing: float, distances: np.ndarray) 
     return int(min(2048, max(2 * resolution, math.ceil(resolution * 3.0 * spacing / thickness))))
 
 
-def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_iterations: int | None = None,
+def bind(mesh, cage=None, resolution: int = 64, device=None, tol: float = 1e-6, max_iterations: int | None = None,
          solver: str = "multigrid", memory_budget: int | None = None, boundary="local",
-         sampling: str = "hermite") -> Binding:
+         sampling: str = "hermite", cage_prim: str | None = None, mesh_prims=None, rest_time=None) -> Binding:
     """Compute Stokes cage coordinates of a mesh's vertices with respect to a cage.
 
     Load -> voxelise (winding number) -> boundary data (local data by default) -> batched solve of the compact
@@ -65,10 +65,12 @@ def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_i
 
     Parameters
     ----------
-    mesh : path | trimesh.Trimesh | (vertices, faces)
-        The mesh to deform; its vertex order is kept.
-    cage : path | trimesh.Trimesh | (vertices, faces)
-        A closed, consistently oriented cage (quads and polygons are triangulated).
+    mesh : path | trimesh.Trimesh | (vertices, faces) | Scene
+        The mesh to deform; its vertex order is kept. A USD asset (``.usd/.usda/.usdc/.usdz``) or a glTF/GLB
+        scene binds all its meshes together, in world space (see :func:`warp_stokes.io.scene.load_scene`).
+    cage : path | trimesh.Trimesh | (vertices, faces), optional
+        A closed, consistently oriented cage (quads and polygons are triangulated). May be left out when
+        ``cage_prim`` names the cage in the mesh's USD stage.
     resolution : int
         Grid cells along the cage's longest axis.
     device : None | str
@@ -89,6 +91,13 @@ def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_i
     sampling : "hermite" | "trilinear"
         How the weights are interpolated at the vertices (see :func:`warp_stokes.sample_weights`): C1 tricubic
         Hermite of the values and gradients (default), or C0 trilinear of the values.
+    cage_prim : str, optional
+        The cage's ``UsdGeom.Mesh`` prim path, in ``cage`` when that is a USD file, else in the mesh's USD stage
+        (then it is not bound as a mesh). Read in world space at its first time sample (or ``rest_time``).
+    mesh_prims : list of str, optional
+        For a USD asset, the mesh prims to bind (default: all of them but the cage).
+    rest_time : float, optional
+        For USD inputs, the time code of the rest pose.
 
     Returns
     -------
@@ -110,7 +119,10 @@ def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_i
     device = resolve_device(device)
     seconds = {}
     t = time.perf_counter()
-    surface = load_surface(mesh)
+    cage = _cage_source(mesh, cage, cage_prim, rest_time)
+    scene = load_scene(mesh, mesh_prims=mesh_prims, cage_prim=cage_prim if cage_prim and is_usd(mesh) else None,
+                       rest_time=rest_time)
+    surface = scene.surface()
     checked: Cage = check_cage(cage)
     points = surface.vertices
     inside, distance = classify_points(checked, points, device=device)
@@ -174,6 +186,9 @@ def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_i
         "sampling": sampling,
         "mesh": surface.name,
         "cage": checked.name,
+        "cage_prim": cage_prim,
+        "mesh_prims": [p.path for p in scene.parts] if scene.asset else None,
+        "rest_time": scene.metadata.get("rest_time"),
         "cage_flipped": checked.flipped,
         "cage_handles": ("the cage's vertices, in its order" if checked.source_index is None else
                          f"{len(checked.source_index)} vertices merged into {checked.n_handles} handles, in order of "
@@ -181,7 +196,35 @@ def bind(mesh, cage, resolution: int = 64, device=None, tol: float = 1e-6, max_i
         "warp_version": wp.config.version,
     }
     return Binding(weights, checked.vertices, checked.faces, points, surface.faces, settings, stats, device=device,
-                   mesh_normals=surface.normals, cage_source_index=checked.source_index)
+                   mesh_normals=surface.normals, cage_source_index=checked.source_index,
+                   mesh_polygons=surface.polygons(), mesh_uvs=surface.uvs, parts=_parts(scene), asset=_asset(scene))
+
+
+def _cage_source(mesh, cage, cage_prim, rest_time):
+    """What :func:`check_cage` reads: ``cage`` itself, or the surface of its prim (in ``cage``, or in the mesh's
+    stage when ``cage`` is not given)."""
+    if cage_prim is not None:
+        from ..io.usd_asset import read_cage_prim
+
+        stage_file = mesh if cage is None else cage
+        if not is_usd(stage_file):
+            raise CageError(f"{stage_file}: a cage prim ({cage_prim}) is named, but it is not a USD file")
+        return read_cage_prim(str(stage_file), cage_prim, rest_time)
+    if cage is None:
+        raise CageError(f"{getattr(mesh, 'name', mesh)}: no cage: give a cage file, or the cage's prim in the USD "
+                        "asset (cage_prim, --cage-prim)")
+    if is_usd(cage):
+        raise CageError(f"{cage}: a USD cage needs its prim path (cage_prim, --cage-prim)")
+    return cage
+
+
+def _parts(scene: Scene) -> list:
+    return [{"path": p.path, "vertices": len(p.surface.vertices), "normals": p.normals,
+             "to_world": np.asarray(p.to_world, dtype=np.float64).tolist()} for p in scene.parts]
+
+
+def _asset(scene: Scene):
+    return None if scene.asset is None else {"path": scene.asset, **scene.metadata}
 
 
 def _check_arguments(tol, memory_budget, solver, boundary, sampling) -> None:

@@ -42,13 +42,21 @@ class Binding:
     mesh_vertices, mesh_faces : the rest mesh
     mesh_normals : (V, 3) rest normals when the mesh file had them, else None
     cage_source_index : for a cage merged from a triangle soup, the handle of each of its source's vertices
+    mesh_face_counts, mesh_face_indices : the mesh's polygons as read (quads stay quads), over all parts
+    mesh_uvs : (st (N, 2), st_indices per polygon corner) face-varying texture coordinates, or None
+    parts : list of dict, the meshes bound together, in the order of their vertices: ``path`` (USD prim path,
+        glTF node or file), ``vertices`` (count), ``normals`` (the interpolation of the normals their asset
+        authors, or None) and ``to_world`` (4 x 4 local-to-world at the rest time, row vectors)
+    asset : dict or None, for a binding of a USD asset: ``path`` (absolute, at bind time), ``up_axis``,
+        ``meters_per_unit``, ``default_prim``, ``time_codes_per_second`` and ``rest_time``
     settings : dict of the grid and solver settings used
     stats : dict of what binding measured (grid shape, node counts, iterations, residual, errors, timings)
     device : the Warp device ``deform`` runs on
     """
 
     def __init__(self, weights, cage_vertices, cage_faces, mesh_vertices, mesh_faces, settings, stats,
-                 device=None, mesh_normals=None, cage_source_index=None):
+                 device=None, mesh_normals=None, cage_source_index=None, mesh_polygons=None, mesh_uvs=None,
+                 parts=None, asset=None):
         self.weights = np.ascontiguousarray(weights, dtype=np.float32)
         self.cage_vertices = np.asarray(cage_vertices, dtype=np.float64)
         self.cage_faces = np.asarray(cage_faces, dtype=np.int64)
@@ -56,6 +64,16 @@ class Binding:
         self.mesh_faces = np.asarray(mesh_faces, dtype=np.int64)
         self.mesh_normals = None if mesh_normals is None else np.asarray(mesh_normals, dtype=np.float64)
         self.cage_source_index = None if cage_source_index is None else np.asarray(cage_source_index, dtype=np.int64)
+        if mesh_polygons is None:
+            mesh_polygons = (np.full(len(self.mesh_faces), 3), self.mesh_faces.ravel())
+        self.mesh_face_counts = np.asarray(mesh_polygons[0], dtype=np.int64)
+        self.mesh_face_indices = np.asarray(mesh_polygons[1], dtype=np.int64)
+        self.mesh_uvs = None if mesh_uvs is None else (np.asarray(mesh_uvs[0], dtype=np.float64),
+                                                        np.asarray(mesh_uvs[1], dtype=np.int64))
+        self.parts = [dict(p) for p in parts] if parts else [
+            {"path": settings.get("mesh", "mesh"), "vertices": len(self.mesh_vertices), "normals": None,
+             "to_world": np.eye(4).tolist()}]
+        self.asset = None if asset is None else dict(asset)
         self.settings = dict(settings)
         self.stats = dict(stats)
         self.device = resolve_device(device)
@@ -70,7 +88,14 @@ class Binding:
         return self.weights.shape[1]
 
     def __repr__(self) -> str:
-        return f"Binding({self.n_vertices} vertices, {self.n_handles} handles, resolution {self.settings.get('resolution')})"
+        parts = f", {len(self.parts)} meshes" if len(self.parts) > 1 else ""
+        return (f"Binding({self.n_vertices} vertices{parts}, {self.n_handles} handles, "
+                f"resolution {self.settings.get('resolution')})")
+
+    def part_slices(self) -> list:
+        """Each part's rows of ``weights`` (and of the deformed vertices), in the order of :attr:`parts`."""
+        offsets = np.cumsum([0] + [int(p["vertices"]) for p in self.parts])
+        return [slice(int(a), int(b)) for a, b in zip(offsets[:-1], offsets[1:])]
 
     def _check_topology(self, surface: Surface) -> np.ndarray:
         return pose_vertices(surface.vertices, surface.faces, self.cage_faces, self.cage_source_index, surface.name)
@@ -123,7 +148,16 @@ class Binding:
             "stats": self.stats,
             "cage_fingerprint": fingerprint(self.cage_vertices, self.cage_faces),
             "mesh_fingerprint": fingerprint(self.mesh_vertices, self.mesh_faces),
+            "parts": self.parts,
+            "asset": self.asset,
         }
+        optional = {"mesh_face_counts": self.mesh_face_counts, "mesh_face_indices": self.mesh_face_indices}
+        if self.mesh_normals is not None:
+            optional["mesh_normals"] = self.mesh_normals
+        if self.cage_source_index is not None:
+            optional["cage_source_index"] = self.cage_source_index
+        if self.mesh_uvs is not None:
+            optional["mesh_st"], optional["mesh_st_indices"] = self.mesh_uvs
         try:
             with atomic_output(path, ".npz") as tmp, open(tmp, "wb") as fh:
                 np.savez(
@@ -134,8 +168,7 @@ class Binding:
                     mesh_vertices=self.mesh_vertices,
                     mesh_faces=self.mesh_faces,
                     meta=np.array(json.dumps(meta)),
-                    **({} if self.mesh_normals is None else {"mesh_normals": self.mesh_normals}),
-                    **({} if self.cage_source_index is None else {"cage_source_index": self.cage_source_index}),
+                    **optional,
                 )
         except WarpStokesError as exc:
             raise BindingError(str(exc)) from None
@@ -186,8 +219,19 @@ def load_binding(path, device=None) -> Binding:
         arrays["mesh_vertices"], arrays["mesh_faces"]
     ) != meta.get("mesh_fingerprint"):
         raise BindingError(f"{path}: the stored cage or mesh does not match its fingerprint (file modified?)")
+    polygons = uvs = None
+    if "mesh_face_counts" in arrays and "mesh_face_indices" in arrays:
+        polygons = arrays["mesh_face_counts"], arrays["mesh_face_indices"]
+        if polygons[0].sum() != len(polygons[1]) or (len(polygons[1]) and polygons[1].max() >= len(w)):
+            raise BindingError(f"{path}: the stored polygons do not match the mesh")
+    if "mesh_st" in arrays and "mesh_st_indices" in arrays:
+        uvs = arrays["mesh_st"], arrays["mesh_st_indices"]
+    parts = meta.get("parts")
+    if parts is not None and sum(int(p["vertices"]) for p in parts) != len(w):
+        raise BindingError(f"{path}: the stored parts' vertex counts do not add up to the mesh's")
     return Binding(
         w, arrays["cage_vertices"], arrays["cage_faces"], arrays["mesh_vertices"], arrays["mesh_faces"],
         meta["settings"], meta["stats"], device=device, mesh_normals=arrays.get("mesh_normals"),
-        cage_source_index=arrays.get("cage_source_index"),
+        cage_source_index=arrays.get("cage_source_index"), mesh_polygons=polygons, mesh_uvs=uvs, parts=parts,
+        asset=meta.get("asset"),
     )

@@ -29,12 +29,34 @@ class Surface:
     normals : (V, 3) float64 or None
         Per-vertex normals when an OBJ file gives them (``vn`` records referenced by its faces); a vertex given
         several normals gets their normalised mean.
+    face_counts, face_indices : int64 arrays or None
+        The polygons as read (a quad stays a quad): each polygon's corner count and all corners' vertex ids, as in
+        USD's ``faceVertexCounts`` / ``faceVertexIndices``; None when only the triangles are known.
+    uvs : tuple (st (N, 2) float64, st_indices (len(face_indices),) int64) or None
+        Texture coordinates per polygon corner (face-varying, indexed), when the file has them (OBJ ``vt``,
+        a glTF/PLY mesh's per-vertex UVs).
     """
 
     vertices: np.ndarray
     faces: np.ndarray
     name: str
     normals: np.ndarray | None = None
+    face_counts: np.ndarray | None = None
+    face_indices: np.ndarray | None = None
+    uvs: tuple | None = None
+
+    def polygons(self) -> tuple[np.ndarray, np.ndarray]:
+        """The polygons as read, ``(face_counts, face_indices)``; the triangles when no polygons were kept.
+
+        Examples
+        --------
+        >>> counts, indices = load_surface((np.eye(4)[:, :3], [[0, 1, 2, 3]])).polygons()
+        >>> counts.tolist(), indices.tolist()
+        ([4], [0, 1, 2, 3])
+        """
+        if self.face_counts is not None:
+            return self.face_counts, self.face_indices
+        return np.full(len(self.faces), 3, dtype=np.int64), self.faces.ravel()
 
 
 def _triangulate(polygons, name: str, n_vertices: int) -> np.ndarray:
@@ -80,6 +102,7 @@ def _from_arrays(vertices, faces, name: str) -> Surface:
     if not np.all(np.isfinite(v)):
         bad = int(np.flatnonzero(~np.isfinite(v).all(axis=1))[0])
         raise MeshError(f"{name}: vertex {bad} has a non-finite coordinate {v[bad].tolist()}")
+    counts = indices = None
     if faces is None:
         f = np.zeros((0, 3), dtype=np.int64)
     else:
@@ -88,7 +111,15 @@ def _from_arrays(vertices, faces, name: str) -> Surface:
         ):
             faces = np.asarray(faces)
         f = _triangulate(faces, name, len(v)) if len(faces) else np.zeros((0, 3), dtype=np.int64)
-    return Surface(vertices=np.ascontiguousarray(v), faces=np.ascontiguousarray(f), name=name)
+        if len(faces):  # checked by _triangulate: integer polygons of at least 3 in-range vertices
+            if isinstance(faces, np.ndarray):
+                counts = np.full(len(faces), faces.shape[1], dtype=np.int64)
+                indices = faces.astype(np.int64).ravel()
+            else:
+                counts = np.array([len(p) for p in faces], dtype=np.int64)
+                indices = np.concatenate([np.asarray(p, dtype=np.int64) for p in faces])
+    return Surface(vertices=np.ascontiguousarray(v), faces=np.ascontiguousarray(f), name=name, face_counts=counts,
+                   face_indices=indices)
 
 
 def _records(lines: list, tag: str) -> tuple[np.ndarray, np.ndarray]:
@@ -112,7 +143,7 @@ def _count_records(text: str, tag: str) -> int:
 
 def _read_obj_triangles(text: str):
     """The common case at C speed: every face a triangle with positive indices, no normals. None otherwise."""
-    if "\nvn " in text or text.startswith("vn "):
+    if "\nvn " in text or text.startswith("vn ") or "\nvt " in text or text.startswith("vt "):
         return None
     vertices = _VERTEX.findall(text)
     triangles = _TRIANGLE.findall(text)
@@ -125,10 +156,10 @@ def _read_obj_triangles(text: str):
     faces = np.array(triangles, dtype=np.int64).reshape(-1, 3) - 1
     if faces.size and faces.min() < 0:
         return None
-    return verts, faces, None
+    return verts, faces, None, None
 
 
-def _read_obj_polygons(path: str) -> tuple[np.ndarray, np.ndarray | list, np.ndarray | None]:
+def _read_obj_polygons(path: str) -> tuple[np.ndarray, np.ndarray | list, np.ndarray | None, tuple | None]:
     """Read an OBJ's `v` and `f` records directly, keeping file order and the polygons as written.
 
     trimesh re-orders or splits vertices in some OBJ files (texture seams); users need file order.
@@ -144,7 +175,7 @@ def _read_obj_polygons(path: str) -> tuple[np.ndarray, np.ndarray | list, np.nda
     lines = text.splitlines()
     tokens, counts = _records(lines, "v")
     if len(counts) == 0:
-        return np.zeros((0, 3)), [], None
+        return np.zeros((0, 3)), [], None, None
     try:
         if (counts < 3).any():
             raise ValueError
@@ -176,8 +207,9 @@ def _read_obj_polygons(path: str) -> tuple[np.ndarray, np.ndarray | list, np.nda
                 except ValueError:
                     raise MeshError(f"{path}: line {line_no}: unreadable face {ln.strip()!r}") from None
         raise
+    uvs = _obj_uvs(lines, tokens) if any(ln.startswith("vt ") for ln in lines) else None
     if len(indices) and indices.min() > 0 and len(np.unique(counts)) == 1:
-        return verts, indices.reshape(len(counts), counts[0]) - 1, normals  # the common case
+        return verts, indices.reshape(len(counts), counts[0]) - 1, normals, uvs  # the common case
     polys = np.split(indices, np.cumsum(counts)[:-1]) if len(indices) else []
     if len(indices) and indices.min() < 0:
         # negative indices count back from the last vertex read before the face
@@ -185,7 +217,28 @@ def _read_obj_polygons(path: str) -> tuple[np.ndarray, np.ndarray | list, np.nda
         vertex_lines = np.array([n for n, ln in enumerate(lines, 1) if ln.startswith("v ")])
         seen = np.searchsorted(vertex_lines, face_lines)
         polys = [np.where(p > 0, p, s + p + 1) for p, s in zip(polys, seen)]
-    return verts, [list(p - 1) for p in polys], normals
+    return verts, [list(p - 1) for p in polys], normals, uvs
+
+
+def _obj_uvs(lines: list, face_tokens: np.ndarray) -> tuple | None:
+    """Face-varying texture coordinates: the ``vt`` table and, per face corner, its ``v/vt[/vn]`` index (None
+    unless every corner names one)."""
+    tokens, counts = _records(lines, "vt")
+    if len(counts) == 0 or (counts < 2).any() or len(face_tokens) == 0:
+        return None
+    firsts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    try:
+        st = tokens[firsts[:, None] + np.arange(2)].astype(np.float64).reshape(-1, 2)
+        refs = np.char.partition(np.char.partition(face_tokens, "/")[:, 2], "/")[:, 0]
+        if (refs == "").any():
+            return None
+        st_indices = refs.astype(np.int64)
+    except ValueError:
+        return None
+    st_indices = np.where(st_indices > 0, st_indices - 1, len(st) + st_indices)
+    if st_indices.min() < 0 or st_indices.max() >= len(st):
+        return None
+    return st, st_indices
 
 
 def _obj_normals(lines: list, face_lines: list, n_vertices: int) -> np.ndarray | None:
@@ -207,6 +260,16 @@ def _obj_normals(lines: list, face_lines: list, n_vertices: int) -> np.ndarray |
     if (length == 0).any():
         return None
     return sums / length[:, None]
+
+
+def with_vertex_uvs(surface: Surface, mesh) -> Surface:
+    """``surface`` with the per-vertex UVs of a trimesh mesh (glTF, PLY), as face-varying indexed coordinates."""
+    uv = getattr(getattr(mesh, "visual", None), "uv", None)
+    if uv is None or len(uv) != len(surface.vertices) or np.ndim(uv) != 2 or np.shape(uv)[1] < 2:
+        return surface
+    counts, indices = surface.polygons()
+    return Surface(surface.vertices, surface.faces, surface.name, surface.normals, counts, indices,
+                   (np.asarray(uv, dtype=np.float64)[:, :2].copy(), indices.copy()))
 
 
 def load_surface(source, name: str | None = None) -> Surface:
@@ -249,20 +312,21 @@ def load_surface(source, name: str | None = None) -> Surface:
         if os.path.isdir(path):
             raise MeshError(f"{path}: is a folder, not a mesh file")
         if path.lower().endswith(".obj"):
-            verts, polys, normals = _read_obj_polygons(path)
+            verts, polys, normals, uvs = _read_obj_polygons(path)
             if len(verts) == 0:
                 raise MeshError(f"{path}: the file has no vertices")
             surface = _from_arrays(verts, polys, name)
-            return Surface(surface.vertices, surface.faces, surface.name, normals)
+            return Surface(surface.vertices, surface.faces, surface.name, normals, surface.face_counts,
+                           surface.face_indices, uvs)
         try:
             loaded = trimesh.load(path, force="mesh", process=False, maintain_order=True)
         except Exception as exc:  # trimesh raises many different types for unreadable files
             raise MeshError(f"{path}: cannot read it as a mesh ({type(exc).__name__}: {exc})") from None
         if not isinstance(loaded, trimesh.Trimesh) or len(loaded.vertices) == 0:
             raise MeshError(f"{path}: the file has no mesh vertices")
-        return _from_arrays(loaded.vertices, loaded.faces, name)
+        return with_vertex_uvs(_from_arrays(loaded.vertices, loaded.faces, name), loaded)
     if isinstance(source, trimesh.Trimesh):
-        return _from_arrays(source.vertices, source.faces, name or "<trimesh.Trimesh>")
+        return with_vertex_uvs(_from_arrays(source.vertices, source.faces, name or "<trimesh.Trimesh>"), source)
     if isinstance(source, (tuple, list)) and len(source) == 2:
         return _from_arrays(source[0], source[1], name or "<arrays>")
     raise MeshError(

@@ -23,11 +23,13 @@ class Poses:
     positions : (F, L, 3) float64, the cage vertices of every frame
     frames : (F,) float64, the frame number (USD time code) of every pose
     name : str, where they came from
+    time_codes_per_second : float or None, the rate of the animation they came from (a USD stage's), if any
     """
 
     positions: np.ndarray
     frames: np.ndarray
     name: str
+    time_codes_per_second: float | None = None
 
 
 def pose_vertices(vertices: np.ndarray, faces: np.ndarray, cage_faces: np.ndarray,
@@ -155,46 +157,34 @@ def _from_array(path: str, n_handles: int) -> Poses:
     return Poses(array, frames, path)
 
 
-def _from_usd(path: str, cage_faces: np.ndarray, n_handles: int) -> Poses:
-    from pxr import Usd, UsdGeom
+def _from_usd(path: str, cage_faces: np.ndarray, n_handles: int, source_index=None,
+              cage_prim: str | None = None) -> Poses:
+    from pxr import UsdGeom
 
-    try:
-        stage = Usd.Stage.Open(path)
-    except Exception as exc:  # pxr raises Tf.ErrorException (a RuntimeError) for unreadable layers
-        raise BindingError(f"{path}: cannot open it as a USD stage ({str(exc).strip().splitlines()[-1]})") from None
-    if stage is None:
-        raise BindingError(f"{path}: cannot open it as a USD stage")
-    candidates = []
-    for prim in stage.Traverse():
-        if not prim.IsA(UsdGeom.Mesh):
-            continue
-        mesh = UsdGeom.Mesh(prim)
-        points = mesh.GetPointsAttr()
-        times = points.GetTimeSamples()
-        value = points.Get(times[0] if times else Usd.TimeCode.Default())
-        if value is not None and len(value) == n_handles and times:
-            candidates.append((prim, mesh, times))
-    if not candidates:
-        raise BindingError(f"{path}: no mesh with {n_handles} time-sampled points (the bound cage's vertex count)")
-    prim, mesh, times = candidates[0]
-    counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get())
-    indices = np.asarray(mesh.GetFaceVertexIndicesAttr().Get())
-    polys, start = [], 0
-    for c in counts:
-        polys.append(indices[start : start + c])
-        start += c
-    faces = np.array([(p[0], p[k], p[k + 1]) for p in polys for k in range(1, len(p) - 1)], dtype=np.int64)
-    if not same_triangles(faces, cage_faces):
-        raise BindingError(f"{path}: the faces of {prim.GetPath()} differ from the bound cage's (different topology)")
-    positions = []
-    for t in times:
-        value = np.asarray(mesh.GetPointsAttr().Get(t), dtype=np.float64)
-        if value.shape != (n_handles, 3):
-            raise BindingError(
-                f"{path}: {prim.GetPath()} at time {t:g} has {len(value)} points, the bound cage has {n_handles}"
-            )
-        positions.append(value)
-    return Poses(np.stack(positions), np.asarray(times, dtype=np.float64), f"{path}:{prim.GetPath()}")
+    from .usd_asset import cage_animation, open_stage
+
+    if cage_prim is None:  # the first mesh with time-sampled points and the cage's vertex count
+        stage = open_stage(path, BindingError)
+        sizes = {n_handles} | ({len(source_index)} if source_index is not None else set())
+        for prim in stage.Traverse():
+            points = UsdGeom.Mesh(prim).GetPointsAttr() if prim.IsA(UsdGeom.Mesh) else None
+            if points is not None and points.GetNumTimeSamples() > 0:
+                value = points.Get(points.GetTimeSamples()[0])
+                if value is not None and len(value) in sizes:
+                    cage_prim = str(prim.GetPath())
+                    break
+        else:
+            raise BindingError(f"{path}: no mesh with {n_handles} time-sampled points (the bound cage's vertex count); "
+                               "name the cage's prim (--cage-prim)")
+        del stage
+    positions, times, rate, surface = cage_animation(path, cage_prim, n_handles)
+    name = f"{path}:{cage_prim}"
+    pose_vertices(positions[0], surface.faces, cage_faces, source_index, name)  # the topology, checked once
+    if positions.shape[1] != n_handles:  # a triangle soup laid out like the bound cage's source: merged
+        merge = np.zeros((n_handles, positions.shape[1]))
+        merge[source_index, np.arange(len(source_index))] = 1.0
+        positions = (merge / merge.sum(axis=1, keepdims=True)) @ positions
+    return Poses(positions, times, name, rate)
 
 
 def _checked(poses: Poses) -> Poses:
@@ -206,7 +196,8 @@ def _checked(poses: Poses) -> Poses:
     return poses
 
 
-def load_poses(source, cage_faces: np.ndarray, n_handles: int | None = None, source_index=None) -> Poses:
+def load_poses(source, cage_faces: np.ndarray, n_handles: int | None = None, source_index=None,
+               cage_prim: str | None = None) -> Poses:
     """Read a sequence of cage poses and check that every frame has the bound cage's topology.
 
     Parameters
@@ -214,11 +205,13 @@ def load_poses(source, cage_faces: np.ndarray, n_handles: int | None = None, sou
     source : path | array (F, L, 3) | Poses
         A folder of OBJ frames (sorted naturally, frame numbers taken from the last number in each name),
         a ``.npy`` array or ``.npz`` archive (key ``poses``, optional ``frames``), or a USD file whose cage mesh
-        has time-sampled points (the first mesh with the cage's vertex count).
+        has time-sampled points (``cage_prim``, else the first mesh with the cage's vertex count), one pose per
+        time sample in world space, at its time code.
     cage_faces : (T, 3) int array, the bound cage's triangles
     n_handles : int, the bound cage's vertex count (default: from ``cage_faces``)
     source_index : the bound cage's map from its source's vertices to handles (``Cage.source_index``), for OBJ
         frames laid out like a triangle-soup source
+    cage_prim : str, optional, for a USD file: the cage's prim path
 
     Returns
     -------
@@ -253,5 +246,7 @@ def load_poses(source, cage_faces: np.ndarray, n_handles: int | None = None, sou
     if ext in (".npy", ".npz"):
         return _checked(_from_array(path, n_handles))
     if ext in (".usd", ".usda", ".usdc", ".usdz"):
-        return _checked(_from_usd(path, cage_faces, n_handles))
+        return _checked(_from_usd(path, cage_faces, n_handles, source_index, cage_prim))
+    if cage_prim is not None:
+        raise BindingError(f"{path}: a cage prim is named, but the poses are not a USD file")
     raise BindingError(f"{path}: poses must be a folder of OBJ frames, a .npy/.npz array or a USD file")
