@@ -200,3 +200,50 @@ def test_a_batch_killed_with_sigkill_is_completed_by_the_next_run(manifest, tmp_
                                        "summary.json"]
     statuses = {a["name"]: a["status"] for a in json.loads((out / "summary.json").read_text())["assets"]}
     assert statuses["arm_c"] == "ok" and statuses["open"] == "failed"
+
+
+def test_usd_assets_in_a_manifest(tmp_path):
+    from pxr import Sdf, Usd, UsdGeom
+
+    from usd_assets import BAND, CAGE, TIMES, write_asset
+
+    mesh, cage = ws.load_surface(EXAMPLE / "arm.obj"), ws.load_surface(EXAMPLE / "arm_cage.obj")
+    diagonal = float(np.linalg.norm(np.ptp(cage.vertices, axis=0)))
+    (tmp_path / "assets").mkdir()
+    write_asset(tmp_path / "assets" / "char.usda", mesh, cage, cage.vertices.mean(axis=0), 0.03 * diagonal)
+    (tmp_path / "batch.toml").write_text(f"""
+[[asset]]
+name = "char"
+mesh = "assets/char.usda"
+cage_prim = "{CAGE}"
+poses = "assets/char.usda"
+resolution = 16
+
+[[asset]]
+name = "band_only"
+mesh = "assets/char.usda"
+cage = "assets/char.usda"
+cage_prim = "{CAGE}"
+mesh_prims = ["{BAND}"]
+resolution = 16
+
+[[asset]]
+name = "wrong_prim"
+mesh = "assets/char.usda"
+cage_prim = "/Char/Nope"
+resolution = 16
+""")
+    rc = main(["batch", str(tmp_path / "batch.toml"), "-o", str(tmp_path / "out"), "--device", "cpu"])
+    assert rc == 1
+    summary = {a["name"]: a for a in json.loads((tmp_path / "out" / "summary.json").read_text())["assets"]}
+    assert summary["char"]["status"] == "ok" and summary["band_only"]["status"] == "ok"
+    assert summary["wrong_prim"]["status"] == "failed" and "no prim /Char/Nope" in summary["wrong_prim"]["error"]
+    assert ws.load_binding(tmp_path / "out" / "band_only.npz").parts[0]["path"] == BAND
+    layer = Sdf.Layer.FindOrOpen(str(tmp_path / "out" / "char.usd"))
+    assert list(layer.subLayerPaths) == ["../assets/char.usda"]
+    stage = Usd.Stage.Open(layer)
+    assert stage.GetTimeCodesPerSecond() == 30 and stage.GetStartTimeCode() == TIMES[0]
+    assert UsdGeom.Mesh(stage.GetPrimAtPath(BAND)).GetPointsAttr().GetTimeSamples() == list(TIMES)
+    with pytest.raises(ws.WarpStokesError, match=r"'cage' \(a path\) or 'cage_prim'"):
+        (tmp_path / "bad.toml").write_text('[[asset]]\nmesh = "assets/char.usda"\n')
+        ws.read_manifest(tmp_path / "bad.toml")

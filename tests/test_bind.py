@@ -73,6 +73,19 @@ def test_deform_is_w_times_c(bindings):
     np.testing.assert_allclose(b.deform(pose), b.weights.astype(np.float64) @ pose, atol=1e-4)
 
 
+def test_deform_on_the_host_matches_the_kernel(bindings):
+    import warp as wp
+
+    b = bindings("arm")
+    poses = b.cage_vertices + np.random.default_rng(5).normal(size=(4, *b.cage_vertices.shape))
+    host = ws.binding.deform.deform_on_host(b.weights, poses)  # what a CPU binding's deform uses
+    weights_t = wp.array(np.ascontiguousarray(b.weights.T), dtype=wp.float32, device="cpu")
+    kernel = ws.deform_vertices(weights_t, poses, device="cpu")
+    np.testing.assert_allclose(host, kernel, atol=1e-4)
+    np.testing.assert_allclose(host[2], b.weights.astype(np.float64) @ poses[2], atol=1e-4)
+    np.testing.assert_allclose(ws.binding.deform.deform_on_host(b.weights, poses[1]), host[1], atol=1e-6)
+
+
 def test_deform_with_a_cage_file_and_topology_check(bindings, tmp_path):
     b = bindings("ogre")
     mesh_path, cage_path = pair("ogre")

@@ -13,6 +13,12 @@ Manifest (TOML; JSON with the same keys works too, with ``"assets": [...]``)::
     poses = "arm/walk"            # optional: OBJ frames folder, .npy/.npz or USD (see load_poses)
     resolution = 48               # optional
 
+    [[asset]]                     # a USD asset: all its mesh prims in one solve, the cage a prim of it
+    mesh = "hero/hero.usd"
+    cage_prim = "/Hero/Rig/Cage"  # in `cage` when given (a USD file), else in the asset
+    mesh_prims = ["/Hero/Geo/Body", "/Hero/Geo/Cloth"]   # optional: default every mesh prim but the cage
+    poses = "hero/hero.usd"       # the cage prim's time samples; the output is a layer over the asset
+
 For each asset the batch writes ``OUTDIR/<name>.npz`` and, with poses, ``OUTDIR/<name>.usd``. A failing asset
 is reported and the batch goes on; an asset whose outputs are newer than its inputs is skipped unless forced.
 An asset's outputs are written under temporary names and renamed together at its end, so a killed batch leaves
@@ -41,7 +47,7 @@ from .io.files import atomic_output
 __all__ = ["Asset", "read_manifest", "run_batch", "format_summary"]
 
 ASSET_KEYS = {"name", "mesh", "cage", "poses", "resolution", "fps", "tol", "with_cage", "with_weights", "boundary",
-              "sampling"}
+              "sampling", "cage_prim", "mesh_prims", "rest_time"}
 
 
 class ManifestError(WarpStokesError):
@@ -52,10 +58,13 @@ class ManifestError(WarpStokesError):
 class Asset:
     name: str
     mesh: str
-    cage: str
+    cage: str | None = None
     poses: str | None = None
     resolution: int = 64
-    fps: float = 24.0
+    fps: float | None = None
+    cage_prim: str | None = None
+    mesh_prims: list | None = None
+    rest_time: float | None = None
     tol: float = 1e-6
     boundary: str = "local"
     sampling: str = "hermite"
@@ -163,9 +172,17 @@ def read_manifest(path) -> list[Asset]:
         unknown = set(merged) - ASSET_KEYS
         if unknown:
             raise ManifestError(f"{where}: unknown key(s) {sorted(unknown)}; known: {sorted(ASSET_KEYS)}")
-        for key in ("mesh", "cage"):
-            if not isinstance(merged.get(key), str):
-                raise ManifestError(f"{where}: '{key}' (a path) is required")
+        if not isinstance(merged.get("mesh"), str):
+            raise ManifestError(f"{where}: 'mesh' (a path) is required")
+        if merged.get("cage_prim") is not None and not isinstance(merged["cage_prim"], str):
+            raise ManifestError(f"{where}: 'cage_prim' must be a prim path")
+        if not isinstance(merged.get("cage"), str) and merged.get("cage_prim") is None:
+            raise ManifestError(f"{where}: 'cage' (a path) or 'cage_prim' (a prim of the USD asset) is required")
+        if merged.get("cage") is not None and not isinstance(merged["cage"], str):
+            raise ManifestError(f"{where}: 'cage' must be a path")
+        prims = merged.get("mesh_prims")
+        if prims is not None and not (isinstance(prims, list) and prims and all(isinstance(p, str) for p in prims)):
+            raise ManifestError(f"{where}: 'mesh_prims' must be a list of prim paths")
         if merged.get("poses") is not None and not isinstance(merged["poses"], str):
             raise ManifestError(f"{where}: 'poses' must be a path")
         if merged.get("boundary", "local") not in ("local", "mvc"):
@@ -173,7 +190,7 @@ def read_manifest(path) -> list[Asset]:
         if merged.get("sampling", "hermite") not in ("hermite", "trilinear"):
             raise ManifestError(f"{where}: 'sampling' must be \"hermite\" or \"trilinear\"")
         for key, kind in (("resolution", int), ("fps", (int, float)), ("tol", (int, float)),
-                          ("with_cage", bool), ("with_weights", bool)):
+                          ("with_cage", bool), ("with_weights", bool), ("rest_time", (int, float))):
             if key in merged and (not isinstance(merged[key], kind) or (kind is int and isinstance(merged[key], bool))):
                 raise ManifestError(f"{where}: '{key}' has the wrong type ({type(merged[key]).__name__})")
         for key in ("mesh", "cage", "poses"):
@@ -304,19 +321,26 @@ def _bind_asset(asset, pending: dict, device, progress, k: int, total: int, resu
     from .binding import bind
     from .geometry.cage import check_cage
     from .io.poses import load_poses
+    from .io.scene import is_usd
     from .io.usd import write_animation
+    from .io.usd_asset import read_cage_prim
 
     npz, *usd = pending
-    cage = check_cage(asset.cage)
+    if asset.cage_prim is not None and (asset.cage is None or is_usd(asset.cage)):
+        cage = check_cage(read_cage_prim(asset.cage or asset.mesh, asset.cage_prim, asset.rest_time))
+    else:
+        cage = check_cage(asset.cage)
     poses = None
     if asset.poses:
         if progress:
             _progress(progress, k, total, asset.name, "reading poses")
-        poses = load_poses(asset.poses, cage.faces, cage.n_handles, cage.source_index)
+        poses = load_poses(asset.poses, cage.faces, cage.n_handles, cage.source_index,
+                           cage_prim=asset.cage_prim if is_usd(asset.poses) else None)
     if progress:
         _progress(progress, k, total, asset.name, f"binding at resolution {asset.resolution}")
     binding = bind(asset.mesh, cage, resolution=asset.resolution, device=device, tol=asset.tol,
-                   boundary=asset.boundary, sampling=asset.sampling)
+                   boundary=asset.boundary, sampling=asset.sampling, cage_prim=asset.cage_prim,
+                   mesh_prims=asset.mesh_prims, rest_time=asset.rest_time)
     result.vertices, result.handles = binding.n_vertices, binding.n_handles
     if not binding.stats["converged"]:
         raise WarpStokesError(

@@ -201,9 +201,10 @@ def bind(mesh, cage=None, resolution: int = 64, device=None, tol: float = 1e-6, 
 
 
 def _cage_source(mesh, cage, cage_prim, rest_time):
-    """What :func:`check_cage` reads: ``cage`` itself, or the surface of its prim (in ``cage``, or in the mesh's
-    stage when ``cage`` is not given)."""
-    if cage_prim is not None:
+    """What :func:`check_cage` reads: ``cage`` itself (a file, arrays, a checked Cage; ``cage_prim`` then only keeps
+    that prim out of the meshes), or the surface of the prim ``cage_prim`` in ``cage`` when that is a USD file, or
+    in the mesh's stage when no cage is given."""
+    if cage_prim is not None and (cage is None or is_usd(cage)):
         from ..io.usd_asset import read_cage_prim
 
         stage_file = mesh if cage is None else cage

@@ -16,7 +16,7 @@ from ..errors import BindingError, WarpStokesError
 from ..io.files import atomic_output
 from ..io.load import Surface, load_surface
 from ..io.poses import pose_vertices
-from .deform import deform_vertices
+from .deform import deform_on_host, deform_vertices
 
 __all__ = ["Binding", "load_binding", "fingerprint", "FORMAT"]
 
@@ -129,6 +129,8 @@ class Binding:
         )
         if is_cage:
             poses = self._check_topology(load_surface(poses))
+        if self.device.is_cpu and not isinstance(poses, wp.array):
+            return deform_on_host(self.weights, poses)
         if self._weights_t is None:
             self._weights_t = wp.array(np.ascontiguousarray(self.weights.T), dtype=wp.float32, device=self.device)
         return deform_vertices(self._weights_t, poses, device=self.device)

@@ -52,38 +52,33 @@ class NormalsPlan:
         self.fan = np.stack([corners[first[self.fan_face]], corners[first[self.fan_face] + k + 1],
                              corners[first[self.fan_face] + k + 2]], axis=1)
         self.n_faces = len(counts)
-        corner_face = np.repeat(np.arange(len(counts)), counts)
+        self.fan_columns = tuple(np.ascontiguousarray(column) for column in self.fan.T)
+        self.corner_face = np.repeat(np.arange(len(counts)), counts)
+        self.triangles_only = bool(len(counts)) and bool((counts == 3).all())
+        self.groups = self.n_groups = None
         if interpolation in ("vertex", "varying"):
-            groups, n_groups = corners, n_points
+            self.groups, self.n_groups = corners, n_points
         elif interpolation == "faceVarying":
             if rest_normals is not None and len(rest_normals) == len(corners):
                 rounded = np.round(np.asarray(rest_normals, dtype=np.float64) * 1e4).astype(np.int64)
                 _, groups = np.unique(np.column_stack([corners, rounded]), axis=0, return_inverse=True)
-                groups = groups.ravel()
             else:
                 _, groups = np.unique(corners, return_inverse=True)
-            n_groups = int(groups.max()) + 1 if len(groups) else 0
-            self.corner_group = groups
-        else:
-            groups = n_groups = None
-        if groups is not None:
-            # a gather then one reduceat per frame: no scattered atomic sums in numpy
-            self.order = np.argsort(groups, kind="stable")
-            self.order_face = corner_face[self.order]
-            sorted_groups = groups[self.order]
-            self.starts = np.flatnonzero(np.r_[True, sorted_groups[1:] != sorted_groups[:-1]]) if len(groups) else \
-                np.zeros(0, dtype=np.int64)
-            self.present = sorted_groups[self.starts]
-            self.n_groups = n_groups
+            self.groups = groups.ravel()
+            self.n_groups = int(self.groups.max()) + 1 if len(self.groups) else 0
 
     def face_normals(self, points) -> np.ndarray:
-        """(F, 3) area-weighted (unnormalised) normals of the polygons."""
-        p = np.asarray(points, dtype=np.float64)
-        cross = np.cross(p[self.fan[:, 1]] - p[self.fan[:, 0]], p[self.fan[:, 2]] - p[self.fan[:, 0]])
-        out = np.zeros((self.n_faces, 3))
-        for axis in range(3):
-            out[:, axis] = np.bincount(self.fan_face, weights=cross[:, axis], minlength=self.n_faces)
-        return self.sign * out
+        """(3, F) area-weighted (unnormalised) normals of the polygons, one row per axis."""
+        # one coordinate axis at a time (structure of arrays): 4x faster than np.cross on (N, 3) rows
+        x, y, z = np.ascontiguousarray(np.asarray(points, dtype=np.float64).T)
+        a, b, c = self.fan_columns
+        ax, ay, az = x[b] - x[a], y[b] - y[a], z[b] - z[a]
+        bx, by, bz = x[c] - x[a], y[c] - y[a], z[c] - z[a]
+        cross = (ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx)
+        if self.triangles_only:  # one fan triangle per polygon, in order
+            return self.sign * np.stack(cross)
+        return self.sign * np.stack([np.bincount(self.fan_face, weights=axis, minlength=self.n_faces)
+                                     for axis in cross])
 
     def __call__(self, points) -> np.ndarray:
         """The normals of the mesh with these points: float32, one per point, corner, polygon, or one in all."""
@@ -91,11 +86,11 @@ class NormalsPlan:
         if self.interpolation == "uniform":
             out = faces
         elif self.interpolation == "constant":
-            out = faces.sum(axis=0, keepdims=True)
+            out = faces.sum(axis=1, keepdims=True)
         else:
-            sums = np.zeros((self.n_groups, 3))
-            if len(self.starts):
-                sums[self.present] = np.add.reduceat(faces[self.order_face], self.starts, axis=0)
-            out = sums[self.corner_group] if self.interpolation == "faceVarying" else sums
-        length = np.linalg.norm(out, axis=1, keepdims=True)
-        return (out / np.where(length > 0, length, 1.0)).astype(np.float32)
+            out = np.stack([np.bincount(self.groups, weights=axis[self.corner_face], minlength=self.n_groups)
+                            for axis in faces])
+            if self.interpolation == "faceVarying":
+                out = out[:, self.groups]
+        length = np.sqrt((out * out).sum(axis=0))
+        return (out / np.where(length > 0, length, 1.0)).T.astype(np.float32)
