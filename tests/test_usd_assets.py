@@ -272,3 +272,25 @@ def test_gltf_scene_nodes_are_bound_in_world_space(tmp_path):
     assert [c.GetName() for c in stage.GetPrimAtPath("/Root").GetChildren()] == ["part0", "part1"]
     second = np.asarray(UsdGeom.Mesh(stage.GetPrimAtPath("/Root/part1")).GetPointsAttr().Get(TIMES[1]))
     np.testing.assert_allclose(second, binding.deform(poses.positions[1])[binding.part_slices()[1]], atol=1e-6)
+
+
+@pytest.mark.parametrize("ext", [".usd", ".usda"])
+def test_long_animations_are_written_in_chunks_and_read_back_whole(asset, tmp_path, ext):
+    from warp_stokes.io.usd import FRAMES_PER_CHUNK
+
+    path, binding, geometry, diagonal = asset
+    n = 2 * FRAMES_PER_CHUNK + 17  # binary layers are saved and reloaded after each chunk but the last
+    blend = np.linspace(0.0, 1.0, n)[:, None, None]
+    poses = ws.Poses(geometry["poses"][0] + blend * (geometry["poses"][2] - geometry["poses"][0]),
+                     np.arange(1.0, n + 1), "blend")
+    out = ws.write_animation(tmp_path / f"long{ext}", binding, poses)
+    assert sorted(os.listdir(tmp_path)) == [f"long{ext}"]
+    stage = Usd.Stage.Open(out)
+    assert Sdf.Layer.FindOrOpen(out).subLayerPaths[0] == os.path.relpath(path, tmp_path)
+    body = UsdGeom.Mesh(stage.GetPrimAtPath(BODY))
+    assert body.GetPointsAttr().GetTimeSamples() == list(poses.frames)
+    assert body.GetNormalsAttr().GetNumTimeSamples() == n
+    deformed = binding.deform(poses.positions)
+    for k in (0, FRAMES_PER_CHUNK - 1, FRAMES_PER_CHUNK, n - 1):
+        world = np.concatenate([_world(stage, BODY, k + 1.0), _world(stage, BAND, k + 1.0)])
+        np.testing.assert_allclose(world, deformed[k], atol=1e-5 * diagonal)

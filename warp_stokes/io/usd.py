@@ -83,13 +83,21 @@ def _set_timing(stage, frames: np.ndarray, rate: float) -> None:
     stage.SetEndTimeCode(float(frames.max()))
 
 
-def _frames(binding, positions: np.ndarray, frames: np.ndarray):
-    """(time code, cage pose, deformed vertices (V, 3) float32) per frame, deformed in chunks on the device."""
+def _frames(binding, positions: np.ndarray, frames: np.ndarray, layer, path: str, ext: str):
+    """(time code, cage pose, deformed vertices (V, 3) float32) per frame, deformed in chunks on the device.
+
+    After each chunk a binary (crate) layer is saved and reloaded: crate files take new data by appending, and a
+    reloaded layer reads its samples from the file on demand, so memory stays bounded by a chunk instead of
+    growing with the animation (1,000 frames of 26k vertices: 26 MiB instead of 300, and faster). A text layer
+    is rewritten whole on every save, so it is saved once, at the end."""
     for start in range(0, len(positions), FRAMES_PER_CHUNK):
         chunk = positions[start : start + FRAMES_PER_CHUNK]
         deformed = binding.deform(chunk)  # all frames of the chunk in one launch on the binding's device
         for k, frame_points in enumerate(deformed):
             yield float(frames[start + k]), chunk[k], frame_points
+        if ext != ".usda" and start + FRAMES_PER_CHUNK < len(positions):
+            _save(layer, path)
+            layer.Reload()
 
 
 def write_animation(path, binding, poses: Poses, fps: float | None = None, with_cage: bool = False,
@@ -210,7 +218,7 @@ def _write_standalone(path, ext, binding, positions, frames, poses, fps, with_ca
             cage = _define_mesh(stage, "/Root/Cage", np.full(len(binding.cage_faces), 3), binding.cage_faces.ravel(),
                                 binding.cage_vertices)
             UsdGeom.Imageable(cage).CreatePurposeAttr(UsdGeom.Tokens.guide)
-        for t, pose, deformed in _frames(binding, positions, frames):
+        for t, pose, deformed in _frames(binding, positions, frames, layer, path, ext):
             time = Usd.TimeCode(t)
             for rows, points, extent, normals_attr, plan in writers:
                 local = deformed[rows]
@@ -332,7 +340,7 @@ def _write_layer(path, ext, binding, positions, frames, poses, fps, with_cage, w
                 raise WarpStokesError(f"--with-cage: {asset_path} has no cage prim {cage_prim} with "
                                       f"{binding.n_handles} points")
             cage = _Override(cage_mesh, slice(0, binding.n_handles))
-        for t, pose, deformed in _frames(binding, positions, frames):
+        for t, pose, deformed in _frames(binding, positions, frames, layer, path, ext):
             time = Usd.TimeCode(t)
             cache = UsdGeom.XformCache(time)
             for part in parts:
