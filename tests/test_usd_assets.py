@@ -294,3 +294,27 @@ def test_long_animations_are_written_in_chunks_and_read_back_whole(asset, tmp_pa
     for k in (0, FRAMES_PER_CHUNK - 1, FRAMES_PER_CHUNK, n - 1):
         world = np.concatenate([_world(stage, BODY, k + 1.0), _world(stage, BAND, k + 1.0)])
         np.testing.assert_allclose(world, deformed[k], atol=1e-5 * diagonal)
+
+
+def test_broken_usd_meshes_are_named(tmp_path):
+    cage = ws.load_surface(EXAMPLE / "arm_cage.obj")
+    c = cage.vertices.mean(axis=0)
+    text = f"""#usda 1.0
+def Mesh "Bad"
+{{
+    point3f[] points = [({c[0]}, {c[1]}, {c[2]}), ({c[0] + 1}, {c[1]}, {c[2]}), ({c[0]}, {c[1] + 1}, {c[2]})]
+    int[] faceVertexCounts = [3, 4]
+    int[] faceVertexIndices = [0, 1, 2, 0, 1, 2, 9]
+}}
+def Mesh "Empty"
+{{
+}}
+"""
+    (tmp_path / "bad.usda").write_text(text)
+    with pytest.raises(ws.MeshError, match=r"bad.usda:/Bad: face 1 refers to vertex 9, but there are only 3 points"):
+        ws.bind(tmp_path / "bad.usda", EXAMPLE / "arm_cage.obj", mesh_prims=["/Bad"], resolution=8, device="cpu")
+    with pytest.raises(ws.MeshError, match="bad.usda: /Empty has no points"):
+        ws.bind(tmp_path / "bad.usda", EXAMPLE / "arm_cage.obj", mesh_prims=["/Empty"], resolution=8, device="cpu")
+    (tmp_path / "text.usda").write_text("#usda 1.0\n( not usd\n")
+    with pytest.raises(ws.MeshError, match="text.usda: cannot open it as a USD stage"):
+        ws.bind(tmp_path / "text.usda", EXAMPLE / "arm_cage.obj", resolution=8, device="cpu")

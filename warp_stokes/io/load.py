@@ -13,7 +13,7 @@ import numpy as np
 
 from ..errors import MeshError
 
-__all__ = ["Surface", "load_surface"]
+__all__ = ["Surface", "load_surface", "fan_triangles"]
 
 
 @dataclass(frozen=True)
@@ -59,6 +59,27 @@ class Surface:
         return np.full(len(self.faces), 3, dtype=np.int64), self.faces.ravel()
 
 
+def fan_triangles(face_counts, face_indices) -> tuple[np.ndarray, np.ndarray]:
+    """Fan triangles ``(first, k, k + 1)`` of polygons given as counts and flat corner indices (USD's layout),
+    vectorised, each polygon's triangles together and in order; and the polygon of each triangle.
+
+    Examples
+    --------
+    >>> triangles, polygon = fan_triangles([4, 3], [0, 1, 2, 3, 3, 2, 4])
+    >>> triangles.tolist(), polygon.tolist()
+    ([[0, 1, 2], [0, 2, 3], [3, 2, 4]], [0, 0, 1])
+    """
+    counts = np.asarray(face_counts, dtype=np.int64)
+    corners = np.asarray(face_indices, dtype=np.int64)
+    first = np.concatenate([[0], np.cumsum(counts)[:-1]]) if len(counts) else np.zeros(0, dtype=np.int64)
+    n_fans = np.maximum(counts - 2, 0)
+    polygon = np.repeat(np.arange(len(counts)), n_fans)
+    k = np.arange(int(n_fans.sum())) - np.repeat(np.cumsum(n_fans) - n_fans, n_fans)
+    start = first[polygon]
+    triangles = np.stack([corners[start], corners[start + k + 1], corners[start + k + 2]], axis=1)
+    return triangles.reshape(-1, 3), polygon
+
+
 def _triangulate(polygons, name: str, n_vertices: int) -> np.ndarray:
     """Fan-triangulate a list of polygons (or an (F, k) array) into (T, 3) int64 triangles."""
     if isinstance(polygons, np.ndarray) and polygons.ndim == 2:
@@ -73,14 +94,12 @@ def _triangulate(polygons, name: str, n_vertices: int) -> np.ndarray:
         # interleave so that each polygon's triangles stay together
         out = np.stack(tris, axis=1).reshape(-1, 3)
     else:
-        out_list = []
-        for i, poly in enumerate(polygons):
-            poly = np.asarray(poly)
+        polys = [np.asarray(poly) for poly in polygons]
+        for i, poly in enumerate(polys):
             if poly.ndim != 1 or len(poly) < 3:
                 raise MeshError(f"{name}: face {i} has {poly.size} vertices; a face needs at least 3")
-            for k in range(1, len(poly) - 1):
-                out_list.append((poly[0], poly[k], poly[k + 1]))
-        out = np.asarray(out_list, dtype=np.int64).reshape(-1, 3)
+        counts = np.array([len(p) for p in polys], dtype=np.int64)
+        out, _ = fan_triangles(counts, np.concatenate(polys) if polys else np.zeros(0, dtype=np.int64))
     out = out.astype(np.int64)
     if out.size and (out.min() < 0 or out.max() >= n_vertices):
         bad = int(np.flatnonzero((out < 0).any(axis=1) | (out >= n_vertices).any(axis=1))[0])

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .load import fan_triangles
+
 __all__ = ["NormalsPlan", "INTERPOLATIONS"]
 
 #: USD interpolations of normals that can be recomputed from the points
@@ -44,13 +46,8 @@ class NormalsPlan:
         corners = np.asarray(face_indices, dtype=np.int64)
         self.interpolation = interpolation
         self.sign = -1.0 if left_handed else 1.0
-        first = np.concatenate([[0], np.cumsum(counts)[:-1]])
-        # fan triangles (first, k, k + 1) of every polygon: their cross products sum to the polygon's area normal
-        n_fans = np.maximum(counts - 2, 0)
-        self.fan_face = np.repeat(np.arange(len(counts)), n_fans)
-        k = np.arange(int(n_fans.sum())) - np.repeat(np.cumsum(n_fans) - n_fans, n_fans)
-        self.fan = np.stack([corners[first[self.fan_face]], corners[first[self.fan_face] + k + 1],
-                             corners[first[self.fan_face] + k + 2]], axis=1)
+        # fan triangles of every polygon: their cross products sum to the polygon's area normal
+        self.fan, self.fan_face = fan_triangles(counts, corners)
         self.n_faces = len(counts)
         self.fan_columns = tuple(np.ascontiguousarray(column) for column in self.fan.T)
         self.corner_face = np.repeat(np.arange(len(counts)), counts)

@@ -7,7 +7,7 @@ import os
 import numpy as np
 
 from ..errors import BindingError, CageError, MeshError
-from .load import Surface, load_surface
+from .load import Surface, fan_triangles, load_surface
 from .scene import MeshPart, Scene
 
 __all__ = ["open_stage", "read_asset", "read_cage_prim", "rest_time_code", "mesh_prim", "world_matrix",
@@ -84,10 +84,16 @@ def _surface(mesh, time, name: str, error) -> tuple[Surface, np.ndarray]:
     counts, indices = np.asarray(counts, dtype=np.int64), np.asarray(indices, dtype=np.int64)
     if counts.min() < 3 or counts.sum() != len(indices):
         raise error(f"{name}: {path} has inconsistent faceVertexCounts and faceVertexIndices")
+    outside = (indices < 0) | (indices >= len(points))
+    if outside.any():
+        corner = int(np.flatnonzero(outside)[0])
+        polygon = int(np.searchsorted(np.cumsum(counts), corner, side="right"))
+        raise error(f"{name}:{path}: face {polygon} refers to vertex {int(indices[corner])}, but there are only "
+                    f"{len(points)} points")
     matrix = world_matrix(mesh.GetPrim(), time)
-    polygons = np.split(indices, np.cumsum(counts)[:-1])
+    triangles, _ = fan_triangles(counts, indices)  # vectorised: a USD mesh may have a million polygons
     try:
-        surface = load_surface((to_world(np.asarray(points), matrix), polygons), name=f"{name}:{path}")
+        surface = load_surface((to_world(np.asarray(points), matrix), triangles), name=f"{name}:{path}")
     except MeshError as exc:
         raise error(str(exc)) from None
     return Surface(surface.vertices, surface.faces, surface.name, None, counts, indices), matrix
