@@ -181,6 +181,7 @@ def _write_standalone(path, ext, binding, positions, frames, poses, fps, with_ca
     # each part's polygons: the polygons are in part order, each over its part's vertices
     corner_offsets = np.concatenate([[0], np.cumsum(counts)])
     face_part = np.searchsorted(np.array([s.stop for s in slices]), indices[corner_offsets[:-1]], side="right")
+    corner_part = np.repeat(face_part, counts)
     normals = binding.mesh_normals if normals is None else np.asarray(normals)
     with atomic_output(path, ext) as tmp:
         layer, stage = _new_stage(tmp, ext)
@@ -191,9 +192,7 @@ def _write_standalone(path, ext, binding, positions, frames, poses, fps, with_ca
         stage.SetDefaultPrim(root.GetPrim())
         taken, writers = set(), []
         for k, (part, rows) in enumerate(zip(binding.parts, slices)):
-            faces = np.flatnonzero(face_part == k)
-            corners = np.concatenate([np.arange(corner_offsets[f], corner_offsets[f + 1]) for f in faces]) if len(
-                faces) else np.zeros(0, dtype=np.int64)
+            faces, corners = np.flatnonzero(face_part == k), np.flatnonzero(corner_part == k)
             part_counts, part_indices = counts[faces], indices[corners] - rows.start
             name = "Mesh" if len(slices) == 1 else _prim_name(part["path"], taken)
             mesh = _define_mesh(stage, f"/Root/{name}", part_counts, part_indices, binding.mesh_vertices[rows])
