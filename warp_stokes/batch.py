@@ -323,7 +323,7 @@ def _bind_asset(asset, pending: dict, device, progress, k: int, total: int, resu
     from .io.poses import load_poses
     from .io.scene import is_usd
     from .io.usd import write_animation
-    from .io.usd_asset import read_cage_prim
+    from .io.usd.asset import read_cage_prim
 
     npz, *usd = pending
     if asset.cage_prim is not None and (asset.cage is None or is_usd(asset.cage)):

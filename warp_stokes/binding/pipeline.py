@@ -205,7 +205,7 @@ def _cage_source(mesh, cage, cage_prim, rest_time):
     that prim out of the meshes), or the surface of the prim ``cage_prim`` in ``cage`` when that is a USD file, or
     in the mesh's stage when no cage is given."""
     if cage_prim is not None and (cage is None or is_usd(cage)):
-        from ..io.usd_asset import read_cage_prim
+        from ..io.usd.asset import read_cage_prim
 
         stage_file = mesh if cage is None else cage
         if not is_usd(stage_file):

@@ -161,7 +161,7 @@ def _from_usd(path: str, cage_faces: np.ndarray, n_handles: int, source_index=No
               cage_prim: str | None = None) -> Poses:
     from pxr import UsdGeom
 
-    from .usd_asset import cage_animation, open_stage
+    from .usd.asset import cage_animation, open_stage
 
     if cage_prim is None:  # the first mesh with time-sampled points and the cage's vertex count
         stage = open_stage(path, BindingError)

@@ -158,7 +158,7 @@ def load_scene(source, mesh_prims=None, cage_prim: str | None = None, rest_time=
     if isinstance(source, Scene):
         return source
     if is_usd(source):
-        from .usd_asset import read_asset
+        from .usd.asset import read_asset
 
         return read_asset(os.fspath(source), mesh_prims=mesh_prims, exclude=(cage_prim,) if cage_prim else (),
                           rest_time=rest_time, cage_prim=cage_prim)

@@ -6,9 +6,9 @@ import os
 
 import numpy as np
 
-from ..errors import BindingError, CageError, MeshError
-from .load import Surface, fan_triangles, load_surface
-from .scene import MeshPart, Scene
+from ...errors import BindingError, CageError, MeshError
+from ..load import Surface, fan_triangles, load_surface
+from ..scene import MeshPart, Scene
 
 __all__ = ["open_stage", "read_asset", "read_cage_prim", "rest_time_code", "mesh_prim", "world_matrix",
            "stage_metadata"]

@@ -1,0 +1,94 @@
+"""Animated USD out, written with pxr (usd-core): :func:`write_animation` checks its arguments and writes one of
+the two forms.
+
+Two forms, chosen by where the binding came from:
+
+- **a layer over the asset** (a binding of a USD asset): the output's root layer sublayers the asset by a relative
+  path and authors only overrides: each bound prim's ``points`` and ``extent`` per time code, in the prim's local
+  space, and its normals per time code where the asset authors normals. Topology, UVs, subsets, materials and
+  transforms come from the asset through composition.
+- **a standalone stage** (OBJ, glTF, arrays): ``/Root`` with one mesh per bound part, its polygons as read (quads
+  stay quads), UVs as a face-varying ``primvars:st``, and per-frame normals when the source had normals.
+
+Frames are deformed on the device in chunks of :data:`FRAMES_PER_CHUNK`, so memory stays bounded for long
+animations.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from ...errors import WarpStokesError
+from ..poses import Poses
+from .layer import write_layer
+from .standalone import write_standalone
+
+__all__ = ["write_animation"]
+
+
+def _check(path: str, binding, poses: Poses, fps) -> tuple[str, np.ndarray, np.ndarray]:
+    path = os.fspath(path)
+    ext = os.path.splitext(path)[1].lower()
+    if ext not in (".usd", ".usdc", ".usda"):
+        raise WarpStokesError(f"{path}: the output must end in .usd, .usdc or .usda")
+    if fps is not None and not fps > 0:
+        raise WarpStokesError(f"fps must be positive, got {fps!r}")
+    positions = np.asarray(poses.positions, dtype=np.float64)
+    if positions.ndim != 3 or positions.shape[1:] != (binding.n_handles, 3):
+        raise WarpStokesError(f"{poses.name}: poses of shape {positions.shape} do not fit a cage of "
+                              f"{binding.n_handles} vertices")
+    frames = np.asarray(poses.frames, dtype=np.float64)
+    if len(positions) == 0 or frames.shape != (len(positions),) or len(np.unique(frames)) != len(frames):
+        raise WarpStokesError(f"{poses.name}: need at least one pose and one distinct frame number per pose")
+    if len(binding.mesh_faces) == 0:
+        raise WarpStokesError("the bound mesh has no faces: there is nothing to write as a USD mesh")
+    return ext, positions, frames
+
+
+def write_animation(path, binding, poses: Poses, fps: float | None = None, with_cage: bool = False,
+                    with_weights: bool = False, up_axis: str | None = None, meters_per_unit: float | None = None,
+                    normals: np.ndarray | None = None, asset=None) -> str:
+    """Write the bound mesh, deformed by every cage pose, as animated USD.
+
+    For a binding of a USD asset, a layer over the asset (overrides only, see the module docstring); otherwise a
+    standalone stage with one ``UsdGeom.Mesh`` per bound part (``/Root/Mesh`` for a single mesh). ``points`` and
+    ``extent`` are time samples at the poses' frame numbers; the stage's start and end time codes and time codes
+    per second follow the poses. The file is written under a temporary name in the target folder and renamed when
+    complete.
+
+    Parameters
+    ----------
+    path : str | os.PathLike, ``.usd`` or ``.usdc`` (binary crate) or ``.usda`` (text)
+    binding : Binding
+    poses : Poses, e.g. from :func:`warp_stokes.load_poses`
+    fps : float, optional, time codes per second (default: the poses' own rate when they came from a USD stage,
+        else the asset's, else 24)
+    with_cage : bool, also write the animated cage: ``/Root/Cage`` (purpose guide) in a standalone stage; over
+        an asset, the cage prim's points, when the binding's cage is a prim of the asset
+    with_weights : bool, write the weights as the primvar ``primvars:stokesWeights`` (vertex interpolation,
+        element size = handles)
+    up_axis : "Y" | "Z", optional (standalone: default "Y"; over an asset: the asset's, which cannot be changed)
+    meters_per_unit : float, optional (as ``up_axis``; default 1)
+    normals : (V, 3) array, optional, standalone only: rest normals that make the output carry normals (default:
+        the binding's, when the mesh file had them); recomputed for every frame
+    asset : path, optional, the USD asset to layer over, where it is not at the path recorded in the binding
+
+    Returns
+    -------
+    str, the path written
+
+    Examples
+    --------
+    >>> write_animation("walk.usd", binding, load_poses("walk/", binding.cage_faces))  # doctest: +SKIP
+    """
+    ext, positions, frames = _check(path, binding, poses, fps)
+    path = os.fspath(path)
+    if binding.asset is not None or asset is not None:
+        if normals is not None:
+            raise WarpStokesError("normals: a layer over an asset recomputes the normals the asset authors")
+        return write_layer(path, ext, binding, positions, frames, poses, fps, with_cage, with_weights, up_axis,
+                            meters_per_unit, asset)
+    return write_standalone(path, ext, binding, positions, frames, poses, fps, with_cage, with_weights,
+                             up_axis or "Y", 1.0 if meters_per_unit is None else meters_per_unit, normals)
