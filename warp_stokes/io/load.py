@@ -6,12 +6,12 @@ Vertex order is preserved exactly (no merging, no reordering): users map weights
 from __future__ import annotations
 
 import os
-import re
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..errors import MeshError
+from .obj import read_obj
 
 __all__ = ["Surface", "load_surface", "fan_triangles"]
 
@@ -141,146 +141,6 @@ def _from_arrays(vertices, faces, name: str) -> Surface:
                    face_indices=indices)
 
 
-def _records(lines: list, tag: str) -> tuple[np.ndarray, np.ndarray]:
-    """All tokens of the lines starting with `tag` (tag tokens removed) and each line's token count, in one
-    vectorised pass: 50k-line files take milliseconds instead of a Python loop per line."""
-    tokens = np.array("\n".join(ln for ln in lines if ln.startswith(tag + " ")).split())
-    if len(tokens) == 0:
-        return tokens, np.zeros(0, dtype=np.int64)
-    starts = np.flatnonzero(tokens == tag)
-    counts = np.diff(np.append(starts, len(tokens))) - 1
-    return tokens[np.setdiff1d(np.arange(len(tokens)), starts, assume_unique=True)], counts
-
-
-_VERTEX = re.compile(r"^v[ \t]+(\S+)[ \t]+(\S+)[ \t]+(\S+)", re.M)
-_TRIANGLE = re.compile(r"^f[ \t]+(\d+)\S*[ \t]+(\d+)\S*[ \t]+(\d+)\S*[ \t]*$", re.M)
-
-
-def _count_records(text: str, tag: str) -> int:
-    return text.count("\n" + tag + " ") + text.startswith(tag + " ")
-
-
-def _read_obj_triangles(text: str):
-    """The common case at C speed: every face a triangle with positive indices, no normals. None otherwise."""
-    if "\nvn " in text or text.startswith("vn ") or "\nvt " in text or text.startswith("vt "):
-        return None
-    vertices = _VERTEX.findall(text)
-    triangles = _TRIANGLE.findall(text)
-    if len(vertices) != _count_records(text, "v") or len(triangles) != _count_records(text, "f"):
-        return None
-    try:
-        verts = np.array(vertices, dtype=np.float64).reshape(-1, 3)
-    except ValueError:
-        return None
-    faces = np.array(triangles, dtype=np.int64).reshape(-1, 3) - 1
-    if faces.size and faces.min() < 0:
-        return None
-    return verts, faces, None, None
-
-
-def _read_obj_polygons(path: str) -> tuple[np.ndarray, np.ndarray | list, np.ndarray | None, tuple | None]:
-    """Read an OBJ's `v` and `f` records directly, keeping file order and the polygons as written.
-
-    trimesh re-orders or splits vertices in some OBJ files (texture seams); users need file order.
-    """
-    try:
-        with open(path, encoding="utf-8", errors="replace") as fh:
-            text = fh.read()
-    except OSError as exc:
-        raise MeshError(f"{path}: cannot read it ({exc.strerror or exc})") from None
-    fast = _read_obj_triangles(text)
-    if fast is not None:
-        return fast
-    lines = text.splitlines()
-    tokens, counts = _records(lines, "v")
-    if len(counts) == 0:
-        return np.zeros((0, 3)), [], None, None
-    try:
-        if (counts < 3).any():
-            raise ValueError
-        firsts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-        verts = tokens[firsts[:, None] + np.arange(3)].astype(np.float64).reshape(-1, 3)
-    except ValueError:  # find the offending line for the message
-        for line_no, ln in enumerate(lines, 1):
-            if ln.startswith("v "):
-                try:
-                    if len([float(x) for x in ln.split()[1:4]]) != 3:
-                        raise ValueError
-                except ValueError:
-                    raise MeshError(f"{path}: line {line_no}: unreadable vertex {ln.strip()!r}") from None
-        raise
-    normals = None
-    if any(ln.startswith("vn ") for ln in lines):
-        normals = _obj_normals(lines, [(0, ln) for ln in lines if ln.startswith("f ")], len(verts))
-    tokens, counts = _records(lines, "f")
-    try:
-        indices = np.char.partition(tokens, "/")[:, 0].astype(np.int64) if len(tokens) else np.zeros(0, np.int64)
-        if (counts < 3).any():
-            raise ValueError
-    except ValueError:
-        for line_no, ln in enumerate(lines, 1):
-            if ln.startswith("f "):
-                try:
-                    if len([int(tok.split("/", 1)[0]) for tok in ln.split()[1:]]) < 3:
-                        raise ValueError
-                except ValueError:
-                    raise MeshError(f"{path}: line {line_no}: unreadable face {ln.strip()!r}") from None
-        raise
-    uvs = _obj_uvs(lines, tokens) if any(ln.startswith("vt ") for ln in lines) else None
-    if len(indices) and indices.min() > 0 and len(np.unique(counts)) == 1:
-        return verts, indices.reshape(len(counts), counts[0]) - 1, normals, uvs  # the common case
-    polys = np.split(indices, np.cumsum(counts)[:-1]) if len(indices) else []
-    if len(indices) and indices.min() < 0:
-        # negative indices count back from the last vertex read before the face
-        face_lines = [n for n, ln in enumerate(lines, 1) if ln.startswith("f ")]
-        vertex_lines = np.array([n for n, ln in enumerate(lines, 1) if ln.startswith("v ")])
-        seen = np.searchsorted(vertex_lines, face_lines)
-        polys = [np.where(p > 0, p, s + p + 1) for p, s in zip(polys, seen)]
-    return verts, [list(p - 1) for p in polys], normals, uvs
-
-
-def _obj_uvs(lines: list, face_tokens: np.ndarray) -> tuple | None:
-    """Face-varying texture coordinates: the ``vt`` table and, per face corner, its ``v/vt[/vn]`` index (None
-    unless every corner names one)."""
-    tokens, counts = _records(lines, "vt")
-    if len(counts) == 0 or (counts < 2).any() or len(face_tokens) == 0:
-        return None
-    firsts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    try:
-        st = tokens[firsts[:, None] + np.arange(2)].astype(np.float64).reshape(-1, 2)
-        refs = np.char.partition(np.char.partition(face_tokens, "/")[:, 2], "/")[:, 0]
-        if (refs == "").any():
-            return None
-        st_indices = refs.astype(np.int64)
-    except ValueError:
-        return None
-    st_indices = np.where(st_indices > 0, st_indices - 1, len(st) + st_indices)
-    if st_indices.min() < 0 or st_indices.max() >= len(st):
-        return None
-    return st, st_indices
-
-
-def _obj_normals(lines: list, face_lines: list, n_vertices: int) -> np.ndarray | None:
-    """Per-vertex normals from `vn` records and the `v//vn` or `v/vt/vn` face tokens (None if incomplete)."""
-    table = np.array([ln.split()[1:4] for ln in lines if ln.startswith("vn ")], dtype=np.float64).reshape(-1, 3)
-    sums = np.zeros((n_vertices, 3))
-    for _, ln in face_lines:
-        for tok in ln.split()[1:]:
-            parts = tok.split("/")
-            if len(parts) < 3 or not parts[2]:
-                return None
-            v, vn = int(parts[0]), int(parts[2])
-            v = v - 1 if v > 0 else n_vertices + v
-            vn = vn - 1 if vn > 0 else len(table) + vn
-            if not (0 <= v < n_vertices and 0 <= vn < len(table)):
-                return None
-            sums[v] += table[vn]
-    length = np.linalg.norm(sums, axis=1)
-    if (length == 0).any():
-        return None
-    return sums / length[:, None]
-
-
 def with_vertex_uvs(surface: Surface, mesh) -> Surface:
     """``surface`` with the per-vertex UVs of a trimesh mesh (glTF, PLY), as face-varying indexed coordinates."""
     uv = getattr(getattr(mesh, "visual", None), "uv", None)
@@ -331,7 +191,7 @@ def load_surface(source, name: str | None = None) -> Surface:
         if os.path.isdir(path):
             raise MeshError(f"{path}: is a folder, not a mesh file")
         if path.lower().endswith(".obj"):
-            verts, polys, normals, uvs = _read_obj_polygons(path)
+            verts, polys, normals, uvs = read_obj(path)
             if len(verts) == 0:
                 raise MeshError(f"{path}: the file has no vertices")
             surface = _from_arrays(verts, polys, name)
