@@ -1,0 +1,36 @@
+"""Batch binding of many assets from a manifest (TOML or JSON), with animated USD where poses are given.
+
+Manifest (TOML; JSON with the same keys works too, with ``"assets": [...]``)::
+
+    [defaults]            # optional: applies to every asset that does not say otherwise
+    resolution = 64
+    fps = 24
+
+    [[asset]]
+    name = "arm"                  # optional: default is the mesh file's name without extension
+    mesh = "arm/arm.obj"          # paths are relative to the manifest's folder
+    cage = "arm/arm_cage.obj"
+    poses = "arm/walk"            # optional: OBJ frames folder, .npy/.npz or USD (see load_poses)
+    resolution = 48               # optional
+
+    [[asset]]                     # a USD asset: all its mesh prims in one solve, the cage a prim of it
+    mesh = "hero/hero.usd"
+    cage_prim = "/Hero/Rig/Cage"  # in `cage` when given (a USD file), else in the asset
+    mesh_prims = ["/Hero/Geo/Body", "/Hero/Geo/Cloth"]   # optional: default every mesh prim but the cage
+    poses = "hero/hero.usd"       # the cage prim's time samples; the output is a layer over the asset
+
+For each asset the batch writes ``OUTDIR/<name>.npz`` and, with poses, ``OUTDIR/<name>.usd``. A failing asset
+is reported and the batch goes on; an asset whose outputs are newer than its inputs is skipped unless forced.
+An asset's outputs are written under temporary names and renamed together at its end, so a killed batch leaves
+an asset whole or missing (re-run, it completes what is missing and removes the killed run's temporary files).
+One batch at a time writes to a folder: a lock file ``OUTDIR/.warp-stokes.lock`` holds the owner's pid, and a
+second batch refuses the folder while that process lives (a lock left by a dead one is taken over).
+``OUTDIR/summary.json`` holds the software version and, per asset, its status, error and warnings.
+"""
+
+from .lock import LOCK_NAME, folder_lock
+from .manifest import ASSET_KEYS, Asset, ManifestError, read_manifest
+from .run import Result, format_summary, run_batch
+
+__all__ = ["Asset", "Result", "ManifestError", "read_manifest", "run_batch", "format_summary", "folder_lock",
+           "LOCK_NAME", "ASSET_KEYS"]

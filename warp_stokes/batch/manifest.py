@@ -1,0 +1,125 @@
+"""Batch manifests (TOML, or JSON with the same keys): the assets to bind, checked before any work."""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+
+from ..errors import WarpStokesError
+
+__all__ = ["Asset", "ManifestError", "read_manifest", "ASSET_KEYS"]
+
+ASSET_KEYS = {"name", "mesh", "cage", "poses", "resolution", "fps", "tol", "with_cage", "with_weights", "boundary",
+              "sampling", "cage_prim", "mesh_prims", "rest_time"}
+
+
+class ManifestError(WarpStokesError):
+    """The manifest is unreadable or malformed."""
+
+
+@dataclass
+class Asset:
+    name: str
+    mesh: str
+    cage: str | None = None
+    poses: str | None = None
+    resolution: int = 64
+    fps: float | None = None
+    cage_prim: str | None = None
+    mesh_prims: list | None = None
+    rest_time: float | None = None
+    tol: float = 1e-6
+    boundary: str = "local"
+    sampling: str = "hermite"
+    with_cage: bool = False
+    with_weights: bool = False
+
+
+def _read_data(path: str) -> dict:
+    """The manifest's contents, a JSON object or a TOML document."""
+    if not os.path.isfile(path):
+        raise ManifestError(f"{path}: no such file")
+    try:
+        if path.lower().endswith(".json"):
+            with open(path, encoding="utf-8") as fh:
+                data = json.load(fh)
+        else:
+            try:
+                import tomllib
+            except ModuleNotFoundError:  # Python 3.10
+                import tomli as tomllib
+            with open(path, "rb") as fh:
+                data = tomllib.load(fh)
+    except (ValueError, OSError) as exc:
+        raise ManifestError(f"{path}: cannot read the manifest ({exc})") from None
+    if not isinstance(data, dict):
+        raise ManifestError(f"{path}: the manifest must be a table/object with a list of assets")
+    return data
+
+
+def _checked_entry(merged: dict, where: str) -> None:
+    """One asset's keys (defaults merged in): known, present where required, of the right types."""
+    unknown = set(merged) - ASSET_KEYS
+    if unknown:
+        raise ManifestError(f"{where}: unknown key(s) {sorted(unknown)}; known: {sorted(ASSET_KEYS)}")
+    if not isinstance(merged.get("mesh"), str):
+        raise ManifestError(f"{where}: 'mesh' (a path) is required")
+    if merged.get("cage_prim") is not None and not isinstance(merged["cage_prim"], str):
+        raise ManifestError(f"{where}: 'cage_prim' must be a prim path")
+    if not isinstance(merged.get("cage"), str) and merged.get("cage_prim") is None:
+        raise ManifestError(f"{where}: 'cage' (a path) or 'cage_prim' (a prim of the USD asset) is required")
+    if merged.get("cage") is not None and not isinstance(merged["cage"], str):
+        raise ManifestError(f"{where}: 'cage' must be a path")
+    prims = merged.get("mesh_prims")
+    if prims is not None and not (isinstance(prims, list) and prims and all(isinstance(p, str) for p in prims)):
+        raise ManifestError(f"{where}: 'mesh_prims' must be a list of prim paths")
+    if merged.get("poses") is not None and not isinstance(merged["poses"], str):
+        raise ManifestError(f"{where}: 'poses' must be a path")
+    if merged.get("boundary", "local") not in ("local", "mvc"):
+        raise ManifestError(f"{where}: 'boundary' must be \"local\" or \"mvc\"")
+    if merged.get("sampling", "hermite") not in ("hermite", "trilinear"):
+        raise ManifestError(f"{where}: 'sampling' must be \"hermite\" or \"trilinear\"")
+    for key, kind in (("resolution", int), ("fps", (int, float)), ("tol", (int, float)),
+                      ("with_cage", bool), ("with_weights", bool), ("rest_time", (int, float))):
+        if key in merged and (not isinstance(merged[key], kind) or (kind is int and isinstance(merged[key], bool))):
+            raise ManifestError(f"{where}: '{key}' has the wrong type ({type(merged[key]).__name__})")
+
+
+def read_manifest(path) -> list[Asset]:
+    """Read a batch manifest (``.toml`` or ``.json``); paths in it are taken relative to its folder.
+
+    Raises
+    ------
+    ManifestError
+        Naming the manifest and the problem (unreadable, unknown keys, missing mesh or cage, duplicate names).
+    """
+    path = os.fspath(path)
+    data = _read_data(path)
+    defaults = data.get("defaults", {})
+    if not isinstance(defaults, dict):
+        raise ManifestError(f"{path}: 'defaults' must be a table/object")
+    entries = data.get("asset", data.get("assets"))
+    if not isinstance(entries, list) or not entries:
+        raise ManifestError(f"{path}: no assets (use [[asset]] tables in TOML, or an \"assets\" list in JSON)")
+    base = os.path.dirname(os.path.abspath(path))
+    assets, names = [], set()
+    for k, entry in enumerate(entries):
+        where = f"{path}: asset {k + 1}"
+        if not isinstance(entry, dict):
+            raise ManifestError(f"{where}: must be a table/object")
+        merged = {**defaults, **entry}
+        _checked_entry(merged, where)
+        for key in ("mesh", "cage", "poses"):
+            if merged.get(key) is not None:
+                merged[key] = os.path.join(base, merged[key])
+        merged.setdefault("name", os.path.splitext(os.path.basename(merged["mesh"]))[0])
+        name = str(merged["name"])
+        if not name or any(c in name for c in '/\\:') or name.startswith("."):
+            raise ManifestError(f"{where}: '{name}' cannot be a file name")
+        if name in names:
+            raise ManifestError(f"{where}: the name '{name}' is used twice")
+        names.add(name)
+        merged["name"] = name
+        assets.append(Asset(**merged))
+    return assets

@@ -1,0 +1,199 @@
+"""Running a batch: each asset checked, bound and animated, its outputs renamed together, failures isolated."""
+
+from __future__ import annotations
+
+import contextlib
+import glob
+import json
+import os
+import sys
+import time
+import traceback
+import warnings
+from dataclasses import dataclass, field
+
+from .. import __version__
+from ..errors import WarpStokesError
+from ..io.files import atomic_output
+from .lock import folder_lock
+from .manifest import Asset, read_manifest
+
+__all__ = ["Result", "run_batch", "format_summary"]
+
+
+@dataclass
+class Result:
+    name: str
+    status: str  # "ok", "skipped" or "failed"
+    vertices: int | None = None
+    handles: int | None = None
+    resolution: int | None = None
+    seconds: float = 0.0
+    error: str = ""
+    outputs: list = field(default_factory=list)
+    warnings: list = field(default_factory=list)
+
+
+def _mtime(path: str) -> float:
+    if os.path.isdir(path):
+        times = [os.path.getmtime(os.path.join(path, f)) for f in os.listdir(path)]
+        return max(times + [os.path.getmtime(path)])
+    return os.path.getmtime(path)
+
+
+def _up_to_date(asset: Asset, outputs: list[str], manifest: str) -> bool:
+    if not all(os.path.exists(o) for o in outputs):
+        return False
+    # the manifest counts as an input: a changed resolution or fps must redo the asset
+    inputs = [p for p in (asset.mesh, asset.cage, asset.poses, manifest) if p]
+    try:
+        newest_input = max(_mtime(p) for p in inputs)
+    except OSError:
+        return False
+    return min(os.path.getmtime(o) for o in outputs) > newest_input
+
+
+def _progress(stream, k: int, total: int, name: str, stage: str) -> None:
+    width = 20
+    done = int(width * k / total)
+    print(f"[{'#' * done}{'.' * (width - done)}] {k}/{total} {name}: {stage}", file=stream, flush=True)
+
+
+def run_batch(manifest, outdir, force: bool = False, device=None, progress=True) -> list[Result]:
+    """Bind every asset of a manifest, writing ``<name>.npz`` and, with poses, ``<name>.usd`` to ``outdir``.
+
+    Parameters
+    ----------
+    manifest : path of a TOML or JSON manifest (see the module docstring)
+    outdir : output folder (created if missing)
+    force : bool, redo assets whose outputs are newer than their inputs
+    device : None | str
+    progress : True for progress lines on stderr, a text stream for them, or None/False for silence
+
+    Returns
+    -------
+    list of Result, one per asset; ``summary.json`` in ``outdir`` holds the same
+
+    Raises
+    ------
+    WarpStokesError
+        When another live batch holds the folder's lock.
+    """
+    if progress is True:
+        progress = sys.stderr
+    assets = read_manifest(manifest)
+    outdir = os.fspath(outdir)
+    os.makedirs(outdir, exist_ok=True)
+    with folder_lock(outdir):
+        # temporary files of a batch killed in this folder (it held the lock, so none is being written now)
+        for stale in glob.glob(os.path.join(outdir, ".tmp-*")):
+            with contextlib.suppress(OSError):
+                os.unlink(stale)
+        results = _run_assets(assets, outdir, manifest, force, device, progress)
+        _write_json(os.path.join(outdir, "summary.json"), {"warp_stokes_version": __version__,
+                                                           "assets": [r.__dict__ for r in results]})
+    return results
+
+
+def _run_assets(assets, outdir, manifest, force, device, progress) -> list[Result]:
+    results = []
+    for k, asset in enumerate(assets):
+        npz = os.path.join(outdir, f"{asset.name}.npz")
+        usd = os.path.join(outdir, f"{asset.name}.usd")
+        outputs = [npz] + ([usd] if asset.poses else [])
+        result = Result(asset.name, "ok", resolution=asset.resolution, outputs=outputs)
+        start = time.perf_counter()
+        # the outputs under temporary names until the asset is complete, then renamed together
+        pending = {path: os.path.join(outdir, f".tmp-{os.path.basename(path)}") for path in outputs}
+        caught = []
+        try:
+            if not force and _up_to_date(asset, outputs, os.fspath(manifest)):
+                result.status = "skipped"
+                if progress:
+                    _progress(progress, k + 1, len(assets), asset.name, "up to date, skipped")
+                results.append(result)
+                continue
+            if progress:
+                _progress(progress, k, len(assets), asset.name, "checking the cage")
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                _bind_asset(asset, pending, device, progress, k, len(assets), result)
+            for path, tmp in pending.items():
+                os.replace(tmp, path)
+        except Exception as exc:  # keep going: one asset's failure is reported, not raised
+            result.status = "failed"
+            known = isinstance(exc, (ValueError, OSError))
+            result.error = str(exc) if known else f"{type(exc).__name__}: {exc}"
+            if not known and progress:
+                traceback.print_exc(file=progress)
+        finally:
+            for tmp in pending.values():  # an asset is written whole or not at all
+                with contextlib.suppress(OSError):
+                    os.unlink(tmp)
+        # what the bind warned of, in the summary and (once the command has run) on stderr
+        result.warnings = list(dict.fromkeys(str(w.message) for w in caught))
+        for message in result.warnings:
+            warnings.warn(message, stacklevel=2)
+        result.seconds = time.perf_counter() - start
+        if progress:
+            _progress(progress, k + 1, len(assets), asset.name, result.status)
+        results.append(result)
+    return results
+
+
+def _bind_asset(asset, pending: dict, device, progress, k: int, total: int, result: Result) -> None:
+    """Check, bind and (with poses) animate one asset, writing its outputs to their temporary names
+    (``pending``: final path -> temporary path, the binding first)."""
+    from ..binding import bind
+    from ..geometry.cage import check_cage
+    from ..io.poses import load_poses
+    from ..io.scene import is_usd
+    from ..io.usd import write_animation
+    from ..io.usd.asset import read_cage_prim
+
+    npz, *usd = pending
+    if asset.cage_prim is not None and (asset.cage is None or is_usd(asset.cage)):
+        cage = check_cage(read_cage_prim(asset.cage or asset.mesh, asset.cage_prim, asset.rest_time))
+    else:
+        cage = check_cage(asset.cage)
+    poses = None
+    if asset.poses:
+        if progress:
+            _progress(progress, k, total, asset.name, "reading poses")
+        poses = load_poses(asset.poses, cage.faces, cage.n_handles, cage.source_index,
+                           cage_prim=asset.cage_prim if is_usd(asset.poses) else None)
+    if progress:
+        _progress(progress, k, total, asset.name, f"binding at resolution {asset.resolution}")
+    binding = bind(asset.mesh, cage, resolution=asset.resolution, device=device, tol=asset.tol,
+                   boundary=asset.boundary, sampling=asset.sampling, cage_prim=asset.cage_prim,
+                   mesh_prims=asset.mesh_prims, rest_time=asset.rest_time)
+    result.vertices, result.handles = binding.n_vertices, binding.n_handles
+    if not binding.stats["converged"]:
+        raise WarpStokesError(
+            f"the solver did not converge (residual {binding.stats['residual']:.2g}, identity error "
+            f"{binding.stats['identity_error']:.2g}, tol {asset.tol:g})"
+        )
+    binding.save(pending[npz])
+    if poses is not None:
+        if progress:
+            _progress(progress, k, total, asset.name, f"writing {len(poses.frames)} frames of USD")
+        write_animation(pending[usd[0]], binding, poses, fps=asset.fps, with_cage=asset.with_cage,
+                        with_weights=asset.with_weights)
+
+
+def _write_json(path: str, data) -> None:
+    with atomic_output(path, ".json") as tmp, open(tmp, "w", encoding="utf-8") as fh:
+        json.dump(data, fh, indent=1)
+
+
+def format_summary(results: list[Result]) -> str:
+    """The batch results as a table: asset, status, vertices, handles, resolution, seconds, error."""
+    head = ("asset", "status", "vertices", "handles", "resolution", "seconds", "error")
+    rows = [head] + [
+        (r.name, r.status, str(r.vertices or "-"), str(r.handles or "-"), str(r.resolution or "-"),
+         f"{r.seconds:.2f}", r.error)
+        for r in results
+    ]
+    widths = [max(len(row[c]) for row in rows) for c in range(len(head) - 1)]
+    lines = ["  ".join(cell.ljust(w) for cell, w in zip(row[:-1], widths)) + "  " + row[-1] for row in rows]
+    return "\n".join(line.rstrip() for line in lines)
