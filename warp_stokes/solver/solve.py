@@ -34,9 +34,10 @@ import numpy as np
 import warp as wp
 
 from ..geometry.boundary import COMPLEMENT_COLUMNS
-from ..device import reduction_threads, resolve_device
+from ..device import resolve_device
 from ..geometry.grid import Grid
 from ..kernels import cg, checks
+from .krylov import BatchedCG, cg_round
 from .multigrid import Multigrid
 from .operator import apply_operator
 
@@ -130,7 +131,6 @@ def solve_biharmonic(
     """
     device = resolve_device(device)
     start = time.perf_counter()
-    n, n_cols = grid.n_interior, field.shape[1]
     setup_seconds = 0.0
     with wp.ScopedDevice(device):
         deviation = _identity_check(grid, field, handles, device, chunk)  # first: it checks the columns
@@ -140,8 +140,7 @@ def solve_biharmonic(
             wp.synchronize_device(device)
             setup_seconds = time.perf_counter() - setup_start
         if isinstance(preconditioner, Multigrid):
-            precondition = preconditioner.apply
-            default_iterations = 200
+            precondition, default_iterations = preconditioner.apply, 200
         elif preconditioner == "jacobi":
             def precondition(r, z):
                 wp.launch(cg.jacobi, dim=r.shape, inputs=[r], outputs=[z])
@@ -150,47 +149,8 @@ def solve_biharmonic(
             raise ValueError(f"unknown preconditioner {preconditioner!r}: use 'multigrid' or 'jacobi'")
         if max_iterations is None:
             max_iterations = default_iterations
-        chunks = reduction_threads(n, n_cols, device)
-
-        rhs = None  # zero: Stokes coordinates have no source
-        if source is not None:
-            src = np.zeros((n, n_cols, 4), dtype=np.float32)
-            src[..., 0] = 0.5 * grid.spacing**4 * np.asarray(source, dtype=np.float64).reshape(n, n_cols)
-            rhs = wp.array(src, dtype=wp.vec4f)
-        x = field[0:n]  # interior rows come first: a view, so the solve updates `field` in place
-        r = wp.empty((n, n_cols), dtype=wp.vec4f)
-        p = wp.empty((n, n_cols), dtype=wp.vec4f)
-        # A p is needed until x and r are updated, M r only after: they share storage (three vectors per column
-        # instead of four, see warp_stokes.solver.budget)
-        ap = wp.empty((n, n_cols), dtype=wp.vec4f)
-        z = ap
-
-        def dots(a, b):
-            out = wp.zeros(n_cols, dtype=wp.float64)
-            wp.launch(cg.column_dots, dim=(chunks, n_cols), inputs=[a, b, chunks], outputs=[out])
-            return out
-
-        def preconditioned_norms(v):
-            """r^T M r per handle, leaving M v in z."""
-            precondition(v, z)
-            return dots(v, z)
-
-        def true_residual():
-            apply_operator(grid, field, r, device=device)
-            if rhs is None:
-                wp.launch(cg.negate, dim=(n, n_cols), inputs=[r], outputs=[r])
-            else:
-                wp.launch(cg.residual, dim=(n, n_cols), inputs=[rhs, r], outputs=[r])
-
-        # scale: ||b_h||_M with b = rhs - A_IK x_K = r0 + A_II x0
-        apply_operator(grid, field, p, n_rows=n, device=device)
-        true_residual()
-        wp.launch(cg.add_columns, dim=(n, n_cols), inputs=[r, p], outputs=[p])
-        scale = np.sqrt(np.maximum(preconditioned_norms(p).numpy(), 0.0))
-        # a handle with (almost) no forcing is measured against the others, not against zero
-        scale = np.maximum(scale, 1e-12 * scale.max() + 1e-300)
-        rz = preconditioned_norms(r)
-        rel = np.sqrt(np.maximum(rz.numpy(), 0.0)) / scale
+        solver = BatchedCG(grid, field, source, precondition, device)
+        rel = solver.start()
 
         # The preconditioned residual is a few times smaller than the weight error it stands for: aim ten times
         # below tol before the first identity check.
@@ -204,54 +164,10 @@ def solve_biharmonic(
         if callback is not None:
             callback(0, field)
         while True:
-            running_np = (rel > tol_cg).astype(np.int32)
-            if running_np.any():
-                running = wp.array(running_np, dtype=wp.int32)
-                wp.copy(p, z)  # z = M r from the last norm
-            # once every residual has met tol_cg, the identity check decides when to stop
-            by_identity, best_identity, stalled = False, np.inf, 0
-            while running_np.any() and iterations < max_iterations:
-                # float64 sums here too: with float32 ones the CG recurrence drifts further from the true
-                # residual on fine grids (measured on an H100 at n = 256: 4e-5 instead of 1e-5 identity error
-                # after the first round); one application per iteration, against ten in the V-cycle
-                apply_operator(grid, p, ap, n_rows=n, device=device)
-                pap = dots(p, ap)
-                wp.launch(cg.step, dim=(n, n_cols), inputs=[x, r, p, ap, rz, pap, running])
-                iterations += 1
-                if callback is not None:
-                    callback(iterations, field)
-                rz_next = preconditioned_norms(r)
-                rel_cg = np.sqrt(np.maximum(rz_next.numpy(), 0.0)) / scale
-                # every handle that stepped gets its next direction, also one that stops here: it can resume
-                # exactly where it left off
-                wp.launch(cg.new_directions, dim=(n, n_cols), inputs=[z, p, rz, rz_next, running])
-                rz = rz_next
-                if not by_identity:
-                    still = ((running_np == 1) & (rel_cg > tol_cg)).astype(np.int32)
-                    if still.any():
-                        if not np.array_equal(still, running_np):
-                            running_np = still
-                            running = wp.array(running_np, dtype=wp.int32)
-                        continue
-                identity = deviation()
-                if identity <= identity_tol:
-                    break
-                # Every residual is small but the weights are not there yet (the preconditioned residual
-                # understates the error of smooth components): every handle goes on with its own CG, keeping
-                # its Krylov space, and the identity check (one pass over the field) runs after each
-                # iteration. Stop when it no longer improves: the float32 floor.
-                if not by_identity:
-                    by_identity = True
-                    running_np = np.ones(n_cols, dtype=np.int32)
-                    running = wp.array(running_np, dtype=wp.int32)
-                stalled = stalled + 1 if identity > 0.7 * best_identity else 0
-                best_identity = min(best_identity, identity)
-                if stalled >= 3:
-                    break
+            iterations = cg_round(solver, rel, tol_cg, deviation, identity_tol, iterations, max_iterations,
+                                   callback, field)
             # the CG recurrence drifts from the true residual in float32: check it from scratch
-            true_residual()
-            rz = preconditioned_norms(r)
-            rel = np.sqrt(np.maximum(rz.numpy(), 0.0)) / scale
+            rel = solver.recompute()
             identity = deviation()
             rounds.append([iterations, float(rel.max()), identity])
             if ((rel <= tol).all() and identity <= identity_tol) or iterations >= max_iterations:
