@@ -11,41 +11,27 @@ weights agree when both devices are listed.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 import warnings
 from pathlib import Path
 
 import numpy as np
-import warp as wp
 
 import warp_stokes as ws
 
-DATA = Path(os.environ.get("WARP_STOKES_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
-REPO = Path(__file__).resolve().parents[1]
-PAIRS = {
-    "arm": (REPO / "examples/arm/arm.obj", REPO / "examples/arm/arm_cage.obj"),
-    "smpl": (DATA / "smpl_humanoid_neuralcages/model_rpose.obj", DATA / "smpl_humanoid_neuralcages/cage_rpose.obj"),
-    "ogre": (DATA / "ogre_qmvc/Ogre.obj", DATA / "ogre_qmvc/cage_tri.obj"),
-}
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import PAIRS, DevicePeak, markdown_table, warm_up  # noqa: E402
 
 
 def run(pair, resolution, device):
     mesh, cage = PAIRS[pair]
-    dev = ws.resolve_device(device)
-    if dev.is_cuda and wp.is_mempool_enabled(dev):
-        wp.synchronize_device(dev)
-        base = wp.get_mempool_used_mem_current(dev)
-    with warnings.catch_warnings():
+    with DevicePeak(device) as memory, warnings.catch_warnings():
         warnings.simplefilter("ignore")
         t = time.perf_counter()
         b = ws.bind(mesh, cage, resolution=resolution, device=device)
         wall = time.perf_counter() - t
-    peak = float("nan")
-    if dev.is_cuda and wp.is_mempool_enabled(dev):
-        peak = (wp.get_mempool_used_mem_high(dev) - base) / 2**20
-    return b, wall, peak
+    return b, wall, memory.bytes / 2**20
 
 
 def main(argv=None):
@@ -59,7 +45,7 @@ def main(argv=None):
               "voxel s", "bdry s", "solve s", "sample s", "total s", "wall s", "peak MiB")
     rows, weights = [], {}
     for device in args.devices:
-        run("arm", 16, device)  # warm-up: compile and load every kernel on this device
+        warm_up(device)  # compile and load every kernel on this device
         for pair in args.pairs:
             for n in args.resolutions:
                 b, wall, peak = run(pair, n, device)
@@ -74,10 +60,7 @@ def main(argv=None):
                              f"{peak:.0f}" if peak == peak else "-"))
                 print(" | ".join(map(str, rows[-1])), flush=True)
     print()
-    print("| " + " | ".join(header) + " |")
-    print("|" + "---|" * len(header))
-    for r in rows:
-        print("| " + " | ".join(map(str, r)) + " |")
+    print(markdown_table(header, rows))
     if len(args.devices) > 1:
         print()
         a = args.devices[0]

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 import time
 import warnings
@@ -31,8 +30,8 @@ import numpy as np
 import warp_stokes as ws
 from warp_stokes.geometry.cage import folded_edges
 
-REPO = Path(__file__).resolve().parents[1]
-DATA = Path(os.environ.get("WARP_STOKES_DATA", REPO.parent / "shared" / "data"))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import ARM, OGRE, SMPL, select_device, table_head, table_row  # noqa: E402
 
 VARIANTS = {
     "mvc-data": "mvc",
@@ -55,23 +54,21 @@ def segment_distance(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.nda
 
 def load_pair(name: str):
     if name == "smpl":
-        root = DATA / "smpl_humanoid_neuralcages"
-        mesh = ws.load_surface(root / "model_rpose.obj")
-        cage = ws.check_cage(root / "cage_rpose.obj")
-        pose = ws.load_surface(root / "cage_tpose.obj").vertices
-        reference = ws.load_surface(root / "model_tpose.obj").vertices
+        mesh = ws.load_surface(SMPL / "model_rpose.obj")
+        cage = ws.check_cage(SMPL / "cage_rpose.obj")
+        pose = ws.load_surface(SMPL / "cage_tpose.obj").vertices
+        reference = ws.load_surface(SMPL / "model_tpose.obj").vertices
         x = reference[:, 0]
         regions = {"body": np.ones(len(x), bool), "hand +x": x > 0.6, "hand -x": x < -0.6}
         return mesh, cage, pose, reference, regions
     if name == "ogre":
-        root = DATA / "ogre_qmvc"
-        mesh = ws.load_surface(root / "Ogre.obj")
-        return mesh, ws.check_cage(root / "cage_tri.obj"), ws.load_surface(root / "cage_deformed_tri.obj").vertices, \
+        mesh = ws.load_surface(OGRE / "Ogre.obj")
+        return mesh, ws.check_cage(OGRE / "cage_tri.obj"), ws.load_surface(OGRE / "cage_deformed_tri.obj").vertices, \
             None, {"body": np.ones(len(mesh.vertices), bool)}
     if name == "arm":
-        mesh = ws.load_surface(REPO / "examples/arm/arm.obj")
-        cage = ws.check_cage(REPO / "examples/arm/arm_cage.obj")
-        poses = np.load(REPO / "examples/arm/bend_poses.npy")
+        mesh = ws.load_surface(ARM / "arm.obj")
+        cage = ws.check_cage(ARM / "arm_cage.obj")
+        poses = np.load(ARM / "bend_poses.npy")
         return mesh, cage, poses[-1], None, {"body": np.ones(len(mesh.vertices), bool)}
     raise SystemExit(f"unknown pair {name}")
 
@@ -111,17 +108,18 @@ def compare(args) -> int:
     if args.json:
         with open(args.json, "a") as fh:
             fh.writelines(json.dumps(r) + "\n" for r in rows)
-    device = ws.device_name(args.device)
+    device = select_device(args.device)[1]
     print(f"\nDevice: {device}. Conformal distortion p50 / p95 / max, dihedral change p95 (degrees) and distant-handle "
           "weight p95 by region; min weight; iterations.\n")
-    print("| pair | method | n | region | conformal p50 | p95 | max | dihedral p95 | distant p95 | min w | neg % | its | s |"
-          "\n|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print(table_head(("pair", "method", "n", "region", "conformal p50", "p95", "max", "dihedral p95", "distant p95",
+                      "min w", "neg %", "its", "s")))
     for r in rows:
         for region, m in r["regions"].items():
-            print(f"| {r['pair']} | {r['method']} | {r['n']} | {region} | {m['conformal_p50']:.3f} | "
-                  f"{m['conformal_p95']:.3f} | {m['conformal_max']:.2f} | {m.get('dihedral_p95', float('nan')):.1f} | "
-                  f"{m['distant_p95']:.3f} | {r['min_weight']:.3f} | {100 * r['negative_fraction']:.1f} | "
-                  f"{r['iterations']} | {r['seconds']:.2f} |")
+            print(table_row((r["pair"], r["method"], r["n"], region, f"{m['conformal_p50']:.3f}",
+                             f"{m['conformal_p95']:.3f}", f"{m['conformal_max']:.2f}",
+                             f"{m.get('dihedral_p95', float('nan')):.1f}", f"{m['distant_p95']:.3f}",
+                             f"{r['min_weight']:.3f}", f"{100 * r['negative_fraction']:.1f}", r["iterations"],
+                             f"{r['seconds']:.2f}")))
     return 0
 
 
@@ -154,13 +152,13 @@ def refinement(args) -> int:
     if args.json:
         with open(args.json, "a") as fh:
             fh.writelines(json.dumps(r) + "\n" for r in rows)
-    print(f"\nDevice: {ws.device_name(args.device)}. Distances relative to the cage's diagonal.\n")
-    print("| pair | data | n | min weight | vertex | handle | distance to a folded edge | cell | max change from the "
-          "previous n | its | s |\n|---|---|---|---|---|---|---|---|---|---|---|")
+    print(f"\nDevice: {select_device(args.device)[1]}. Distances relative to the cage's diagonal.\n")
+    print(table_head(("pair", "data", "n", "min weight", "vertex", "handle", "distance to a folded edge", "cell",
+                      "max change from the previous n", "its", "s")))
     for r in rows:
-        print(f"| {r['pair']} | {r['method']} | {r['n']} | {r['min_weight']:.3f} | {r['vertex']} | {r['handle']} | "
-              f"{r['fold_distance']:.4f} | {r['spacing']:.4f} | {r['change_from_previous']:.3f} | {r['iterations']} | "
-              f"{r['seconds']:.2f} |")
+        print(table_row((r["pair"], r["method"], r["n"], f"{r['min_weight']:.3f}", r["vertex"], r["handle"],
+                         f"{r['fold_distance']:.4f}", f"{r['spacing']:.4f}", f"{r['change_from_previous']:.3f}",
+                         r["iterations"], f"{r['seconds']:.2f}")))
     return 0
 
 
@@ -174,7 +172,7 @@ def main(argv=None) -> int:
     p.add_argument("--device", default=None)
     p.add_argument("--json", default=None)
     args = p.parse_args(argv)
-    args.device = ws.resolve_device(args.device).alias
+    args.device = select_device(args.device)[0].alias
     return refinement(args) if args.refinement else compare(args)
 
 

@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_large import REPO, pair_files  # noqa: E402
+from common import WORK, HostPeak, markdown_table, pair_files, warm_up  # noqa: E402
 
 
 def mesh_files(name: str, folder: Path) -> tuple[Path, Path]:
@@ -39,30 +39,25 @@ def mesh_files(name: str, folder: Path) -> tuple[Path, Path]:
 
 
 def run_case(mesh: str, cage: str, resolution: int) -> dict:
-    import resource
     import warnings
 
     import warp_stokes as ws
 
-    def rss() -> int:
-        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024  # kB on Linux
-
-    with warnings.catch_warnings():
+    # warm-up: every kernel loaded; the arm at n = 16, so that its own peak stays below the measured binds' (measure
+    # at n = 48 or more: max RSS only grows past the highest peak so far; the arm at 32 reads 0)
+    warm_up("cpu")
+    with HostPeak() as memory, warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        # warm-up: every kernel loaded; at n = 16, so that its own peak stays below the measured binds' (measure
-        # at n = 48 or more: max RSS only grows past the highest peak so far; the arm at 32 reads 0)
-        ws.bind(REPO / "examples/arm/arm.obj", REPO / "examples/arm/arm_cage.obj", resolution=16, device="cpu")
-        before = rss()
         b = ws.bind(mesh, cage, resolution=resolution, device="cpu")
     return {"vertices": b.n_vertices, "handles": b.n_handles, "resolution": resolution,
-            "estimate": b.stats["memory_estimate_bytes"], "peak_growth": rss() - before, "before": before}
+            "estimate": b.stats["memory_estimate_bytes"], "peak_growth": memory.bytes, "before": memory.before}
 
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--meshes", nargs="+", default=["arm", "ogre", "ogre:1", "ogre:2"])
     p.add_argument("--resolution", type=int, default=48)
-    p.add_argument("--folder", default="/tmp/warp_stokes_bench")
+    p.add_argument("--folder", default=str(WORK))
     p.add_argument("--case", nargs=3, default=None, help=argparse.SUPPRESS)
     args = p.parse_args(argv)
     if args.case:
@@ -81,10 +76,9 @@ def main(argv=None) -> int:
         rows.append({"mesh": name, **json.loads(proc.stdout.strip().splitlines()[-1])})
         print(rows[-1], flush=True)
     print("\nDevice: cpu. Peak = growth of the process's max RSS over the bind.\n")
-    print("| mesh | vertices | handles | n | estimate MiB | peak MiB | peak / estimate |\n|---|---|---|---|---|---|---|")
-    for r in rows:
-        print(f"| {r['mesh']} | {r['vertices']:,} | {r['handles']} | {r['resolution']} | {r['estimate'] / 2**20:.0f} | "
-              f"{r['peak_growth'] / 2**20:.0f} | {r['peak_growth'] / r['estimate']:.2f} |")
+    print(markdown_table(("mesh", "vertices", "handles", "n", "estimate MiB", "peak MiB", "peak / estimate"), [
+        (r["mesh"], f"{r['vertices']:,}", r["handles"], r["resolution"], f"{r['estimate'] / 2**20:.0f}",
+         f"{r['peak_growth'] / 2**20:.0f}", f"{r['peak_growth'] / r['estimate']:.2f}") for r in rows]))
     return 0
 
 

@@ -28,50 +28,25 @@ import time
 import warnings
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
-DATA = Path(os.environ.get("WARP_STOKES_DATA", REPO.parent / "shared" / "data"))
-
-
-def sphere_pair(folder: Path) -> tuple[Path, Path]:
-    """The icosphere pair of issue 20 as OBJ files in ``folder``."""
-    import trimesh
-
-    folder.mkdir(parents=True, exist_ok=True)
-    mesh, cage = folder / "sphere.obj", folder / "sphere_cage.obj"
-    if not cage.exists():
-        trimesh.creation.icosphere(subdivisions=4, radius=0.9).export(mesh)
-        trimesh.creation.icosphere(subdivisions=2, radius=1.0).export(cage)
-    return mesh, cage
-
-
-def pair_files(name: str, folder: Path) -> tuple[Path, Path]:
-    if name == "sphere":
-        return sphere_pair(folder)
-    if name == "ogre":
-        return DATA / "ogre_qmvc" / "Ogre.obj", DATA / "ogre_qmvc" / "cage_tri.obj"
-    if name == "arm":
-        return REPO / "examples/arm/arm.obj", REPO / "examples/arm/arm_cage.obj"
-    raise SystemExit(f"unknown pair {name!r}: sphere, ogre or arm")
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import DevicePeak, pair, select_device, sphere_pair, table_head, table_row, warm_up  # noqa: E402
 
 
 def run_case(name: str, resolution: int, folder: Path) -> dict:
     """One bind in this process, after a warm-up; a dict of what it measured."""
     import numpy as np
-    import warp as wp
 
     import warp_stokes as ws
 
-    mesh, cage = pair_files(name, folder)
-    device = ws.resolve_device(None)
-    with warnings.catch_warnings():
+    mesh, cage = pair(name, folder)
+    device, _ = select_device(None)
+    warm_up(device, mesh, cage, resolution=32)  # compile and load every kernel first
+    with DevicePeak(device) as memory, warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        ws.bind(mesh, cage, resolution=32, device=device)  # compile and load every kernel first
-        wp.synchronize_device(device)
-        base = wp.get_mempool_used_mem_current(device) if device.is_cuda else 0
         start = time.perf_counter()
         b = ws.bind(mesh, cage, resolution=resolution, device=device)
         wall = time.perf_counter() - start
-    peak = (wp.get_mempool_used_mem_high(device) - base) if device.is_cuda else float("nan")
+    peak = memory.bytes
     s = b.stats
     w = b.weights.astype(np.float64)
     return {
@@ -90,7 +65,7 @@ def run_case(name: str, resolution: int, folder: Path) -> dict:
 def run_batch(folder: Path) -> dict:
     """A batch whose first asset cannot be solved and whose second can, as a user runs it."""
     mesh, cage = sphere_pair(folder)
-    ogre_mesh, ogre_cage = pair_files("ogre", folder)
+    ogre_mesh, ogre_cage = pair("ogre")
     manifest = folder / "batch.json"
     manifest.write_text(json.dumps({"assets": [
         {"name": "sphere_1024", "mesh": str(mesh), "cage": str(cage), "resolution": 1024},
@@ -145,18 +120,18 @@ def main(argv=None) -> int:
 
     header = ("label", "device", "pair", "n", "handles", "interior", "levels", "chunks", "its", "conv", "bind s",
               "setup s", "solve s", "peak GiB", "estimate GiB", "est/peak", "B/interior", "PU", "LP", "min w")
-    print("\n| " + " | ".join(header) + " |\n|" + "---|" * len(header))
+    print("\n" + table_head(header))
     for r in rows:
         if "error" in r:
-            print(f"| {r['label']} | - | {r['pair']} | {r['n']} | error: {r['error']} |")
+            print(table_row((r["label"], "-", r["pair"], r["n"], f"error: {r['error']}")))
             continue
         peak = r["peak_bytes"]
-        print("| " + " | ".join(str(x) for x in (
+        print(table_row((
             r["label"], r["device"], r["pair"], r["n"], r["handles"], f"{r['interior']:,}", len(r["levels"]),
             r["chunks"], r["iterations"], r["converged"], f"{r['wall_s']:.2f}", f"{r['setup_s']:.2f}",
             f"{r['solve_s']:.2f}", f"{peak / 2**30:.2f}", f"{r['estimate_bytes'] / 2**30:.2f}",
             f"{r['estimate_bytes'] / peak:.2f}", f"{peak / r['interior']:.0f}", f"{r['pu']:.1e}", f"{r['lp']:.1e}",
-            f"{r['min_weight']:.3f}")) + " |")
+            f"{r['min_weight']:.3f}")))
     if args.batch:
         result = run_batch(folder)
         print("\nbatch (sphere n = 1024, then ogre n = 128): exit code", result["returncode"],

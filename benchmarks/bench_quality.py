@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 import time
 import warnings
@@ -40,8 +39,9 @@ import numpy as np
 import warp_stokes as ws
 from warp_stokes import quality
 
-REPO = Path(__file__).resolve().parents[1]
-DATA = Path(os.environ.get("WARP_STOKES_DATA", REPO.parent / "shared" / "data"))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import ARM, OGRE, SMPL, markdown_table, select_device, warm_up  # noqa: E402
+
 PAIRS = ("smpl", "arm", "ogre")
 
 
@@ -92,26 +92,24 @@ def load_pair(name: str) -> dict:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # folded cage edges (SMPL, arm): known, see the README
         if name == "smpl":
-            root = DATA / "smpl_humanoid_neuralcages"
-            reference = ws.load_surface(root / "model_tpose.obj").vertices
+            reference = ws.load_surface(SMPL / "model_tpose.obj").vertices
             hands = hand_regions(reference)
-            return dict(mesh=ws.load_surface(root / "model_rpose.obj"), cage=ws.check_cage(root / "cage_rpose.obj"),
-                        pose=ws.load_surface(root / "cage_tpose.obj").vertices, reference=reference,
+            return dict(mesh=ws.load_surface(SMPL / "model_rpose.obj"), cage=ws.check_cage(SMPL / "cage_rpose.obj"),
+                        pose=ws.load_surface(SMPL / "cage_tpose.obj").vertices, reference=reference,
                         regions={"body": np.ones(len(reference), bool), "left hand (+x)": hands["hand +x"],
                                  "right hand (-x)": hands["hand -x"]},
                         note="wrists at x = {:.3f} / {:.3f} in the T-pose".format(*hands["wrists"]))
         if name == "arm":
-            mesh = ws.load_surface(REPO / "examples/arm/arm.obj")
-            cage = ws.check_cage(REPO / "examples/arm/arm_cage.obj")
-            poses = np.load(REPO / "examples/arm/bend_poses.npy")
+            mesh = ws.load_surface(ARM / "arm.obj")
+            cage = ws.check_cage(ARM / "arm_cage.obj")
+            poses = np.load(ARM / "bend_poses.npy")
             frame = int(np.argmax(np.sqrt(((poses - cage.vertices) ** 2).sum(axis=2).mean(axis=1))))
             return dict(mesh=mesh, cage=cage, pose=poses[frame], reference=None,
                         regions={"all": np.ones(len(mesh.vertices), bool)}, note=f"bend_poses.npy frame {frame}")
         if name == "ogre":
-            root = DATA / "ogre_qmvc"
-            mesh = ws.load_surface(root / "Ogre.obj")
-            return dict(mesh=mesh, cage=ws.check_cage(root / "cage_tri.obj"),
-                        pose=ws.load_surface(root / "cage_deformed_tri.obj").vertices, reference=None,
+            mesh = ws.load_surface(OGRE / "Ogre.obj")
+            return dict(mesh=mesh, cage=ws.check_cage(OGRE / "cage_tri.obj"),
+                        pose=ws.load_surface(OGRE / "cage_deformed_tri.obj").vertices, reference=None,
                         regions={"all": np.ones(len(mesh.vertices), bool)}, note="cage_deformed_tri.obj")
     raise SystemExit(f"unknown pair {name!r} (known: {', '.join(PAIRS)})")
 
@@ -129,26 +127,23 @@ def _f(x, digits=3):
 def table(rows: list, device: str) -> str:
     head = ("device", "pair", "region", "method", "n", "conformal p50", "p95", "max", "dihedral p95 (signed)",
             "neg frac", "min w", "distant w", "change max / rms", "s")
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    lines = []
     for r in rows:
         for region, m in r["quality"]["regions"].items():
             c, ch = m["conformal"], m.get("change")
             dihedral = "-"
             if "dihedral_change" in m:
                 dihedral = f"{_f(m['dihedral_change']['p95'], 1)} ({_f(m['dihedral_change_signed']['p95'], 1)})"
-            lines.append("| " + " | ".join([
+            lines.append([
                 device, r["pair"], region, r["method"], str(r["n"] or "-"), _f(c["p50"]), _f(c["p95"]), _f(c["max"]),
                 dihedral, _f(m["negative_fraction"], 4), _f(m["min_weight"]), _f(m["distant_weight"]["mean"]),
-                f"{_f(ch['max'])} / {_f(ch['rms'], 4)}" if ch else "-", _f(r["seconds"], 2)]) + " |")
-    return "\n".join(lines)
+                f"{_f(ch['max'])} / {_f(ch['rms'], 4)}" if ch else "-", _f(r["seconds"], 2)])
+    return markdown_table(head, lines)
 
 
 def run(args) -> list:
     rows = []
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        ws.bind(REPO / "examples/arm/arm.obj", REPO / "examples/arm/arm_cage.obj", resolution=16,
-                device=args.device)  # warm-up: compile and load every kernel on this device
+    warm_up(args.device)  # compile and load every kernel on this device
     for name in args.pairs:
         pair = load_pair(name)
         mesh, cage = pair["mesh"], pair["cage"]
@@ -186,8 +181,8 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     args.resolutions = [int(n) for n in args.resolutions.split(",") if n.strip()]
     args.pairs = [s.strip() for s in args.pairs.split(",") if s.strip()]
-    args.device = ws.resolve_device(args.device).alias
-    device = ws.device_name(args.device)
+    resolved, device = select_device(args.device)
+    args.device = resolved.alias
     rows = run(args)
     print(f"\nDevice: {device}. Conformal distortion sigma1/sigma2 over the region's triangles; dihedral-angle change "
           f"p95 in degrees against the reference pose, unsigned (signed); neg frac: weights below "

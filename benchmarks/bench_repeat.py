@@ -15,7 +15,7 @@ from pathlib import Path
 import warp_stokes as ws
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_solver import pair  # noqa: E402
+from common import pair, select_device, warm_up  # noqa: E402
 
 
 def main(argv=None):
@@ -27,15 +27,16 @@ def main(argv=None):
     args = p.parse_args(argv)
     warnings.simplefilter("ignore")
     mesh, cage = pair(args.pair)
+    _, device = select_device(args.device)
     for n in args.resolutions:
-        ws.bind(mesh, cage, resolution=n, device=args.device)  # warm-up
+        warm_up(args.device, mesh, cage, resolution=n)
         walls = []
         for _ in range(args.repeats):
             t = time.perf_counter()
             b = ws.bind(mesh, cage, resolution=n, device=args.device)
             walls.append(time.perf_counter() - t)
         stages = ", ".join(f"{k} {v:.3f}" for k, v in b.stats["seconds"].items())
-        print(f"{ws.device_name(args.device)} {args.pair} n={n}: whole bind median {statistics.median(walls):.3f} s "
+        print(f"{device} {args.pair} n={n}: whole bind median {statistics.median(walls):.3f} s "
               f"(min {min(walls):.3f}, max {max(walls):.3f}) over {args.repeats}; last: {stages}; "
               f"iters {b.stats['iterations']}")
     return 0

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_large import pair_files  # noqa: E402
+from common import WORK, pair_files, select_device, table_head, table_row  # noqa: E402
 
 
 def main(argv=None) -> int:
@@ -31,7 +31,7 @@ def main(argv=None) -> int:
     p.add_argument("--variants", nargs="+", default=["3,3/12/1.1", "3,8/40/1.2"])
     p.add_argument("--coarsest", type=int, default=None, help="coarsest level's node limit")
     p.add_argument("--device", default=None)
-    p.add_argument("--folder", default="/tmp/warp_stokes_bench")
+    p.add_argument("--folder", default=str(WORK))
     args = p.parse_args(argv)
 
     import warp as wp
@@ -41,7 +41,7 @@ def main(argv=None) -> int:
 
     _, cage_file = pair_files(args.pair, Path(args.folder))
     cage = ws.check_cage(cage_file)
-    device = ws.resolve_device(args.device)
+    device, device_name = select_device(args.device)
     start = time.perf_counter()
     grid = ws.voxelize(cage, args.resolution, device=device)
     voxelize = time.perf_counter() - start
@@ -49,7 +49,7 @@ def main(argv=None) -> int:
     mg = multigrid.Multigrid(grid, device, **({"coarsest_nodes": args.coarsest} if args.coarsest else {}))
     setup = time.perf_counter() - start
     chunk = slice(0, args.handles)
-    print(f"device {ws.device_name(device)}, {args.pair} n = {args.resolution}: levels {mg.level_sizes}, "
+    print(f"device {device_name}, {args.pair} n = {args.resolution}: levels {mg.level_sizes}, "
           f"voxelize {voxelize:.1f} s, multigrid setup {setup:.1f} s", flush=True)
     rows = []
     for variant in args.variants:
@@ -69,10 +69,10 @@ def main(argv=None) -> int:
                      [r[0] for r in report.rounds]))
         print(rows[-1], flush=True)
         del field
-    print(f"\n| degrees (fine, coarse...), power its, safety | iterations | solve s | s / iteration | identity error | converged | rounds |\n"
-          "|---|---|---|---|---|---|---|")
+    print("\n" + table_head(("degrees (fine, coarse...), power its, safety", "iterations", "solve s", "s / iteration",
+                             "identity error", "converged", "rounds")))
     for variant, its, seconds, identity, converged, rounds in rows:
-        print(f"| {variant} | {its} | {seconds:.2f} | {seconds / its:.3f} | {identity:.1e} | {converged} | {rounds} |")
+        print(table_row((variant, its, f"{seconds:.2f}", f"{seconds / its:.3f}", f"{identity:.1e}", converged, rounds)))
     return 0
 
 

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import subprocess
 import sys
 import time
@@ -30,69 +29,13 @@ from pathlib import Path
 
 import numpy as np
 
-HERE = Path(__file__).resolve().parent
-REPO = HERE.parent
-DATA = Path(os.environ.get("WARP_STOKES_DATA", REPO.parent / "shared" / "data"))
-PAIRS = {
-    "arm": (REPO / "examples/arm/arm.obj", REPO / "examples/arm/arm_cage.obj"),
-    "smpl": (DATA / "smpl_humanoid_neuralcages/model_rpose.obj", DATA / "smpl_humanoid_neuralcages/cage_rpose.obj"),
-    "ogre": (DATA / "ogre_qmvc/Ogre.obj", DATA / "ogre_qmvc/cage_tri.obj"),
-    "synthetic": None,
-}
-
-
-def synthetic_pair():
-    """An ellipsoid cage with 242 handles around a 10,242-vertex ellipsoid mesh."""
-    import trimesh
-
-    cage = trimesh.creation.uv_sphere(radius=1.0, count=[12, 12])
-    cage.vertices *= [2.0, 1.0, 0.8]
-    mesh = trimesh.creation.icosphere(subdivisions=5, radius=0.85)
-    mesh.vertices *= [2.0, 1.0, 0.8]
-    return (mesh.vertices, mesh.faces), (cage.vertices, cage.faces)
-
-
-def pair(name):
-    return synthetic_pair() if name == "synthetic" else PAIRS[name]
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import (PAIRS, copy_bandwidth, markdown_table, pair, pool_high, select_device, table_head,  # noqa: E402
+                    table_row, time_kernel, warm_up)
 
 
 # ---------------------------------------------------------------------------------------------------------------
 # measurements inside one process
-
-
-def copy_bandwidth(wp, device, nbytes=2 << 30, repeats=20):
-    """Device-to-device copy bandwidth (bytes read + written per second)."""
-    n = nbytes // 16
-    a = wp.zeros(n, dtype=wp.vec4f, device=device)
-    b = wp.empty(n, dtype=wp.vec4f, device=device)
-    wp.copy(b, a)
-    times = []
-    for _ in range(repeats):
-        start, end = wp.Event(device, enable_timing=True), wp.Event(device, enable_timing=True)
-        wp.record_event(start)
-        wp.copy(b, a)
-        wp.record_event(end)
-        wp.synchronize_device(device)
-        times.append(wp.get_event_elapsed_time(start, end) / 1e3)
-    return 2 * n * 16 / float(np.median(times))
-
-
-def time_kernel(wp, device, launch, repeats=20):
-    launch()
-    if not wp.get_device(device).is_cuda:
-        t = time.perf_counter()
-        for _ in range(3):
-            launch()
-        return (time.perf_counter() - t) / 3
-    times = []
-    for _ in range(repeats):
-        start, end = wp.Event(device, enable_timing=True), wp.Event(device, enable_timing=True)
-        wp.record_event(start)
-        launch()
-        wp.record_event(end)
-        wp.synchronize_device(device)
-        times.append(wp.get_event_elapsed_time(start, end) / 1e3)
-    return float(np.median(times))
 
 
 def damped_jacobi(ws, wp, grid, cage, device, omega=0.78, threshold=1e-6, max_sweeps=400_000, max_seconds=120):
@@ -163,10 +106,10 @@ def one(name, n, device, memory_budget=None):
 
     warnings.simplefilter("ignore")
     mesh, cage = pair(name)
-    dev = ws.resolve_device(device)
+    dev, device_name = select_device(device)
     # warm-up at the same size: compile and load every kernel
-    ws.bind(mesh, cage, resolution=n, device=device, memory_budget=memory_budget)
-    out = {"pair": name, "n": n, "device": ws.device_name(device)}
+    warm_up(device, mesh, cage, resolution=n, memory_budget=memory_budget)
+    out = {"pair": name, "n": n, "device": device_name}
     t = time.perf_counter()
     b = ws.bind(mesh, cage, resolution=n, device=device, memory_budget=memory_budget)
     out["wall"] = time.perf_counter() - t
@@ -178,7 +121,7 @@ def one(name, n, device, memory_budget=None):
                                   "linear_precision_error")})
     out["active_nodes"] = s["interior_nodes"] + s["ring_nodes"] + s["band_nodes"]
     out["seconds"] = s["seconds"]
-    out["peak_bytes"] = wp.get_mempool_used_mem_high(dev) if dev.is_cuda and wp.is_mempool_enabled(dev) else None
+    out["peak_bytes"] = pool_high(dev)
 
     # stencil kernel bandwidth against a device copy
     checked = ws.check_cage(cage)
@@ -188,12 +131,12 @@ def one(name, n, device, memory_budget=None):
     y = wp.empty(x.shape, dtype=wp.vec4f, device=device)
     moved = 32 * x.shape[0] * x.shape[1]
     for key, precise in (("stencil", True), ("stencil_f32", False)):
-        seconds = time_kernel(wp, device, lambda: ws.apply_operator(grid, x, y, n_rows=grid.n_interior, device=device,
+        seconds = time_kernel(device, lambda: ws.apply_operator(grid, x, y, n_rows=grid.n_interior, device=device,
                                                                     precise=precise))
         out[f"{key}_ms"] = seconds * 1e3
         out[f"{key}_gbs"] = moved / seconds / 1e9
     if dev.is_cuda:
-        out["copy_gbs"] = copy_bandwidth(wp, device) / 1e9
+        out["copy_gbs"] = copy_bandwidth(device) / 1e9
     field = x = y = None  # free them before the reference bind
 
     # tightly converged reference
@@ -222,28 +165,29 @@ def table(rows):
             "solve s", "sample s", "bind s", "iters (restarts)", "iters to 1e-6", "residual", "max err", "peak GiB",
             "est GiB",
             "copy GB/s", "stencil f32 GB/s", "f32/copy", "stencil f64 GB/s", "f64/copy"]
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    cells = []
     for r in rows:
         s = r["seconds"]
         peak = f"{r['peak_bytes'] / 2**30:.2f}" if r.get("peak_bytes") else "-"
         copy = r.get("copy_gbs")
-        lines.append("| " + " | ".join(str(v) for v in [
+        cells.append([
             r["device"], r["pair"], r["n"], r["handles"], r["active_nodes"], len(r["levels"]), r["chunks"],
             f"{s['voxelize']:.3f}", f"{s['setup']:.3f}", f"{s['boundary']:.3f}", f"{s['solve']:.3f}",
             f"{s['sample']:.3f}", f"{r['wall']:.3f}", f"{r['iterations']} ({r.get('restarts', '?')})",
             r.get("iterations_to_1e-6", "-"), f"{r['residual']:.1e}",
             f"{r['error']:.1e}", peak, f"{r['memory_estimate_bytes'] / 2**30:.2f}", f"{copy:.0f}" if copy else "-",
             f"{r['stencil_f32_gbs']:.0f}", f"{r['stencil_f32_gbs'] / copy:.0%}" if copy else "-",
-            f"{r['stencil_gbs']:.0f}", f"{r['stencil_gbs'] / copy:.0%}" if copy else "-"]) + " |")
+            f"{r['stencil_gbs']:.0f}", f"{r['stencil_gbs'] / copy:.0%}" if copy else "-"])
+    lines = [markdown_table(head, cells)]
     jac = [r for r in rows if "jacobi" in r]
     if jac:
         lines += ["", "Source paper's method (damped Jacobi, omega 0.78, stop when max change per sweep < 1e-6):", "",
-                  "| pair | n | sweeps | seconds | max err at stop | multigrid CG: iters | bind s | max err |",
-                  "|---|---|---|---|---|---|---|---|"]
+                  table_head(("pair", "n", "sweeps", "seconds", "max err at stop", "multigrid CG: iters", "bind s",
+                              "max err"))]
         for r in jac:
             j = r["jacobi"]
-            lines.append(f"| {r['pair']} | {r['n']} | {j['sweeps']} | {j['seconds']:.2f} | {j['error']:.1e} | "
-                         f"{r['iterations']} | {r['wall']:.3f} | {r['error']:.1e} |")
+            lines.append(table_row((r["pair"], r["n"], j["sweeps"], f"{j['seconds']:.2f}", f"{j['error']:.1e}",
+                                    r["iterations"], f"{r['wall']:.3f}", f"{r['error']:.1e}")))
     return "\n".join(lines)
 
 
@@ -251,7 +195,7 @@ def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--device", default="cuda:0")
     p.add_argument("--resolutions", nargs="+", type=int, default=[32, 64, 96, 128, 192, 256])
-    p.add_argument("--pairs", nargs="+", default=list(PAIRS))
+    p.add_argument("--pairs", nargs="+", default=[*PAIRS, "synthetic"])
     p.add_argument("--out", default=None, help="write the markdown table (and a .json of all figures) here")
     p.add_argument("--memory-budget", type=float, default=None, metavar="GIB",
                    help="memory budget of the timed binds (GiB): below what all handles need, they solve in chunks")

@@ -11,9 +11,11 @@ Variants (all read and write the package's (node row, handle) vec4 layout, handl
   package f32  the same kernel with float32 sums (used in CG and smoothing steps)
   patches L    the float32 kernel with runs cut at L planes
   lines L      the package kernel until the fourth session: one thread per (handle, z line of at most L
-               interior nodes), three whole planes (9 loads each) in registers (stencil_variants.py)
-  lean L       the line walk keeping only the components each neighbour contributes (stencil_variants.py)
-  pairs L      one thread walks two neighbouring columns: 12 loads per plane for 2 nodes (stencil_variants.py)
+               interior nodes), three whole planes (9 loads each) in registers (archive/stencil_variants.py)
+  lean L       the line walk keeping only the components each neighbour contributes
+               (archive/stencil_variants.py)
+  pairs L      one thread walks two neighbouring columns: 12 loads per plane for 2 nodes
+               (archive/stencil_variants.py)
   gather f64   one thread per (node, handle), 18 neighbour rows looked up in the 3D index grid, float64 sums
                (the package kernel before the line form)
   gather f32   the same with float32 sums
@@ -36,8 +38,9 @@ import warp as wp
 import warp_stokes as ws
 from warp_stokes.kernels import stencil
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_solver import copy_bandwidth, pair, time_kernel  # noqa: E402
+HERE = Path(__file__).resolve().parent
+sys.path[:0] = [str(HERE), str(HERE / "archive")]  # the earlier forms (lines, lean, pairs) are in archive/
+from common import copy_bandwidth, pair, select_device, table_head, table_row, time_kernel  # noqa: E402
 import stencil_variants as sv  # noqa: E402
 
 @wp.func
@@ -178,13 +181,12 @@ def main(argv=None):
     p.add_argument("--handles", type=int, default=None, help="solve this many handles (default: all, up to 128)")
     args = p.parse_args(argv)
     warnings.simplefilter("ignore")
-    device = ws.resolve_device(args.device)
-    copy = copy_bandwidth(wp, device) / 1e9 if device.is_cuda else float("nan")
+    device, device_name = select_device(args.device)
+    copy = copy_bandwidth(device) / 1e9 if device.is_cuda else float("nan")
     mesh, cage = pair(args.pair)
     cage = ws.check_cage(cage)
-    print(f"device {ws.device_name(device)}, copy {copy:.0f} GB/s")
-    print("| n | handles | interior | variant | ms | GB/s | of copy | max diff |")
-    print("|---|---|---|---|---|---|---|---|")
+    print(f"device {device_name}, copy {copy:.0f} GB/s")
+    print(table_head(("n", "handles", "interior", "variant", "ms", "GB/s", "of copy", "max diff")))
     for n in args.resolutions:
         grid = ws.voxelize(cage, n, device=device)
         n_handles = min(cage.n_handles, args.handles or 128)
@@ -238,11 +240,11 @@ def main(argv=None):
         })
         for name, launch in variants.items():
             y = wp.full(x.shape, wp.vec4f(np.nan), dtype=wp.vec4f, device=device)
-            seconds = time_kernel(wp, device, lambda: launch(y))
+            seconds = time_kernel(device, lambda: launch(y))
             diff = float(np.nanmax(np.abs(y.numpy() - ref))) if np.isfinite(y.numpy()).all() else float("nan")
             gbs = 32 * n_int * n_handles / seconds / 1e9
-            print(f"| {n} | {n_handles} | {n_int} | {name} | {seconds * 1e3:.3f} | {gbs:.0f} | {gbs / copy:.0%} | "
-                  f"{diff:.1e} |", flush=True)
+            print(table_row((n, n_handles, n_int, name, f"{seconds * 1e3:.3f}", f"{gbs:.0f}", f"{gbs / copy:.0%}",
+                             f"{diff:.1e}")), flush=True)
     return 0
 
 

@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import resource
 import subprocess
 import sys
 import tempfile
@@ -29,7 +28,7 @@ import warnings
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_large import DATA  # noqa: E402
+from common import OGRE, PAIRS, HostPeak, markdown_table  # noqa: E402
 
 CASES = ("standalone", "standalone+normals", "layer")
 
@@ -45,8 +44,7 @@ def _asset(folder: Path) -> Path:
     path = folder / "ogre.usdc"
     if path.exists():
         return path
-    mesh = ws.load_surface(DATA / "ogre_qmvc" / "Ogre.obj")
-    cage = ws.load_surface(DATA / "ogre_qmvc" / "cage_tri.obj")
+    mesh, cage = (ws.load_surface(f) for f in PAIRS["ogre"])
     stage = Usd.Stage.CreateNew(str(path))
     root = UsdGeom.Xform.Define(stage, "/Ogre")
     stage.SetDefaultPrim(root.GetPrim())
@@ -69,7 +67,7 @@ def _bindings(folder: Path, device: str | None) -> dict:
     out = {}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        for name, args in (("mesh", (DATA / "ogre_qmvc" / "Ogre.obj", DATA / "ogre_qmvc" / "cage_tri.obj", {})),
+        for name, args in (("mesh", (*PAIRS["ogre"], {})),
                            ("asset", (_asset(folder), None, {"cage_prim": "/Ogre/Cage"}))):
             path = folder / f"{name}.npz"
             if not path.exists():
@@ -86,7 +84,7 @@ def run_case(case: str, frames: int, folder: Path, device: str | None) -> dict:
     bindings = _bindings(folder, device)
     binding = ws.load_binding(bindings["asset" if case == "layer" else "mesh"], device=device)
     rest = binding.cage_vertices
-    target = ws.load_surface(DATA / "ogre_qmvc" / "cage_deformed_tri.obj").vertices
+    target = ws.load_surface(OGRE / "cage_deformed_tri.obj").vertices
     blend = np.linspace(0.0, 1.0, frames) ** 1.5  # no two frames alike (crate files store equal arrays once)
     poses = ws.Poses(rest + blend[:, None, None] * (target - rest), np.arange(1.0, frames + 1), "sine")
     normals = binding.mesh_normals
@@ -95,15 +93,14 @@ def run_case(case: str, frames: int, folder: Path, device: str | None) -> dict:
 
         normals = trimesh.Trimesh(binding.mesh_vertices, binding.mesh_faces, process=False).vertex_normals
     binding.deform(poses.positions[:1])  # device arrays and kernels ready
-    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     out = folder / f"{case}_{frames}.usdc"
-    start = time.perf_counter()
-    ws.write_animation(out, binding, poses, fps=24, normals=normals if case == "standalone+normals" else None)
-    seconds = time.perf_counter() - start
-    grown = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before
+    with HostPeak() as memory:
+        start = time.perf_counter()
+        ws.write_animation(out, binding, poses, fps=24, normals=normals if case == "standalone+normals" else None)
+        seconds = time.perf_counter() - start
     return {"case": case, "frames": frames, "vertices": binding.n_vertices, "seconds": seconds,
             "frames_per_second": frames / seconds, "file_mib": os.path.getsize(out) / 2**20,
-            "memory_growth_mib": grown / 1024, "device": str(binding.device)}
+            "memory_growth_mib": memory.bytes / 2**20, "device": str(binding.device)}
 
 
 def main() -> None:
@@ -129,11 +126,9 @@ def main() -> None:
             rows.append(json.loads(result.stdout.strip().splitlines()[-1]))
             print(rows[-1], file=sys.stderr)
     print(f"device: {rows[0]['device']}; {rows[0]['vertices']} vertices")
-    print("| case | frames | seconds | frames/s | file MiB | memory growth MiB |")
-    print("|---|---|---|---|---|---|")
-    for r in rows:
-        print(f"| {r['case']} | {r['frames']} | {r['seconds']:.2f} | {r['frames_per_second']:.0f} | "
-              f"{r['file_mib']:.0f} | {r['memory_growth_mib']:.0f} |")
+    print(markdown_table(("case", "frames", "seconds", "frames/s", "file MiB", "memory growth MiB"), [
+        (r["case"], r["frames"], f"{r['seconds']:.2f}", f"{r['frames_per_second']:.0f}", f"{r['file_mib']:.0f}",
+         f"{r['memory_growth_mib']:.0f}") for r in rows]))
 
 
 if __name__ == "__main__":

@@ -10,19 +10,16 @@ carry a CUDA-only Warp, so the CPU weights travel as files. Pairs: the bundled a
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import warnings
 from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
-DATA = Path(os.environ.get("WARP_STOKES_DATA", REPO.parent / "shared" / "data"))
-PAIRS = {
-    "arm": (REPO / "examples/arm/arm.obj", REPO / "examples/arm/arm_cage.obj"),
-    "ogre": (DATA / "ogre_qmvc/Ogre.obj", DATA / "ogre_qmvc/cage_tri.obj"),
-}
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import common  # noqa: E402
+
+PAIRS = {name: common.PAIRS[name] for name in ("arm", "ogre")}
 RESOLUTION = 24
 
 

@@ -6,19 +6,19 @@ kept as ``lines`` in stencil_variants.py, since then the 2 x 2 patch walk that t
 Every variant's output is compared with the package kernel's (float64 sums) in the "max diff" column. Modes,
 from the repository root:
 
-    python benchmarks/stencil_experiments.py forms  --pair ogre --resolutions 128 256
+    python benchmarks/archive/stencil_experiments.py forms  --pair ogre --resolutions 128 256
         walk    the line walk along any axis (generic: bounds-checked loads, vec3i steps), lines cut at L
         lockstep  bricks of bi x bj columns walking their common z range, one line per column, padded
         tiles   shared-memory planes (Warp tiles, tile_scatter_masked): a block = 32 handles x bi x bj columns
-    python benchmarks/stencil_experiments.py bricks --pair ogre --resolutions 128 256
+    python benchmarks/archive/stencil_experiments.py bricks --pair ogre --resolutions 128 256
         the line walk with its lines cut at absolute multiples of L and ordered by bricks of bi x bj
         columns (a block's consecutive lines form a patch), launched with block_dim threads; and the "pairs"
         variant of stencil_variants.py in the same order
-    python benchmarks/stencil_experiments.py regs   --pair ogre --resolutions 128 256
+    python benchmarks/archive/stencil_experiments.py regs   --pair ogre --resolutions 128 256
         the line walk (and pairs) compiled with register caps (cuda_max_registers) and other block sizes
     ncu --clock-control none -k regex:"apply_operator|apply_tiles|walk" --launch-skip 8 --launch-count 8 \
         --section SpeedOfLight --section MemoryWorkloadAnalysis --section Occupancy --section LaunchStats \
-        --section WarpStateStats python benchmarks/stencil_experiments.py profile --pair ogre --resolutions 256
+        --section WarpStateStats python benchmarks/archive/stencil_experiments.py profile --pair ogre --resolutions 256
         each form launched once after a warm-up launch, for Nsight Compute
 
 The tile kernel runs on the CPU only with ``wp.config.enable_cpu_blocks`` (set CPU_BLOCKS=1), which is how its
@@ -40,8 +40,9 @@ from warp_stokes.kernels import stencil
 if os.environ.get("CPU_BLOCKS"):
     wp.config.enable_cpu_blocks = True
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_solver import copy_bandwidth, pair, time_kernel  # noqa: E402
+HERE = Path(__file__).resolve().parent
+sys.path[:0] = [str(HERE), str(HERE.parent)]  # stencil_variants.py here, common.py in benchmarks/
+from common import copy_bandwidth, pair, time_kernel  # noqa: E402
 import stencil_variants as sv  # noqa: E402
 
 
@@ -313,7 +314,7 @@ class Case:
                 continue
             y = wp.full(self.x.shape, wp.vec4f(np.nan), dtype=wp.vec4f, device=self.device)
             try:
-                seconds = time_kernel(wp, self.device, lambda: launch(y))
+                seconds = time_kernel(self.device, lambda: launch(y))
             except Exception as e:  # noqa: BLE001 (a variant that does not launch is a result too)
                 print(f"| {self.n} | {self.n_handles} | {self.n_int} | {name} | failed: {str(e)[:200]} |", flush=True)
                 continue
@@ -335,7 +336,7 @@ def start(only=False):
     args = p.parse_args(sys.argv[2:])
     warnings.simplefilter("ignore")
     device = ws.resolve_device(args.device)
-    copy = copy_bandwidth(wp, device) / 1e9 if device.is_cuda else float("nan")
+    copy = copy_bandwidth(device) / 1e9 if device.is_cuda else float("nan")
     _, cage = pair(args.pair)
     cage = ws.check_cage(cage)
     print(f"device {ws.device_name(device)}, copy {copy:.0f} GB/s, pair {args.pair}", flush=True)
@@ -668,7 +669,7 @@ def main_layout():
                                   inputs=[field, arrays["index"], arrays["active_ijk"], lines, n_int, H],
                                   outputs=[out], device=device, block_dim=bd)
 
-                    seconds = time_kernel(wp, device, launch)
+                    seconds = time_kernel(device, launch)
                     o = out.numpy()
                     o = (o if rc else o.transpose(1, 0, 2))[:, :, :H].transpose(0, 2, 1)
                     diff = float(np.abs(o - case.reference).max()) if np.isfinite(o).all() else float("nan")
