@@ -191,13 +191,19 @@ def main(argv=None) -> int:
         return 130
 
 
-def _main(argv) -> int:
+def _parser() -> argparse.ArgumentParser:
+    """The command line: one subcommand per stage of the data's way (bind, deform, animate) and batches of them."""
     from warp_stokes import __version__
 
     parser = _Parser(prog="warp-stokes", description="Stokes cage coordinates with NVIDIA Warp.")
     parser.add_argument("--version", action="version", version=f"warp-stokes {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    for add in (_add_bind, _add_deform, _add_animate, _add_batch):
+        add(sub)
+    return parser
 
+
+def _add_bind(sub) -> None:
     p = sub.add_parser("bind", help="compute the weights of a mesh's vertices with respect to a cage")
     p.add_argument("mesh", help="mesh file (OBJ, PLY, OFF, STL, glTF/GLB, ...) or a USD asset (all its meshes)")
     p.add_argument("cage", nargs="?", default=None,
@@ -223,6 +229,8 @@ def _main(argv) -> int:
                    help="weights at the vertices: C1 tricubic Hermite of values and gradients (default) or trilinear")
     p.set_defaults(run=_bind)
 
+
+def _add_deform(sub) -> None:
     p = sub.add_parser("deform", help="deform the bound mesh with a deformed cage and write it")
     p.add_argument("binding", help="binding file written by 'warp-stokes bind'")
     p.add_argument("cage", help="deformed cage with the bound cage's topology (faces in any order), or its "
@@ -231,6 +239,8 @@ def _main(argv) -> int:
     p.add_argument("--device", default=None, help="cpu, cuda or cuda:N")
     p.set_defaults(run=_deform)
 
+
+def _add_animate(sub) -> None:
     p = sub.add_parser("animate", help="write the bound mesh, deformed by a sequence of cage poses, as animated USD")
     p.add_argument("binding", help="binding file written by 'warp-stokes bind'")
     p.add_argument("poses", help="cage poses: a folder of OBJ frames, a .npy/.npz array (F, L, 3) or a USD file "
@@ -250,6 +260,8 @@ def _main(argv) -> int:
     p.add_argument("--device", default=None, help="cpu, cuda or cuda:N")
     p.set_defaults(run=_animate)
 
+
+def _add_batch(sub) -> None:
     p = sub.add_parser("batch", help="bind (and animate) every asset of a TOML or JSON manifest")
     p.add_argument("manifest", help="manifest file (.toml or .json); see the README")
     p.add_argument("-o", "--output", required=True, help="output folder")
@@ -257,6 +269,9 @@ def _main(argv) -> int:
     p.add_argument("--device", default=None, help="cpu, cuda or cuda:N")
     p.set_defaults(run=_batch)
 
+
+def _main(argv) -> int:
+    parser = _parser()
     try:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # --help, --version, or a bad argument (one line on stderr already)

@@ -2,7 +2,8 @@
 that deform the mesh, saved as ``.npz``), and the sampling and deformation kernels' launch code."""
 
 from .deform import deform_vertices
-from .pipeline import bind, identity_errors
+from .pipeline import bind
+from .stats import identity_errors
 from .sample import sample_weights
 from .store import FORMAT, Binding, load_binding
 

@@ -9,42 +9,21 @@ import warnings
 import numpy as np
 import warp as wp
 
-from ..device import device_name, resolve_device
+from ..device import resolve_device
 from ..errors import CageError, MeshError, WarpStokesError
 from ..geometry.boundary import boundary_field, mean_value_coordinates
 from ..geometry.cage import Cage, check_cage
 from ..geometry.grid import check_resolution, classify_points, voxelize
 from ..geometry.local_boundary import LocalData
-from ..io.scene import Scene, is_usd, load_scene
+from ..io.scene import is_usd, load_scene
 from ..solver.budget import available_memory, chunk_columns, estimate_memory, plan_chunks
 from ..solver.multigrid import Multigrid, coarsen
 from ..solver.solve import solve_biharmonic
 from .sample import SAMPLINGS, sample_weights
+from .stats import asset_record, grid_stats, identity_errors, parts_record, settings_record, solver_stats
 from .store import Binding
 
 __all__ = ["bind", "identity_errors"]
-
-
-def identity_errors(weights: np.ndarray, handles: np.ndarray, points: np.ndarray, rows: int = 1 << 16):
-    """The largest deviation from partition of unity, max |sum_l w_l - 1|, and from linear precision,
-    max |sum_l w_l c_l - p| relative to the handles' bounding-box diagonal, in float64 sums over blocks of
-    ``rows`` vertices (a float64 copy of all weights would double a large mesh's peak memory).
-
-    Examples
-    --------
-    >>> c = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]])
-    >>> identity_errors(np.array([[0.25, 0.25, 0.25, 0.25]], np.float32), c, np.array([[0.25, 0.25, 0.25]]))
-    (0.0, 0.0)
-    """
-    handles = np.asarray(handles, dtype=np.float64)
-    diag = float(np.linalg.norm(handles.max(axis=0) - handles.min(axis=0)))
-    pu = lp = 0.0
-    for start in range(0, len(weights), rows):
-        w = weights[start : start + rows].astype(np.float64)
-        if len(w):
-            pu = max(pu, float(np.abs(w.sum(axis=1) - 1.0).max()))
-            lp = max(lp, float(np.linalg.norm(w @ handles - points[start : start + rows], axis=1).max()) / diag)
-    return pu, lp
 
 
 def _suggest_resolution(resolution: int, spacing: float, distances: np.ndarray) -> int:
@@ -154,50 +133,23 @@ def bind(mesh, cage=None, resolution: int = 64, device=None, tol: float = 1e-6, 
 
     pu_error, lp_error = identity_errors(weights, checked.vertices, points)
     stats = {
-        "device": device_name(device),
-        "grid_shape": list(grid.shape),
-        "spacing": grid.spacing,
-        "interior_nodes": grid.n_interior,
-        "ring_nodes": grid.n_ring,
-        "band_nodes": grid.n_band,
-        "handles": checked.n_handles,
-        "vertices": len(points),
-        "vertices_outside_cage": int((~inside).sum()),
-        "vertices_beyond_band": int(beyond.sum()),
-        "vertices_in_thin_features": int(thin.sum()),
+        **grid_stats(grid, checked, surface, inside, beyond, thin, device),
         "solver": solver,
         "levels": preconditioner.level_sizes if solver == "multigrid" else [grid.n_interior],
         "multigrid_seconds": preconditioner.seconds if solver == "multigrid" else {},
         "chunks": len(chunks),
         "memory_estimate_bytes": estimate.total(chunk_columns(chunks)),
-        **_solver_stats(reports),
+        **solver_stats(reports),
         "partition_of_unity_error": pu_error,
         "linear_precision_error": lp_error,
         "seconds": seconds,
         "warnings": notes,
     }
-    settings = {
-        "resolution": int(resolution),
-        "tol": float(tol),
-        "max_iterations": max_iterations,
-        "solver": solver,
-        "boundary": "mvc-central-difference" if boundary == "mvc" else str(
-            LocalData() if boundary == "local" else boundary),
-        "sampling": sampling,
-        "mesh": surface.name,
-        "cage": checked.name,
-        "cage_prim": cage_prim,
-        "mesh_prims": [p.path for p in scene.parts] if scene.asset else None,
-        "rest_time": scene.metadata.get("rest_time"),
-        "cage_flipped": checked.flipped,
-        "cage_handles": ("the cage's vertices, in its order" if checked.source_index is None else
-                         f"{len(checked.source_index)} vertices merged into {checked.n_handles} handles, in order of "
-                         "first appearance (map: cage_source_index)"),
-        "warp_version": wp.config.version,
-    }
+    settings = settings_record(resolution, tol, max_iterations, solver, boundary, sampling, surface, checked, scene,
+                         cage_prim)
     return Binding(weights, checked.vertices, checked.faces, points, surface.faces, settings, stats, device=device,
                    mesh_normals=surface.normals, cage_source_index=checked.source_index,
-                   mesh_polygons=surface.polygons(), mesh_uvs=surface.uvs, parts=_parts(scene), asset=_asset(scene))
+                   mesh_polygons=surface.polygons(), mesh_uvs=surface.uvs, parts=parts_record(scene), asset=asset_record(scene))
 
 
 def _cage_source(mesh, cage, cage_prim, rest_time):
@@ -217,15 +169,6 @@ def _cage_source(mesh, cage, cage_prim, rest_time):
     if is_usd(cage):
         raise CageError(f"{cage}: a USD cage needs its prim path (cage_prim, --cage-prim)")
     return cage
-
-
-def _parts(scene: Scene) -> list:
-    return [{"path": p.path, "vertices": len(p.surface.vertices), "normals": p.normals,
-             "to_world": np.asarray(p.to_world, dtype=np.float64).tolist()} for p in scene.parts]
-
-
-def _asset(scene: Scene):
-    return None if scene.asset is None else {"path": scene.asset, **scene.metadata}
 
 
 def _check_arguments(tol, memory_budget, solver, boundary, sampling) -> None:
@@ -308,15 +251,3 @@ def _vertices_off_the_grid(surface, checked: Cage, grid, resolution: int, weight
     return notes, beyond, thin
 
 
-def _solver_stats(reports) -> dict:
-    """The solve reports of all chunks, summed up for the binding's stats."""
-    return {
-        "iterations": max(r.iterations for r in reports),
-        "restarts": max(r.restarts for r in reports),
-        "solver_rounds": reports[0].rounds,
-        "chunk_iterations": [r.iterations for r in reports],
-        "chunk_rounds": [r.rounds for r in reports],
-        "residual": max(r.residual for r in reports),
-        "identity_error": max(r.identity_error for r in reports),
-        "converged": all(r.converged for r in reports),
-    }

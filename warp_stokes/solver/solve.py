@@ -129,24 +129,12 @@ def solve_biharmonic(
     >>> report.converged                                                 # doctest: +SKIP
     True
     """
+    # about 70 lines: the stopping rule (rounds, recomputed residual, identity check, restarts) reads in one place
     device = resolve_device(device)
     start = time.perf_counter()
-    setup_seconds = 0.0
     with wp.ScopedDevice(device):
         deviation = _identity_check(grid, field, handles, device, chunk)  # first: it checks the columns
-        if preconditioner == "multigrid":
-            setup_start = time.perf_counter()
-            preconditioner = Multigrid(grid, device=device)
-            wp.synchronize_device(device)
-            setup_seconds = time.perf_counter() - setup_start
-        if isinstance(preconditioner, Multigrid):
-            precondition, default_iterations = preconditioner.apply, 200
-        elif preconditioner == "jacobi":
-            def precondition(r, z):
-                wp.launch(cg.jacobi, dim=r.shape, inputs=[r], outputs=[z])
-            default_iterations = 40 * (grid.resolution + 8) ** 2
-        else:
-            raise ValueError(f"unknown preconditioner {preconditioner!r}: use 'multigrid' or 'jacobi'")
+        precondition, default_iterations, setup_seconds = _preconditioner(grid, preconditioner, device)
         if max_iterations is None:
             max_iterations = default_iterations
         solver = BatchedCG(grid, field, source, precondition, device)
@@ -200,6 +188,24 @@ def solve_biharmonic(
         setup_seconds=setup_seconds,
         rounds=rounds,
     )
+
+
+def _preconditioner(grid: Grid, preconditioner, device):
+    """(apply(r, z), default iteration limit, setup seconds) of the V-cycle (built here for "multigrid", or given
+    as a Multigrid) or of the inverse diagonal ("jacobi")."""
+    setup_seconds = 0.0
+    if preconditioner == "multigrid":
+        start = time.perf_counter()
+        preconditioner = Multigrid(grid, device=device)
+        wp.synchronize_device(device)
+        setup_seconds = time.perf_counter() - start
+    if isinstance(preconditioner, Multigrid):
+        return preconditioner.apply, 200, setup_seconds
+    if preconditioner == "jacobi":
+        def precondition(r, z):
+            wp.launch(cg.jacobi, dim=r.shape, inputs=[r], outputs=[z], device=device)
+        return precondition, 40 * (grid.resolution + 8) ** 2, setup_seconds
+    raise ValueError(f"unknown preconditioner {preconditioner!r}: use 'multigrid' or 'jacobi'")
 
 
 def _identity_check(grid: Grid, field: wp.array, handles, device, chunk: slice | None = None):
