@@ -70,6 +70,8 @@ weight_list = wp.types.vector(length=MAX_BLEND, dtype=wp.float64)
 point_list = wp.types.matrix(shape=(MAX_BLEND, 3), dtype=wp.float64)
 
 
+# about 75 lines: one thread per (node, handle) assembles the local data of its closest face and the faces blended
+# with it; the steps share the per-face values held in registers
 @wp.kernel
 def local_field(
     ijk: wp.array(dtype=wp.vec3i),

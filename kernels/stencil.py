@@ -32,6 +32,9 @@ PATCH_J = 2
 BLOCK_DIM = 128
 
 
+# about 110 lines: one kernel factory whose body is one walk over a patch of columns (load a plane, reduce it to
+# the terms its nodes and the nodes above and below need, keep them in registers); split, the walk's state would
+# have to pass through memory, which is what it exists to avoid
 def operator_kernel(scalar, patch=(PATCH_I, PATCH_J)):
     """The batched operator with sums in `scalar` (wp.float32 or wp.float64), walking patches of `patch` columns.
 

@@ -13,7 +13,8 @@ from ..device import resolve_device
 from ..errors import CageError, MeshError, WarpStokesError
 from ..geometry.boundary import boundary_field, mean_value_coordinates
 from ..geometry.cage import Cage, check_cage
-from ..geometry.grid import check_resolution, classify_points, voxelize
+from ..geometry.grid import check_resolution, voxelize
+from ..geometry.inside import classify_points
 from ..geometry.local_boundary import LocalData
 from ..io.scene import is_usd, load_scene
 from ..solver.budget import available_memory, chunk_columns, estimate_memory, plan_chunks

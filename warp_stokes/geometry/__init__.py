@@ -3,7 +3,8 @@
 
 from .boundary import COMPLEMENT_COLUMNS, boundary_field, mean_value_coordinates
 from .cage import Cage, check_cage, crossing_faces, folded_edges, signed_volume
-from .grid import Grid, classify_points, grid_from_mask, voxelize
+from .grid import Grid, grid_from_mask, voxelize
+from .inside import classify_points
 from .local_boundary import LocalData
 
 __all__ = ["COMPLEMENT_COLUMNS", "boundary_field", "mean_value_coordinates", "Cage", "check_cage", "crossing_faces",

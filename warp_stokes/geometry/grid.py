@@ -8,14 +8,15 @@ import numpy as np
 import warp as wp
 
 from .cage import Cage
+from .inside import WINDING_ACCURACY, cage_mesh
 from ..device import available_memory, resolve_device
 from ..errors import ResolutionError
 from ..kernels import labels as L
 from ..kernels import stencil
 from ..kernels import voxel
 
-__all__ = ["Grid", "voxelize", "check_resolution", "grid_from_mask", "classify_points", "MARGIN", "BAND_WIDTH",
-           "PATCH_LENGTH", "MAX_ROWS"]
+__all__ = ["Grid", "voxelize", "check_resolution", "grid_from_mask", "MARGIN", "BAND_WIDTH", "PATCH_LENGTH",
+           "MAX_ROWS"]
 
 #: nodes of known data kept outside the interior (max-norm distance): the ring plus a sampling band, so that
 #: trilinear sampling of vertices slightly outside the cage reads only known corners
@@ -23,8 +24,6 @@ BAND_WIDTH = 3
 #: empty node layers between the cage's bounding box and the grid's edge (band + one, so every stencil read
 #: of a ring node stays on the grid)
 MARGIN = BAND_WIDTH + 1
-#: accuracy of Warp's fast winding number (dipole expansion used beyond this many cluster radii)
-WINDING_ACCURACY = 2.0
 #: active nodes are numbered with 32-bit rows (index arrays, kernel row arguments): a grid with more is refused
 MAX_ROWS = 2**31 - 1
 #: the stencil kernel walks patches of columns along z in pieces of at most this many planes, so that short
@@ -131,12 +130,6 @@ class Grid:
         return self._device_arrays[d.alias]
 
 
-def _cage_mesh(cage: Cage, centre: np.ndarray, device) -> wp.Mesh:
-    points = wp.array((cage.vertices - centre).astype(np.float32), dtype=wp.vec3, device=device)
-    indices = wp.array(cage.faces.astype(np.int32).ravel(), dtype=wp.int32, device=device)
-    return wp.Mesh(points=points, indices=indices, support_winding_number=True)
-
-
 def check_resolution(resolution) -> int:
     """The resolution as an int, or a ResolutionError when it is not an integer in [8, 2048].
 
@@ -210,7 +203,7 @@ def voxelize(cage: Cage, resolution: int = 64, device=None, max_rows: int = MAX_
             "would fit"
         )
     with wp.ScopedDevice(device):
-        mesh = _cage_mesh(cage, centre, device)
+        mesh = cage_mesh(cage, centre, device)
         inside = wp.empty(shape, dtype=wp.int8)
         wp.launch(
             voxel.classify_nodes,
@@ -299,36 +292,3 @@ def _number_nodes(inside: wp.array, centre, origin, spacing, resolution, device,
         n_ring=n_ring,
         n_band=n_band,
     )
-
-
-def classify_points(cage: Cage, points: np.ndarray, device=None) -> tuple[np.ndarray, np.ndarray]:
-    """Which points lie inside the cage (generalised winding number > 1/2), and how far from its surface.
-
-    Parameters
-    ----------
-    cage : Cage
-    points : (N, 3) array of positions
-    device : None | str
-
-    Returns
-    -------
-    inside : (N,) bool
-    distance : (N,) float64, unsigned distance to the cage surface
-
-    Examples
-    --------
-    >>> inside, dist = classify_points(cage, cage.vertices.mean(axis=0)[None])  # doctest: +SKIP
-    """
-    device = resolve_device(device)
-    centre = 0.5 * (cage.vertices.min(axis=0) + cage.vertices.max(axis=0))
-    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    if len(points) == 0:
-        return np.zeros(0, dtype=bool), np.zeros(0)
-    with wp.ScopedDevice(device):
-        mesh = _cage_mesh(cage, centre, device)
-        pts = wp.array((points - centre).astype(np.float32), dtype=wp.vec3)
-        inside = wp.empty(len(points), dtype=wp.int32)
-        distance = wp.empty(len(points), dtype=float)
-        wp.launch(voxel.classify_points, dim=len(points), inputs=[mesh.id, pts, WINDING_ACCURACY],
-                  outputs=[inside, distance])
-        return inside.numpy().astype(bool), distance.numpy().astype(np.float64)

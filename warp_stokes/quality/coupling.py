@@ -19,13 +19,13 @@ DISTANT_FRACTION = 0.25
 
 def nearest_faces(cage: Cage, points: np.ndarray, device=None) -> np.ndarray:
     """(N,) index of the cage face nearest to each point (Warp's BVH query, float32)."""
-    from ..geometry.grid import _cage_mesh
+    from ..geometry.inside import cage_mesh
 
     device = resolve_device(device)
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     centre = 0.5 * (cage.vertices.min(axis=0) + cage.vertices.max(axis=0))
     with wp.ScopedDevice(device):
-        mesh = _cage_mesh(cage, centre, device)
+        mesh = cage_mesh(cage, centre, device)
         out = wp.empty(len(points), dtype=wp.int32)
         wp.launch(voxel.nearest_faces, dim=len(points),
                   inputs=[mesh.id, wp.array((points - centre).astype(np.float32), dtype=wp.vec3)], outputs=[out])

@@ -89,19 +89,7 @@ def deformation_quality(weights, mesh_vertices=None, mesh_faces=None, cage=None,
 
     conformal = dihedral = signed = edges = None
     if pose is not None:
-        pose = _pose(pose, cage)
-        deformed = np.empty((n_vertices, 3))
-        for rows in row_chunks(n_vertices, n_handles):
-            deformed[rows] = w[rows].astype(np.float64) @ pose
-        conformal = conformal_distortion(faces, vertices, deformed)
-        if reference is not None:
-            reference = np.asarray(reference, dtype=np.float64) if isinstance(reference, np.ndarray) else \
-                load_surface(reference).vertices
-            if reference.shape != vertices.shape:
-                raise ValueError(f"the reference mesh has {len(reference)} vertices, the mesh {n_vertices}")
-            edges = interior_edges(faces)
-            dihedral = dihedral_change(faces, deformed, reference, edges)
-            signed = dihedral_change(faces, deformed, reference, edges, signed=True)
+        conformal, dihedral, signed, edges = _pose_measures(w, vertices, faces, _pose(pose, cage), reference)
 
     # per-vertex weight statistics, one pass over the weights
     smallest = np.empty(n_vertices)
@@ -116,22 +104,8 @@ def deformation_quality(weights, mesh_vertices=None, mesh_faces=None, cage=None,
            "min_weight": float(smallest.min(initial=np.inf)),
            "negative_fraction": float(negatives.sum() / max(1, w.size)), "regions": {}}
     for name, mask in masks.items():
-        count = int(mask.sum())
-        row = {"vertices": count,
-               "min_weight": float(smallest[mask].min(initial=np.inf)) if count else float("nan"),
-               "negative_fraction": float(negatives[mask].sum() / (count * n_handles)) if count else float("nan"),
-               "distant_weight": {**{k: v for k, v in percentile_summary(distant[mask]).items() if k != "count"},
-                                  "mean": float(distant[mask].mean()) if count else float("nan")}}
-        if conformal is not None:
-            row["conformal"] = percentile_summary(conformal, region_triangles(faces, mask, n_vertices))
-        if dihedral is not None:
-            in_region = region_edges(edges[2], mask, n_vertices)
-            row["dihedral_change"] = percentile_summary(dihedral, in_region)
-            row["dihedral_change_signed"] = percentile_summary(signed, in_region)
-        if change is not None:
-            row["change"] = {"max": float(change[mask].max(initial=0.0)),
-                             "rms": float(np.sqrt(np.mean(change[mask] ** 2))) if count else float("nan")}
-        out["regions"][name] = row
+        out["regions"][name] = _region_row(mask, smallest, negatives, distant, change, conformal, dihedral, signed,
+                                           edges, faces, n_handles)
     return out
 
 
@@ -167,3 +141,43 @@ def mean_value_quality(mesh_vertices, mesh_faces, cage, pose=None, reference=Non
                               fraction)
     out["weights"] = weights
     return out
+
+
+def _pose_measures(w, vertices, faces, pose: np.ndarray, reference):
+    """(conformal distortion per triangle, dihedral change per interior edge, its signed form, the interior edges)
+    of the mesh deformed by ``w @ pose``; the last three None without a reference mesh."""
+    n_vertices, n_handles = w.shape
+    deformed = np.empty((n_vertices, 3))
+    for rows in row_chunks(n_vertices, n_handles):
+        deformed[rows] = w[rows].astype(np.float64) @ pose
+    conformal = conformal_distortion(faces, vertices, deformed)
+    if reference is None:
+        return conformal, None, None, None
+    reference = np.asarray(reference, dtype=np.float64) if isinstance(reference, np.ndarray) else \
+        load_surface(reference).vertices
+    if reference.shape != vertices.shape:
+        raise ValueError(f"the reference mesh has {len(reference)} vertices, the mesh {n_vertices}")
+    edges = interior_edges(faces)
+    return (conformal, dihedral_change(faces, deformed, reference, edges),
+            dihedral_change(faces, deformed, reference, edges, signed=True), edges)
+
+
+def _region_row(mask, smallest, negatives, distant, change, conformal, dihedral, signed, edges, faces,
+                n_handles: int) -> dict:
+    """The measures of one region (a vertex mask; its triangles and edges are those with every vertex in it)."""
+    n_vertices, count = len(mask), int(mask.sum())
+    row = {"vertices": count,
+           "min_weight": float(smallest[mask].min(initial=np.inf)) if count else float("nan"),
+           "negative_fraction": float(negatives[mask].sum() / (count * n_handles)) if count else float("nan"),
+           "distant_weight": {**{k: v for k, v in percentile_summary(distant[mask]).items() if k != "count"},
+                              "mean": float(distant[mask].mean()) if count else float("nan")}}
+    if conformal is not None:
+        row["conformal"] = percentile_summary(conformal, region_triangles(faces, mask, n_vertices))
+    if dihedral is not None:
+        in_region = region_edges(edges[2], mask, n_vertices)
+        row["dihedral_change"] = percentile_summary(dihedral, in_region)
+        row["dihedral_change_signed"] = percentile_summary(signed, in_region)
+    if change is not None:
+        row["change"] = {"max": float(change[mask].max(initial=0.0)),
+                         "rms": float(np.sqrt(np.mean(change[mask] ** 2))) if count else float("nan")}
+    return row

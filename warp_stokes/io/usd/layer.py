@@ -78,6 +78,8 @@ def _part_override(stage, asset_path: str, part: dict, rows: slice, rest_time) -
 
 def write_layer(path, ext, binding, positions, frames, poses, fps, with_cage, with_weights, up_axis,
                  meters_per_unit, asset) -> str:
+    """Write a layer over the binding's asset (or ``asset``) with the bound prims' overrides for every pose; see
+    :func:`warp_stokes.io.usd.write_animation` for the arguments."""
     from pxr import Sdf, Usd, UsdGeom, Vt
 
     from .asset import open_stage, stage_metadata

@@ -29,20 +29,16 @@ def _prim_name(path: str, taken: set) -> str:
 
 
 def write_standalone(path, ext, binding, positions, frames, poses, fps, with_cage, with_weights, up_axis,
-                      meters_per_unit, normals) -> str:
-    from pxr import Sdf, Usd, UsdGeom, Vt
+                     meters_per_unit, normals) -> str:
+    """Write ``/Root`` with one mesh per part of the binding (``/Root/Mesh`` for one), deformed by every pose; see
+    :func:`warp_stokes.io.usd.write_animation` for the arguments."""
+    from pxr import Usd, UsdGeom
 
     if up_axis not in ("Y", "Z"):
         raise WarpStokesError(f"up axis must be 'Y' or 'Z', got {up_axis!r}")
     if not meters_per_unit > 0:
         raise WarpStokesError(f"meters per unit must be positive, got {meters_per_unit!r}")
     rate = fps or poses.time_codes_per_second or 24.0
-    slices = binding.part_slices()
-    counts, indices = binding.mesh_face_counts, binding.mesh_face_indices
-    # each part's polygons: the polygons are in part order, each over its part's vertices
-    corner_offsets = np.concatenate([[0], np.cumsum(counts)])
-    face_part = np.searchsorted(np.array([s.stop for s in slices]), indices[corner_offsets[:-1]], side="right")
-    corner_part = np.repeat(face_part, counts)
     normals = binding.mesh_normals if normals is None else np.asarray(normals)
     with atomic_output(path, ext) as tmp:
         layer, stage = new_stage(tmp, ext)
@@ -51,32 +47,11 @@ def write_standalone(path, ext, binding, positions, frames, poses, fps, with_cag
         set_timing(stage, frames, rate)
         root = UsdGeom.Xform.Define(stage, "/Root")
         stage.SetDefaultPrim(root.GetPrim())
-        taken, writers = set(), []
-        for k, (part, rows) in enumerate(zip(binding.parts, slices)):
-            faces, corners = np.flatnonzero(face_part == k), np.flatnonzero(corner_part == k)
-            part_counts, part_indices = counts[faces], indices[corners] - rows.start
-            name = "Mesh" if len(slices) == 1 else _prim_name(part["path"], taken)
-            mesh = define_mesh(stage, f"/Root/{name}", part_counts, part_indices, binding.mesh_vertices[rows])
-            if binding.mesh_uvs is not None:
-                st, st_indices = binding.mesh_uvs
-                used, local = np.unique(st_indices[corners], return_inverse=True)
-                primvar = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray,
-                                                                   UsdGeom.Tokens.faceVarying)
-                primvar.Set(Vt.Vec2fArray.FromNumpy(st[used].astype(np.float32)))
-                primvar.SetIndices(Vt.IntArray.FromNumpy(local.astype(np.int32).ravel()))
-            plan = None
-            if normals is not None:
-                plan = NormalsPlan(part_counts, part_indices, "vertex", rows.stop - rows.start)
-                mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
-            if with_weights:
-                primvar = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar(
-                    "stokesWeights", Sdf.ValueTypeNames.FloatArray, UsdGeom.Tokens.vertex, binding.n_handles)
-                primvar.Set(Vt.FloatArray.FromNumpy(binding.weights[rows].ravel()))
-            writers.append((rows, mesh.GetPointsAttr(), mesh.GetExtentAttr(), mesh.GetNormalsAttr(), plan))
+        writers = _define_parts(stage, binding, normals is not None, with_weights)
         cage = None
         if with_cage:
             cage = define_mesh(stage, "/Root/Cage", np.full(len(binding.cage_faces), 3), binding.cage_faces.ravel(),
-                                binding.cage_vertices)
+                               binding.cage_vertices)
             UsdGeom.Imageable(cage).CreatePurposeAttr(UsdGeom.Tokens.guide)
         for t, pose, deformed in deformed_frames(binding, positions, frames, layer, path, ext):
             time = Usd.TimeCode(t)
@@ -92,3 +67,39 @@ def write_standalone(path, ext, binding, positions, frames, poses, fps, with_cag
         save_layer(layer, path)
         del stage, layer
     return path
+
+
+def _define_parts(stage, binding, with_normals: bool, with_weights: bool) -> list:
+    """One mesh per part under /Root, with its polygons, UVs and weights: per part (rows, points attribute, extent
+    attribute, normals attribute, NormalsPlan or None)."""
+    from pxr import Sdf, UsdGeom, Vt
+
+    slices = binding.part_slices()
+    counts, indices = binding.mesh_face_counts, binding.mesh_face_indices
+    # the polygons are in part order, each over its part's vertices
+    first_corner = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    face_part = np.searchsorted(np.array([s.stop for s in slices]), indices[first_corner], side="right")
+    corner_part = np.repeat(face_part, counts)
+    taken, writers = set(), []
+    for k, (part, rows) in enumerate(zip(binding.parts, slices)):
+        faces, corners = np.flatnonzero(face_part == k), np.flatnonzero(corner_part == k)
+        part_counts, part_indices = counts[faces], indices[corners] - rows.start
+        name = "Mesh" if len(slices) == 1 else _prim_name(part["path"], taken)
+        mesh = define_mesh(stage, f"/Root/{name}", part_counts, part_indices, binding.mesh_vertices[rows])
+        if binding.mesh_uvs is not None:
+            st, st_indices = binding.mesh_uvs
+            used, local = np.unique(st_indices[corners], return_inverse=True)
+            primvar = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray,
+                                                               UsdGeom.Tokens.faceVarying)
+            primvar.Set(Vt.Vec2fArray.FromNumpy(st[used].astype(np.float32)))
+            primvar.SetIndices(Vt.IntArray.FromNumpy(local.astype(np.int32).ravel()))
+        plan = None
+        if with_normals:
+            plan = NormalsPlan(part_counts, part_indices, "vertex", rows.stop - rows.start)
+            mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
+        if with_weights:
+            primvar = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar(
+                "stokesWeights", Sdf.ValueTypeNames.FloatArray, UsdGeom.Tokens.vertex, binding.n_handles)
+            primvar.Set(Vt.FloatArray.FromNumpy(binding.weights[rows].ravel()))
+        writers.append((rows, mesh.GetPointsAttr(), mesh.GetExtentAttr(), mesh.GetNormalsAttr(), plan))
+    return writers

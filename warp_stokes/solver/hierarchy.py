@@ -1,0 +1,87 @@
+"""The multigrid levels' nodes: which lattice nodes each coarser level keeps, found before any operator is formed
+(so that the memory plan can count the hierarchy), and what the levels' operators will take."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import warp as wp
+
+from ..device import resolve_device
+from ..geometry.grid import Grid
+from ..kernels import multigrid as mg
+
+__all__ = ["Level", "coarsen", "hierarchy_bytes", "COARSEST_NODES", "COARSE_NODE_BYTES"]
+
+#: coarsen until a level has at most this many nodes; it is then inverted densely (1600 x 1600 floats at most:
+#: 10 MiB). A lower limit adds a level below and costs CG iterations (one at n = 80 on a bulky cage, measured)
+COARSEST_NODES = 400
+#: device bytes per node of a coarse level: 27 blocks of the operator, the diagonal's inverse, its coordinates
+COARSE_NODE_BYTES = 27 * 64 + 64 + 12
+
+
+@dataclass
+class Level:
+    n: int  # unknown nodes
+    ijk: np.ndarray  # (n, 3) lattice coordinates at this level
+    index: wp.array  # lattice -> row (rows >= n are not unknowns of this level), or -1
+    ijk_device: wp.array | None = None  # ijk on the device
+    blocks: wp.array | None = None  # (n, 27) mat44f operator blocks; None on the fine level (the 19-point stencil)
+    inv_diag: wp.array | None = None  # (n,) mat44 inverses of the diagonal blocks ((1,) on the fine level)
+    lmax: float = 0.0
+    work: dict = field(default_factory=dict)
+
+
+def coarsen(grid: Grid, device=None, coarsest_nodes: int = COARSEST_NODES) -> list[Level]:
+    """The nodes of every multigrid level, before any operator is formed (cheap: a pass over each lattice).
+
+    Parameters
+    ----------
+    grid : Grid
+    device : None | str
+    coarsest_nodes : int, coarsening stops at a level with at most this many nodes
+
+    Returns
+    -------
+    list of Level, finest first: the interior nodes of ``grid``, then the kept nodes of each coarser lattice
+
+    Examples
+    --------
+    >>> levels = coarsen(grid, device="cpu")    # doctest: +SKIP
+    >>> [lev.n for lev in levels]                # doctest: +SKIP
+    [23113, 3968, 785, 194]
+    """
+    device = resolve_device(device)
+    arrays = grid.device_arrays(device)
+    n0 = grid.n_interior
+    fine = Level(n=n0, ijk=grid.active_ijk[:n0], index=arrays["index"], ijk_device=arrays["active_ijk"][:n0])
+    levels = [fine]
+    shape = np.array(grid.shape)
+    with wp.ScopedDevice(device):
+        while levels[-1].n > coarsest_nodes:
+            lev = levels[-1]
+            coarse_shape = tuple(int(s) for s in shape // 2 + 1)
+            counts = wp.empty(coarse_shape, dtype=wp.int32)
+            wp.launch(mg.coarse_coverage, dim=coarse_shape, inputs=[lev.index, lev.n], outputs=[counts])
+            order = np.flatnonzero(counts.numpy().ravel() * 8 >= 27)
+            del counts
+            if len(order) == 0 or len(order) >= lev.n:
+                break
+            ijk = np.stack(np.unravel_index(order, coarse_shape), axis=1).astype(np.int32)
+            index = np.full(int(np.prod(coarse_shape)), -1, dtype=np.int32)
+            index[order] = np.arange(len(order), dtype=np.int32)
+            levels.append(Level(n=len(order), ijk=ijk, index=wp.array(index.reshape(coarse_shape), dtype=wp.int32),
+                                ijk_device=wp.array(ijk, dtype=wp.vec3i)))
+            shape = np.array(coarse_shape)
+    return levels
+
+
+def hierarchy_bytes(levels: list[Level]) -> int:
+    """Device bytes of the operators a :class:`Multigrid` forms on ``levels`` (coarse blocks, diagonals, node
+    coordinates, lattice indices, the coarsest level's dense inverse), shared by all handles."""
+    total = 64 * 128 + 64  # the prolongation's table (64 float64 blocks), the fine level's diagonal block
+    for lev in levels[1:]:
+        total += COARSE_NODE_BYTES * lev.n + 4 * lev.index.size
+    coarsest = 4 * levels[-1].n
+    return int(total + 4 * coarsest * coarsest)
