@@ -36,6 +36,8 @@ def resolve_device(device=None) -> wp.context.Device:
     >>> resolve_device("cpu").alias
     'cpu'
     """
+    if isinstance(device, wp.Device):  # resolved already, where a command or bind() started
+        return device
     init_warp()
     if device is None:
         device = "cuda:0" if wp.is_cuda_available() else "cpu"

@@ -110,7 +110,7 @@ def bind(mesh, cage=None, resolution: int = 64, device=None, tol: float = 1e-6, 
     seconds["load"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    grid = voxelize(checked, resolution, device=device)
+    grid = voxelize(checked, resolution, device=device, memory_budget=memory_budget)
     # the levels' sizes first (cheap), so that the plan counts the hierarchy before it is formed
     levels = coarsen(grid, device) if solver == "multigrid" else None
     estimate = estimate_memory(grid, len(points), preconditioner=solver, levels=levels, device=device,

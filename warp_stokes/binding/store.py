@@ -26,10 +26,10 @@ FORMAT = "warp-stokes-binding/1"
 
 def fingerprint(vertices: np.ndarray, faces: np.ndarray) -> str:
     """SHA-256 of a mesh's vertex positions (float64) and faces (int64), as hex."""
-    h = hashlib.sha256()
-    h.update(np.ascontiguousarray(vertices, dtype=np.float64).tobytes())
-    h.update(np.ascontiguousarray(faces, dtype=np.int64).tobytes())
-    return h.hexdigest()
+    digest = hashlib.sha256()
+    digest.update(np.ascontiguousarray(vertices, dtype=np.float64).tobytes())
+    digest.update(np.ascontiguousarray(faces, dtype=np.int64).tobytes())
+    return digest.hexdigest()
 
 
 class Binding:

@@ -11,12 +11,12 @@ from .cage import Cage
 from .inside import WINDING_ACCURACY, cage_mesh
 from ..device import available_memory, resolve_device
 from ..errors import ResolutionError
-from ..kernels import labels as L
+from ..kernels import labels as node_labels
 from ..kernels import stencil
 from ..kernels import voxel
 
 __all__ = ["Grid", "voxelize", "check_resolution", "grid_from_mask", "MARGIN", "BAND_WIDTH", "PATCH_LENGTH",
-           "MAX_ROWS"]
+           "MAX_ROWS", "VOXELIZE_NODE_BYTES", "DEVICE_NODE_BYTES", "HOST_NODE_BYTES"]
 
 #: nodes of known data kept outside the interior (max-norm distance): the ring plus a sampling band, so that
 #: trilinear sampling of vertices slightly outside the cage reads only known corners
@@ -26,6 +26,12 @@ BAND_WIDTH = 3
 MARGIN = BAND_WIDTH + 1
 #: active nodes are numbered with 32-bit rows (index arrays, kernel row arguments): a grid with more is refused
 MAX_ROWS = 2**31 - 1
+#: bytes per lattice node while voxelising: winding and ring labels on the device (1 + 1), the labels' host copy
+#: and its masks (4), the row index on the host (4) and, once the grid is used, on the device (4)
+VOXELIZE_NODE_BYTES = 14
+#: bytes per lattice node that a grid keeps during the solve, on its device (the row index) and on the host
+#: (labels and row index); the memory plan (warp_stokes.solver.budget) counts these
+DEVICE_NODE_BYTES, HOST_NODE_BYTES = 4, 5
 #: the stencil kernel walks patches of columns along z in pieces of at most this many planes, so that short
 #: and long runs balance across threads (64 was the most even of 32, 64 and 128 on an H100, benchmarks/RESULTS.md)
 PATCH_LENGTH = 64
@@ -145,7 +151,7 @@ def check_resolution(resolution) -> int:
     return int(resolution)
 
 
-def voxelize(cage: Cage, resolution: int = 64, device=None, max_rows: int = MAX_ROWS) -> Grid:
+def voxelize(cage: Cage, resolution: int = 64, device=None, max_rows: int = MAX_ROWS, memory_budget: int | None = None) -> Grid:
     """Voxelise the inside of a cage: label grid nodes and number the active ones.
 
     Nodes whose generalised winding number exceeds 1/2 are interior (unknowns). Exterior nodes in the
@@ -162,6 +168,8 @@ def voxelize(cage: Cage, resolution: int = 64, device=None, max_rows: int = MAX_
         Warp device; default CUDA when present, else CPU.
     max_rows : int
         Most active nodes a grid may have (rows are 32-bit); a lower value is for tests.
+    memory_budget : int, optional
+        Bytes the grid's dense arrays may take (default: the device's available memory).
 
     Returns
     -------
@@ -193,8 +201,8 @@ def voxelize(cage: Cage, resolution: int = 64, device=None, max_rows: int = MAX_
 
     shape = tuple(int(c) for c in counts)
     # the dense node arrays (winding labels, labels, row index on the device and the host): fail before allocating
-    dense = 14 * int(np.prod(counts))
-    room = available_memory(device)
+    dense = VOXELIZE_NODE_BYTES * int(np.prod(counts))
+    room = available_memory(device) if memory_budget is None else int(memory_budget)
     if dense > room:
         fits = int(resolution * (room / dense) ** (1.0 / 3.0) * 0.9)
         raise ResolutionError(
@@ -265,7 +273,7 @@ def _number_nodes(inside: wp.array, centre, origin, spacing, resolution, device,
         wp.launch(voxel.mark_ring_and_band, dim=shape, inputs=[inside, BAND_WIDTH], outputs=[labels])
         labels_np = labels.numpy()
     flat = labels_np.ravel()
-    rows = [np.flatnonzero(flat == lab) for lab in (L.INTERIOR, L.RING, L.BAND)]
+    rows = [np.flatnonzero(flat == lab) for lab in (node_labels.INTERIOR, node_labels.RING, node_labels.BAND)]
     n_interior, n_ring, n_band = (len(r) for r in rows)
     n_active = n_interior + n_ring + n_band
     if n_active > max_rows:

@@ -30,7 +30,7 @@ import numpy as np
 from ..geometry.boundary import COMPLEMENT_COLUMNS
 from ..device import available_memory, resolve_device  # noqa: F401 (re-exported)
 from ..errors import ResolutionError
-from ..geometry.grid import Grid
+from ..geometry.grid import DEVICE_NODE_BYTES, HOST_NODE_BYTES, Grid
 from . import multigrid
 from .multigrid import COARSEST_NODES, hierarchy_bytes
 
@@ -118,12 +118,12 @@ def estimate_memory(grid: Grid, n_vertices: int = 0, preconditioner: str = "mult
         dense = 4 * (4 * COARSEST_NODES) ** 2
     work = (2 * VEC4 * n_int + 4 * VEC4 * coarse) if multigrid else 0.0
     patches = 16 * n_int / 16  # an item per 2 x 2 columns and up to 64 planes: fewer than one per 16 nodes
-    base = 4 * nodes + 12 * n_act + patches + hierarchy
+    base = DEVICE_NODE_BYTES * nodes + 12 * n_act + patches + hierarchy
     on_cpu = resolve_device(device).is_cpu
     if on_cpu:
         # the grid's host arrays; the weights of all handles; the mesh as loaded (float64 vertices, about two
         # int64 triangles per vertex), its classification and the vertex-sized arrays of the checks
-        base += 5 * nodes + 12 * n_act + 4 * n_v * int(n_handles) + 120 * n_v
+        base += HOST_NODE_BYTES * nodes + 12 * n_act + 4 * n_v * int(n_handles) + 120 * n_v
     field_bytes = VEC4 * n_act
     stages = [
         (24 * n_act, field_bytes + work + 8 * n_act),  # boundary data: positions, MVC values in float64
