@@ -1,4 +1,7 @@
-"""Shared fixtures: the real mesh/cage pairs of ../shared/data and the bundled example."""
+"""Shared fixtures and helpers: the Warp device(s) to test on, the real mesh/cage pairs of ../shared/data, the bundled
+example and small cages built in code.
+
+Test modules import helpers from here (``from conftest import ...``), never from one another."""
 
 import os
 import warnings
@@ -35,6 +38,32 @@ def cuda_available() -> bool:
     return wp.is_cuda_available()
 
 
+# The devices a test taking the `device` fixture runs on: the CPU always, and the first CUDA device when there is
+# one (marked `cuda`, so that `-m "not cuda"` leaves it out). Without a GPU (CI) the CUDA parameter is absent, not
+# skipped: each such test runs once, on the CPU.
+DEVICES = ["cpu"] + ([pytest.param("cuda:0", marks=pytest.mark.cuda)] if cuda_available() else [])
+
+
+@pytest.fixture(scope="module", params=DEVICES)
+def device(request):
+    """The Warp device a test runs on, "cpu" or "cuda:0"; arrays a test or its helpers make must be on it.
+
+    Module-scoped so that module fixtures (a grid, a hierarchy, a binding) can be made once per device; not
+    session-scoped, since pytest would then regroup the tests of all modules by device and set up the module
+    fixtures that do not take the device once more for each group."""
+    return request.param
+
+
+def pytest_collection_modifyitems(config, items):
+    """Tests marked `cuda` (pyproject's marker) are skipped on a machine without a CUDA device."""
+    if cuda_available():
+        return
+    skip = pytest.mark.skip(reason="no CUDA device")
+    for item in items:
+        if item.get_closest_marker("cuda") is not None:
+            item.add_marker(skip)
+
+
 @pytest.fixture(scope="session")
 def arm_cage():
     return ws.check_cage(EXAMPLE / "arm_cage.obj")
@@ -42,7 +71,11 @@ def arm_cage():
 
 @pytest.fixture(scope="session")
 def bindings():
-    """Bindings of the real pairs on the CPU, computed once per session (name -> Binding)."""
+    """Bindings of the real pairs on the CPU, computed once per session (name -> Binding).
+
+    Not parametrised over `device`: the three real pairs would be bound again per device and every test that reads
+    these bindings (weights, save/load, deform, quality) would run again per device; tests/test_cuda.py compares
+    the CPU and CUDA weights of the real pairs instead."""
     cache = {}
     resolutions = {"arm": 24, "smpl": 24, "ogre": 24}
 
@@ -72,3 +105,15 @@ def box_cage(lo=(-1.0, -1.0, -1.0), hi=(1.0, 1.0, 1.0)):
     quads = [(0, 2, 3, 1), (4, 5, 7, 6), (0, 1, 5, 4), (2, 6, 7, 3), (0, 4, 6, 2), (1, 3, 7, 5)]
     tris = [t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))]
     return v, np.array(tris)
+
+
+def u_cage(gap: float = 0.2) -> ws.Cage:
+    """A U extruded along z: two prongs `gap` apart in space but 4 + gap apart along the cage (via the gap's floor)."""
+    import trimesh
+
+    pts = np.array([(0, 0), (1, 0), (1 + gap, 0), (2 + gap, 0), (0, 1), (1, 1), (1 + gap, 1), (2 + gap, 1), (0, 3),
+                    (1, 3), (1 + gap, 3), (2 + gap, 3)], float)
+    quads = [(0, 1, 5, 4), (1, 2, 6, 5), (2, 3, 7, 6), (4, 5, 9, 8), (6, 7, 11, 10)]
+    tris = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))])
+    m = trimesh.creation.extrude_triangulation(pts, tris, height=1.0)
+    return ws.check_cage((m.vertices, m.faces), name="u-cage")

@@ -64,9 +64,9 @@ poses = "in/short.npy"
     return path
 
 
-def test_batch_keeps_going_and_reports(manifest, tmp_path, capsys):
+def test_batch_keeps_going_and_reports(manifest, tmp_path, capsys, device):
     out = tmp_path / "out"
-    rc = main(["batch", str(manifest), "-o", str(out), "--device", "cpu"])
+    rc = main(["batch", str(manifest), "-o", str(out), "--device", device])
     captured = capsys.readouterr()
     assert rc == 1
     files = sorted(os.listdir(out))
@@ -88,40 +88,40 @@ def test_batch_keeps_going_and_reports(manifest, tmp_path, capsys):
     # what was written is whole: the bindings load and the USD files hold every frame
     from pxr import Usd, UsdGeom
 
-    b = ws.load_binding(out / "arm_a.npz", device="cpu")
+    b = ws.load_binding(out / "arm_a.npz", device=device)
     stage = Usd.Stage.Open(str(out / "arm_a.usd"))
     assert UsdGeom.Mesh(stage.GetPrimAtPath("/Root/Mesh")).GetPointsAttr().GetTimeSamples() == [1.0, 2.0, 3.0]
     assert b.settings["resolution"] == 16
 
 
-def test_rerun_skips_up_to_date_assets_unless_forced(manifest, tmp_path):
+def test_rerun_skips_up_to_date_assets_unless_forced(manifest, tmp_path, device):
     out = tmp_path / "out"
-    first = {r.name: r.status for r in ws.run_batch(manifest, out, device="cpu", progress=None)}
-    again = {r.name: r.status for r in ws.run_batch(manifest, out, device="cpu", progress=None)}
+    first = {r.name: r.status for r in ws.run_batch(manifest, out, device=device, progress=None)}
+    again = {r.name: r.status for r in ws.run_batch(manifest, out, device=device, progress=None)}
     assert again == {"arm_a": "skipped", "arm_b": "skipped", "open": "failed", "arm_c": "skipped",
                      "short_pose": "failed"}
     assert first["arm_a"] == "ok"
     os.utime(tmp_path / "in" / "grow.npy")  # a newer input: its assets are redone
     future = os.path.getmtime(out / "arm_a.npz") + 10
     os.utime(tmp_path / "in" / "grow.npy", (future, future))
-    redone = {r.name: r.status for r in ws.run_batch(manifest, out, device="cpu", progress=None)}
+    redone = {r.name: r.status for r in ws.run_batch(manifest, out, device=device, progress=None)}
     assert redone["arm_a"] == "ok" and redone["arm_c"] == "ok"
-    forced = {r.name: r.status for r in ws.run_batch(manifest, out, force=True, device="cpu", progress=None)}
+    forced = {r.name: r.status for r in ws.run_batch(manifest, out, force=True, device=device, progress=None)}
     assert forced["arm_b"] == "ok"
     # the manifest is an input too: a changed setting redoes every asset
     future = os.path.getmtime(out / "arm_b.npz") + 20
     os.utime(manifest, (future, future))
-    changed = {r.name: r.status for r in ws.run_batch(manifest, out, device="cpu", progress=None)}
+    changed = {r.name: r.status for r in ws.run_batch(manifest, out, device=device, progress=None)}
     assert changed["arm_b"] == "ok"
 
 
-def test_json_manifest_and_manifest_errors(tmp_path):
+def test_json_manifest_and_manifest_errors(tmp_path, device):
     good = {"assets": [{"mesh": str(EXAMPLE / "arm.obj"), "cage": str(EXAMPLE / "arm_cage.obj"),
                         "resolution": 16}]}
     (tmp_path / "m.json").write_text(json.dumps(good))
     assets = ws.read_manifest(tmp_path / "m.json")
     assert assets[0].name == "arm" and assets[0].poses is None
-    results = ws.run_batch(tmp_path / "m.json", tmp_path / "out", device="cpu", progress=None)
+    results = ws.run_batch(tmp_path / "m.json", tmp_path / "out", device=device, progress=None)
     assert [r.status for r in results] == ["ok"] and sorted(os.listdir(tmp_path / "out")) == ["arm.npz",
                                                                                               "summary.json"]
     bad = {"assets": [{"mesh": "a.obj", "cage": "b.obj", "colour": "red"}]}
@@ -147,6 +147,7 @@ def test_a_second_batch_refuses_a_folder_in_use_and_stale_files_are_cleaned(mani
     import subprocess
     import sys
 
+    # batches as a user runs them, in subprocesses on the CPU: the locks and files are the subject, not the device
     out = tmp_path / "out"
     out.mkdir()
     # a live process holds the lock: the batch refuses the folder, one line, exit 2, nothing written
@@ -180,6 +181,7 @@ def test_a_batch_killed_with_sigkill_is_completed_by_the_next_run(manifest, tmp_
     import time
 
     out = tmp_path / "out"
+    # a batch as a user runs it, in a subprocess on the CPU: what a kill leaves is the subject, not the device
     command = [sys.executable, "-m", "warp_stokes.cli", "batch", str(manifest), "-o", str(out), "--device", "cpu"]
     first = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     # killed once its first asset is being bound: whatever it leaves (a lock, temporary files, some assets)
@@ -202,7 +204,7 @@ def test_a_batch_killed_with_sigkill_is_completed_by_the_next_run(manifest, tmp_
     assert statuses["arm_c"] == "ok" and statuses["open"] == "failed"
 
 
-def test_usd_assets_in_a_manifest(tmp_path):
+def test_usd_assets_in_a_manifest(tmp_path, device):
     from pxr import Sdf, Usd, UsdGeom
 
     from usd_assets import BAND, CAGE, TIMES, write_asset
@@ -233,7 +235,7 @@ mesh = "assets/char.usda"
 cage_prim = "/Char/Nope"
 resolution = 16
 """)
-    rc = main(["batch", str(tmp_path / "batch.toml"), "-o", str(tmp_path / "out"), "--device", "cpu"])
+    rc = main(["batch", str(tmp_path / "batch.toml"), "-o", str(tmp_path / "out"), "--device", device])
     assert rc == 1
     summary = {a["name"]: a for a in json.loads((tmp_path / "out" / "summary.json").read_text())["assets"]}
     assert summary["char"]["status"] == "ok" and summary["band_only"]["status"] == "ok"

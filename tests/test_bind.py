@@ -23,16 +23,16 @@ def test_partition_of_unity_and_linear_precision_on_real_pairs(name, bindings):
     assert b.stats["partition_of_unity_error"] <= 1e-5 and b.stats["linear_precision_error"] <= 1e-5
 
 
-def test_vertices_outside_the_cage_are_counted_and_weighted(bindings):
+def test_vertices_outside_the_cage_are_counted_and_weighted(bindings, device):
     b = bindings("ogre")
     mesh_path, cage_path = pair("ogre")
-    inside, _ = ws.classify_points(ws.check_cage(cage_path), ws.load_surface(mesh_path).vertices, device="cpu")
+    inside, _ = ws.classify_points(ws.check_cage(cage_path), ws.load_surface(mesh_path).vertices, device=device)
     assert b.stats["vertices_outside_cage"] == int((~inside).sum())
     assert 60 <= b.stats["vertices_outside_cage"] <= 120  # MANIFEST.md: 90 of 26,155
     assert b.stats["vertices_beyond_band"] == 0  # they are within 0.67% of the diagonal: inside the band
 
 
-def test_vertex_beyond_the_band_gets_mvc_and_a_warning(arm_cage):
+def test_vertex_beyond_the_band_gets_mvc_and_a_warning(arm_cage, device):
     mesh = ws.load_surface(EXAMPLE / "arm.obj")
     far = arm_cage.vertices.max(0) + 0.5 * arm_cage.diagonal
     vertices = np.vstack([mesh.vertices, far])
@@ -40,8 +40,8 @@ def test_vertex_beyond_the_band_gets_mvc_and_a_warning(arm_cage):
     # beyond the bounding box's corner on every axis: 1.2 diagonals from the surface)
     with pytest.warns(UserWarning, match=r"1 vertices lie outside .* beyond the grid's band \(up to [\d.]+ from the "
                                          r"cage, 1\.2 of its diagonal\)"):
-        b = ws.bind((vertices, None), arm_cage, resolution=16, device="cpu")
-    mvc = ws.mean_value_coordinates(arm_cage, far[None], device="cpu")[0]
+        b = ws.bind((vertices, None), arm_cage, resolution=16, device=device)
+    mvc = ws.mean_value_coordinates(arm_cage, far[None], device=device)[0]
     np.testing.assert_allclose(b.weights[-1], mvc, rtol=1e-5, atol=1e-6)
     assert b.stats["vertices_beyond_band"] == 1
 
@@ -73,14 +73,14 @@ def test_deform_is_w_times_c(bindings):
     np.testing.assert_allclose(b.deform(pose), b.weights.astype(np.float64) @ pose, atol=1e-4)
 
 
-def test_deform_on_the_host_matches_the_kernel(bindings):
+def test_deform_on_the_host_matches_the_kernel(bindings, device):
     import warp as wp
 
     b = bindings("arm")
     poses = b.cage_vertices + np.random.default_rng(5).normal(size=(4, *b.cage_vertices.shape))
     host = ws.binding.deform.deform_on_host(b.weights, poses)  # what a CPU binding's deform uses
-    weights_t = wp.array(np.ascontiguousarray(b.weights.T), dtype=wp.float32, device="cpu")
-    kernel = ws.deform_vertices(weights_t, poses, device="cpu")
+    weights_t = wp.array(np.ascontiguousarray(b.weights.T), dtype=wp.float32, device=device)
+    kernel = ws.deform_vertices(weights_t, poses, device=device)
     np.testing.assert_allclose(host, kernel, atol=1e-4)
     np.testing.assert_allclose(host[2], b.weights.astype(np.float64) @ poses[2], atol=1e-4)
     np.testing.assert_allclose(ws.binding.deform.deform_on_host(b.weights, poses[1]), host[1], atol=1e-6)
@@ -105,18 +105,18 @@ def test_deform_with_a_cage_file_and_topology_check(bindings, tmp_path):
         b.deform(np.zeros((5, 3)))
 
 
-def test_save_and_load_round_trip(bindings, tmp_path):
+def test_save_and_load_round_trip(bindings, tmp_path, device):
     b = bindings("arm")
     path = tmp_path / "arm.npz"
     b.save(path)
     assert [p.name for p in tmp_path.iterdir()] == ["arm.npz"]  # no temporary left behind
-    back = ws.load_binding(path, device="cpu")
+    back = ws.load_binding(path, device=device)
     np.testing.assert_array_equal(back.weights, b.weights)
     np.testing.assert_array_equal(back.cage_faces, b.cage_faces)
     assert back.settings["resolution"] == 24 and back.stats["iterations"] == b.stats["iterations"]
     assert back.settings["warp_version"] and json.dumps(back.stats)
     pose = b.cage_vertices * 1.1
-    np.testing.assert_allclose(back.deform(pose), b.deform(pose))
+    np.testing.assert_allclose(back.deform(pose), b.deform(pose), atol=1e-4)  # loaded on `device`, bound on the CPU
 
 
 def test_load_refuses_bad_files(bindings, tmp_path):
@@ -146,30 +146,30 @@ def test_save_into_missing_folder_fails_cleanly(bindings, tmp_path):
         bindings("arm").save(tmp_path / "nope" / "arm.npz")
 
 
-def test_bad_inputs_to_bind(arm_cage, tmp_path):
+def test_bad_inputs_to_bind(arm_cage, tmp_path, device):
     with pytest.raises(ws.MeshError, match="missing.obj: no such file"):
-        ws.bind(tmp_path / "missing.obj", EXAMPLE / "arm_cage.obj", device="cpu")
+        ws.bind(tmp_path / "missing.obj", EXAMPLE / "arm_cage.obj", device=device)
     with pytest.raises(ws.CageError, match="arm.obj: the cage is not closed"):
-        ws.bind(EXAMPLE / "arm.obj", EXAMPLE / "arm.obj", device="cpu")
+        ws.bind(EXAMPLE / "arm.obj", EXAMPLE / "arm.obj", device=device)
     with pytest.raises(ws.WarpStokesError, match="tol"):
-        ws.bind(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", tol=0, device="cpu")
+        ws.bind(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", tol=0, device=device)
     with pytest.raises(ws.WarpStokesError, match="device 'cuda:7' is not available"):
         ws.bind(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", device="cuda:7")
 
 
-def test_thin_features_are_detected_with_a_suggested_resolution():
+def test_thin_features_are_detected_with_a_suggested_resolution(device):
     # a slab 1/100 as thick as it is wide: at resolution 16 no node lies inside it
     from conftest import box_cage
 
     v, f = box_cage(lo=(-1, -1, -0.01), hi=(1, 1, 0.01))
     with pytest.raises(ws.ResolutionError, match="no grid node lies inside the cage at resolution 16"):
-        ws.bind((np.zeros((1, 3)), None), (v, f), resolution=16, device="cpu")
+        ws.bind((np.zeros((1, 3)), None), (v, f), resolution=16, device=device)
     # the arm's fingers are thinner than two cells at resolution 16, not at 32
     with pytest.warns(UserWarning, match=r"mesh vertices lie in parts of the cage thinner .* resolution=\d+ would"):
-        b = ws.bind(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", resolution=16, device="cpu")
+        b = ws.bind(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", resolution=16, device=device)
     assert b.stats["vertices_in_thin_features"] > 0
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        b = ws.bind(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", resolution=32, device="cpu")
+        b = ws.bind(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", resolution=32, device=device)
     assert not any("thinner" in str(w.message) for w in caught)  # (the cage's folded edges are still named)
     assert b.stats["vertices_in_thin_features"] == 0

@@ -7,42 +7,42 @@ from warp_stokes.kernels import labels as L
 
 
 @pytest.mark.parametrize("name", sorted(PAIRS))
-def test_mvc_partition_of_unity_and_linear_precision(name):
+def test_mvc_partition_of_unity_and_linear_precision(name, device):
     _, cage_path = pair(name)
     cage = ws.check_cage(cage_path)
     rng = np.random.default_rng(0)
     lo, hi = cage.vertices.min(0), cage.vertices.max(0)
     pad = 0.2 * (hi - lo)
     points = rng.uniform(lo - pad, hi + pad, size=(400, 3))  # inside and outside the cage
-    w = ws.mean_value_coordinates(cage, points, device="cpu")
+    w = ws.mean_value_coordinates(cage, points, device=device)
     assert np.abs(w.sum(1) - 1).max() < 1e-10
     assert np.linalg.norm(w @ cage.vertices - points, axis=1).max() < 1e-9 * cage.diagonal
 
 
-def test_mvc_interpolates_on_the_cage(arm_cage):
+def test_mvc_interpolates_on_the_cage(arm_cage, device):
     # at a cage vertex: the Kronecker delta; on a face: the face's barycentric coordinates
-    w = ws.mean_value_coordinates(arm_cage, arm_cage.vertices[[3, 10]], device="cpu")
+    w = ws.mean_value_coordinates(arm_cage, arm_cage.vertices[[3, 10]], device=device)
     np.testing.assert_allclose(w, np.eye(len(arm_cage.vertices))[[3, 10]], atol=1e-12)
     tri = arm_cage.faces[7]
     bary = np.array([0.2, 0.3, 0.5])
-    w = ws.mean_value_coordinates(arm_cage, (bary @ arm_cage.vertices[tri])[None], device="cpu")[0]
+    w = ws.mean_value_coordinates(arm_cage, (bary @ arm_cage.vertices[tri])[None], device=device)[0]
     expected = np.zeros(len(arm_cage.vertices))
     expected[tri] = bary
     np.testing.assert_allclose(w, expected, atol=1e-7)
 
 
-def test_mvc_in_the_plane_of_cage_triangles():
+def test_mvc_in_the_plane_of_cage_triangles(device):
     # points on the lines through a box's edges lie in the planes of the triangles at those edges
     from conftest import box_cage
 
     cage = ws.check_cage(box_cage(lo=(-1, -2, -3), hi=(1, 2, 3)))
     points = np.array([[1, 2, 3.5], [1, 2, -4], [1.25, 2, 3], [-1, -2.5, -3], [1.5, 3, 3], [2, 2, 3]], float)
-    w = ws.mean_value_coordinates(cage, points, device="cpu")
+    w = ws.mean_value_coordinates(cage, points, device=device)
     assert np.abs(w.sum(1) - 1).max() < 1e-10
     assert np.linalg.norm(w @ cage.vertices - points, axis=1).max() < 1e-9 * cage.diagonal
 
 
-def test_mvc_on_the_line_through_a_cage_edge_with_round_off():
+def test_mvc_on_the_line_through_a_cage_edge_with_round_off(device):
     # Grid nodes of this ellipsoid at resolution 24 include a point on the line through vertices 8 and 9,
     # where one corner angle comes out as 1e-16 instead of 0 and the paper's coplanarity test on s misses it:
     # linear precision was off by 0.99 there before the test on the unit vectors' volume.
@@ -51,27 +51,27 @@ def test_mvc_on_the_line_through_a_cage_edge_with_round_off():
     sphere = trimesh.creation.uv_sphere(radius=1.0, count=[18, 14])
     sphere.vertices *= [2.0, 1.0, 0.8]
     cage = ws.check_cage(sphere)
-    grid = ws.voxelize(cage, 24, device="cpu")
+    grid = ws.voxelize(cage, 24, device=device)
     points = grid.node_positions() + grid.centre
-    w = ws.mean_value_coordinates(cage, points, device="cpu")
+    w = ws.mean_value_coordinates(cage, points, device=device)
     assert np.abs(w.sum(1) - 1).max() < 1e-10
     assert np.linalg.norm(w @ cage.vertices - points, axis=1).max() < 1e-7
 
 
-def test_mvc_are_positive_inside_a_convex_cage():
+def test_mvc_are_positive_inside_a_convex_cage(device):
     import trimesh
 
     m = trimesh.creation.icosphere(subdivisions=1)
     cage = ws.check_cage(m)
     points = np.random.default_rng(1).normal(size=(200, 3))
     points *= 0.8 * np.random.default_rng(2).uniform(size=(200, 1)) / np.linalg.norm(points, axis=1, keepdims=True)
-    w = ws.mean_value_coordinates(cage, points, device="cpu")
+    w = ws.mean_value_coordinates(cage, points, device=device)
     assert (w > 0).all()
 
 
-def test_boundary_field_reproduces_linear_functions(arm_cage):
-    grid = ws.voxelize(arm_cage, resolution=16, device="cpu")
-    field = ws.boundary_field(grid, arm_cage, device="cpu").numpy().astype(np.float64)  # (N, L, 4)
+def test_boundary_field_reproduces_linear_functions(arm_cage, device):
+    grid = ws.voxelize(arm_cage, resolution=16, device=device)
+    field = ws.boundary_field(grid, arm_cage, device=device).numpy().astype(np.float64)  # (N, L, 4)
     q, g = field[..., 0], field[..., 1:]
     n_grad = grid.n_interior + grid.n_ring
     pos = grid.node_positions() + grid.centre
@@ -88,14 +88,14 @@ def test_boundary_field_reproduces_linear_functions(arm_cage):
     assert (grid.labels[tuple(grid.active_ijk[grid.n_interior:].T)] != L.INTERIOR).all()
 
 
-def test_complement_column_is_the_rest_of_the_cage(arm_cage):
+def test_complement_column_is_the_rest_of_the_cage(arm_cage, device):
     # The column after a chunk stands for the other handles: sum_l w_l over the handles outside the chunk,
     # value and gradient, computed here from those handles' own fields.
-    grid = ws.voxelize(arm_cage, resolution=16, device="cpu")
+    grid = ws.voxelize(arm_cage, resolution=16, device=device)
     chunk = slice(20, 35)
-    field = ws.boundary_field(grid, arm_cage, device="cpu", handles=chunk, complement=True).numpy()
+    field = ws.boundary_field(grid, arm_cage, device=device, handles=chunk, complement=True).numpy()
     assert field.shape == (grid.n_active, 15 + ws.COMPLEMENT_COLUMNS, 4) and ws.COMPLEMENT_COLUMNS == 1
-    whole = ws.boundary_field(grid, arm_cage, device="cpu").numpy().astype(np.float64)  # (N, L, 4)
+    whole = ws.boundary_field(grid, arm_cage, device=device).numpy().astype(np.float64)  # (N, L, 4)
     np.testing.assert_array_equal(field[:, :15], whole[:, chunk])
     rest = np.ones(arm_cage.n_handles, bool)
     rest[chunk] = False
@@ -112,12 +112,12 @@ def _box_points(cage):
             "edge": np.array([0.3, 1.0, 1.0]), "vertex": np.array([1.0, 1.0, 1.0])}
 
 
-def test_mvc_on_faces_their_diagonals_edges_and_vertices_are_the_hat_functions():
+def test_mvc_on_faces_their_diagonals_edges_and_vertices_are_the_hat_functions(device):
     from conftest import box_cage
 
     cage = ws.check_cage(box_cage())
     for where, p in _box_points(cage).items():
-        w = ws.mean_value_coordinates(cage, p[None], device="cpu")[0]
+        w = ws.mean_value_coordinates(cage, p[None], device=device)[0]
         # the hat functions at p: the barycentric coordinates in a triangle that holds p
         expected = None
         for tri in cage.faces:
@@ -132,7 +132,7 @@ def test_mvc_on_faces_their_diagonals_edges_and_vertices_are_the_hat_functions()
 
 
 @pytest.mark.parametrize("distance", [1e-8, 1e-6, 1e-4, 1e-2])
-def test_mvc_keeps_partition_of_unity_and_linear_precision_next_to_the_cage(distance):
+def test_mvc_keeps_partition_of_unity_and_linear_precision_next_to_the_cage(distance, device):
     # inside and outside, next to a face, a face's diagonal, an edge and a vertex (the half-angle formula lost up
     # to 0.3 of the diagonal in linear precision at 1e-9 from an edge, and snapped points within 1e-5 to the face)
     from conftest import box_cage
@@ -141,14 +141,14 @@ def test_mvc_keeps_partition_of_unity_and_linear_precision_next_to_the_cage(dist
     direction = np.array([0.3, 0.5, 1.0]) / np.linalg.norm([0.3, 0.5, 1.0])
     points = np.array([p + side * distance * cage.diagonal * direction
                        for p in _box_points(cage).values() for side in (1, -1)])
-    w = ws.mean_value_coordinates(cage, points, device="cpu")
+    w = ws.mean_value_coordinates(cage, points, device=device)
     assert np.abs(w.sum(1) - 1).max() < 1e-13
     assert np.linalg.norm(w @ cage.vertices - points, axis=1).max() < 1e-12 * cage.diagonal
 
 
 @pytest.mark.parametrize("subdivided", [False, True])
 @pytest.mark.parametrize("boundary", ["mvc", "local"])
-def test_box_cages_bind_like_any_cage(subdivided, boundary):
+def test_box_cages_bind_like_any_cage(subdivided, boundary, device):
     # grid nodes fall on the box's faces and their diagonals: before MVC was exact there, the bind never converged
     # (78 iterations, linear precision off by 2-4% of the diagonal)
     import trimesh
@@ -156,7 +156,7 @@ def test_box_cages_bind_like_any_cage(subdivided, boundary):
     box = trimesh.creation.box(extents=[2, 2, 2])
     box = box.subdivide() if subdivided else box
     mesh = trimesh.creation.icosphere(subdivisions=2, radius=0.8)
-    b = ws.bind((mesh.vertices, mesh.faces), (box.vertices, box.faces), resolution=24, device="cpu",
+    b = ws.bind((mesh.vertices, mesh.faces), (box.vertices, box.faces), resolution=24, device=device,
                 boundary=boundary)
     assert b.stats["converged"] and b.stats["iterations"] <= 10
     assert b.stats["partition_of_unity_error"] <= 1e-5 and b.stats["linear_precision_error"] <= 1e-5

@@ -86,6 +86,7 @@ def test_a_triangle_soup_cage_is_merged_and_binds_like_the_original(tmp_path):
     # handles in order of first appearance; the map sends every soup vertex to its handle's position
     np.testing.assert_allclose(cage.vertices[cage.source_index], ws.load_surface(stl).vertices, atol=1e-5)
 
+    # the commands as a user runs them, in subprocesses on the CPU (a soup is merged before any device work)
     out = tmp_path / "b.npz"
     proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "bind", str(EXAMPLE / "arm.obj"), str(stl), "-o",
                            str(out), "--resolution", "16", "--device", "cpu"], capture_output=True, text=True)

@@ -9,15 +9,15 @@ from warp_stokes.cli import main
 from conftest import EXAMPLE
 
 
-def test_bind_then_deform(tmp_path, capsys):
+def test_bind_then_deform(tmp_path, capsys, device):
     out = tmp_path / "arm.npz"
     rc = main(["bind", str(EXAMPLE / "arm.obj"), str(EXAMPLE / "arm_cage.obj"), "-o", str(out),
-               "--resolution", "16", "--device", "cpu"])
+               "--resolution", "16", "--device", device])
     printed = capsys.readouterr().out
     assert rc == 0 and out.exists()
     for key in ("grid", "interior", "iterations", "partition of unity", "linear precision", "seconds"):
         assert key in printed
-    b = ws.load_binding(out, device="cpu")
+    b = ws.load_binding(out, device=device)
     assert b.weights.shape == (2089, 58) and b.settings["resolution"] == 16
 
     # moving the whole cage moves the mesh rigidly
@@ -27,7 +27,7 @@ def test_bind_then_deform(tmp_path, capsys):
         fh.writelines(f"v {x + 5} {y} {z}\n" for x, y, z in cage.vertices)
         fh.writelines(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in cage.faces)
     deformed = tmp_path / "arm_moved.obj"
-    assert main(["deform", str(out), str(moved), "-o", str(deformed), "--device", "cpu"]) == 0
+    assert main(["deform", str(out), str(moved), "-o", str(deformed), "--device", device]) == 0
     result = ws.load_surface(deformed)
     np.testing.assert_allclose(result.vertices, b.mesh_vertices + [5, 0, 0], atol=1e-3)
 
@@ -49,10 +49,10 @@ def test_errors_are_one_line_and_exit_non_zero(tmp_path, capsys, args, message):
     assert not (tmp_path / "out.npz").exists()
 
 
-def test_an_unconverged_bind_exits_non_zero(tmp_path, capsys):
+def test_an_unconverged_bind_exits_non_zero(tmp_path, capsys, device):
     out = tmp_path / "arm.npz"
     rc = main(["bind", str(EXAMPLE / "arm.obj"), str(EXAMPLE / "arm_cage.obj"), "-o", str(out),
-               "--resolution", "16", "--device", "cpu", "--solver", "jacobi", "--max-iterations", "2"])
+               "--resolution", "16", "--device", device, "--solver", "jacobi", "--max-iterations", "2"])
     captured = capsys.readouterr()
     assert rc == 1 and out.exists()
     assert "did not converge" in captured.err and "NOT converged" in captured.out

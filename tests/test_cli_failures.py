@@ -97,7 +97,7 @@ def test_a_mesh_far_outside_its_cage_is_refused(tmp_path):
 def test_deform_takes_reordered_faces_and_plain_positions(tmp_path, bound):
     cage = ws.load_surface(CAGE)
     moved = cage.vertices + [0.5, -0.25, 1.0]
-    expected = ws.load_binding(bound, device="cpu").deform(moved)
+    expected = ws.load_binding(bound, device="cpu").deform(moved)  # on the CPU, like the subprocesses below
 
     # the deformed cage as another exporter writes it: faces in another order, corners rotated
     rng = np.random.default_rng(3)
@@ -163,9 +163,9 @@ def test_a_self_intersecting_cage_is_refused_naming_two_crossing_faces(tmp_path)
     assert sorted(os.listdir(tmp_path)) == ["poked.obj"]
 
 
-def test_a_full_disk_is_one_line_and_leaves_no_file(tmp_path, bound, monkeypatch, capsys):
-    # in process, with the writers made to fail as they do on a full disk: the binding's file write raises
-    # ENOSPC, and USD's Save returns False
+def test_a_full_disk_is_one_line_and_leaves_no_file(tmp_path, bound, monkeypatch, capsys, device):
+    # in process (so on the device under test), with the writers made to fail as they do on a full disk: the
+    # binding's file write raises ENOSPC, and USD's Save returns False
     import errno
 
     from pxr import Sdf
@@ -183,7 +183,7 @@ def test_a_full_disk_is_one_line_and_leaves_no_file(tmp_path, bound, monkeypatch
     out.mkdir()
     with monkeypatch.context() as patch:
         patch.setattr("builtins.open", full_disk_open)
-        rc = main(["bind", MESH, CAGE, "-o", str(out / "b.npz"), "--resolution", "16", "--device", "cpu"])
+        rc = main(["bind", MESH, CAGE, "-o", str(out / "b.npz"), "--resolution", "16", "--device", device])
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and [line for line in err if not line.startswith("warning:")] == [
         f"warp-stokes: error: {out / 'b.npz'}: could not write it: No space left on device"]
@@ -192,7 +192,7 @@ def test_a_full_disk_is_one_line_and_leaves_no_file(tmp_path, bound, monkeypatch
     with monkeypatch.context() as patch:
         patch.setattr(Sdf.Layer, "Save", lambda self, *args: False)
         rc = main(["animate", str(bound), str(EXAMPLE / "bend_poses.npy"), "-o", str(out / "a.usd"),
-                   "--device", "cpu"])
+                   "--device", device])
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and err == [f"warp-stokes: error: {out / 'a.usd'}: could not write the USD file (is the disk full "
                                "or the folder gone?)"]

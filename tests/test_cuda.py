@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 
 import warp_stokes as ws
-from conftest import EXAMPLE, cuda_available, pair
+from conftest import EXAMPLE, pair
 
-pytestmark = pytest.mark.skipif(not cuda_available(), reason="no CUDA device")
+# skipped where there is no CUDA device (conftest.py); not the `device` fixture: both devices, side by side
+pytestmark = pytest.mark.cuda
 
 
 @pytest.mark.parametrize("name", ["arm", "ogre"])

@@ -9,10 +9,10 @@ from warp_stokes.kernels import labels as L
 
 
 @pytest.mark.parametrize("name", sorted(PAIRS))
-def test_inside_test_agrees_with_trimesh_contains(name):
+def test_inside_test_agrees_with_trimesh_contains(name, device):
     _, cage_path = pair(name)
     cage = ws.check_cage(cage_path)
-    grid = ws.voxelize(cage, resolution=24, device="cpu")
+    grid = ws.voxelize(cage, resolution=24, device=device)
     nodes = np.stack(np.meshgrid(*[np.arange(s) for s in grid.shape], indexing="ij"), -1).reshape(-1, 3)
     points = grid.centre + grid.origin + grid.spacing * nodes
     mesh = trimesh.Trimesh(cage.vertices, cage.faces, process=False)
@@ -27,8 +27,8 @@ def test_inside_test_agrees_with_trimesh_contains(name):
     assert mismatch.sum() == 0, f"{mismatch.sum()} of {clear.sum()} nodes disagree with trimesh"
 
 
-def test_ring_and_band_match_morphological_dilation(arm_cage):
-    grid = ws.voxelize(arm_cage, resolution=20, device="cpu")
+def test_ring_and_band_match_morphological_dilation(arm_cage, device):
+    grid = ws.voxelize(arm_cage, resolution=20, device=device)
     interior = grid.labels == L.INTERIOR
     stencil = ndimage.generate_binary_structure(3, 2)  # the 18 face and edge neighbours + centre
     ring = ndimage.binary_dilation(interior, structure=stencil) & ~interior
@@ -44,8 +44,8 @@ def test_ring_and_band_match_morphological_dilation(arm_cage):
     assert (grid.index >= 0).sum() == grid.n_active
 
 
-def test_grid_covers_the_cage_with_margin(arm_cage):
-    grid = ws.voxelize(arm_cage, resolution=32, device="cpu")
+def test_grid_covers_the_cage_with_margin(arm_cage, device):
+    grid = ws.voxelize(arm_cage, resolution=32, device=device)
     lo = grid.centre + grid.origin
     hi = lo + grid.spacing * (np.array(grid.shape) - 1)
     margin = ws.geometry.grid.MARGIN * grid.spacing * (1 - 1e-9)
@@ -54,9 +54,9 @@ def test_grid_covers_the_cage_with_margin(arm_cage):
     assert np.isclose(grid.spacing, extent.max() / 32)
 
 
-def test_box_interior_is_exact():
+def test_box_interior_is_exact(device):
     v, f = box_cage(hi=(1.0, 0.5, 0.25), lo=(-1.0, -0.5, -0.25))
-    grid = ws.voxelize(ws.check_cage((v, f)), resolution=16, device="cpu")
+    grid = ws.voxelize(ws.check_cage((v, f)), resolution=16, device=device)
     pos = grid.node_positions(np.arange(grid.n_interior)) + grid.centre
     assert (np.abs(pos) < [1.0, 0.5, 0.25]).all()
     # the box spans 16 x 8 x 4 cells: nodes on its surface are not interior, all others are
@@ -64,29 +64,29 @@ def test_box_interior_is_exact():
 
 
 @pytest.mark.parametrize("resolution", [4, 5000, 16.5, "64"])
-def test_bad_resolution(arm_cage, resolution):
+def test_bad_resolution(arm_cage, resolution, device):
     with pytest.raises(ws.ResolutionError, match="resolution"):
-        ws.voxelize(arm_cage, resolution=resolution, device="cpu")
+        ws.voxelize(arm_cage, resolution=resolution, device=device)
 
 
-def test_grid_from_mask_rejects_interior_at_the_edge():
+def test_grid_from_mask_rejects_interior_at_the_edge(device):
     mask = np.zeros((12, 12, 12), bool)
     mask[2:6, 5:7, 5:7] = True
     with pytest.raises(ws.ResolutionError, match="away from the mask's edge"):
-        ws.grid_from_mask(mask, device="cpu")
+        ws.grid_from_mask(mask, device=device)
 
 
-def test_classify_points(arm_cage):
+def test_classify_points(arm_cage, device):
     centre = arm_cage.vertices.mean(0)
     far = centre + 10 * arm_cage.diagonal
-    inside, distance = ws.classify_points(arm_cage, np.array([far, arm_cage.vertices[0]]), device="cpu")
+    inside, distance = ws.classify_points(arm_cage, np.array([far, arm_cage.vertices[0]]), device=device)
     assert not inside[0]
     assert distance[0] > 9 * arm_cage.diagonal and distance[1] < 1e-5 * arm_cage.diagonal
 
 
 @pytest.mark.parametrize("patch,max_length", [((2, 2), 1), ((2, 2), 64), ((1, 1), 5), ((3, 2), 1000)])
-def test_interior_patches_cover_each_interior_node_once(arm_cage, patch, max_length):
-    grid = ws.voxelize(arm_cage, 24, device="cpu")
+def test_interior_patches_cover_each_interior_node_once(arm_cage, patch, max_length, device):
+    grid = ws.voxelize(arm_cage, 24, device=device)
     items = grid.interior_patches(patch, max_length)
     assert items.dtype == np.int32 and items.shape[1] == 4
     i0, j0, k0, length = items.T
@@ -108,7 +108,7 @@ def test_interior_patches_cover_each_interior_node_once(arm_cage, patch, max_len
         assert whole[:, 3].sum() == length.sum() and len(items) == np.sum(-(-whole[:, 3] // max_length))
 
 
-def test_interior_patches_reject_empty_shapes(arm_cage):
-    grid = ws.voxelize(arm_cage, 16, device="cpu")
+def test_interior_patches_reject_empty_shapes(arm_cage, device):
+    grid = ws.voxelize(arm_cage, 16, device=device)
     with pytest.raises(ValueError, match="must be positive"):
         grid.interior_patches((0, 2))

@@ -9,22 +9,12 @@ import pytest
 import trimesh
 
 import warp_stokes as ws
-from conftest import EXAMPLE, box_cage
+from conftest import EXAMPLE, box_cage, u_cage
 from warp_stokes.geometry.cage import folded_edges, unit_normals
 from warp_stokes.geometry.local_boundary import cage_graph_distances, normal_derivatives
 
 SETTINGS = [ws.LocalData(), ws.LocalData(fold_radius=0.0), ws.LocalData(model="least-norm"),
             ws.LocalData(radius=3.0, least_norm_share=0.5)]
-
-
-def u_cage(gap: float = 0.2) -> ws.Cage:
-    """A U extruded along z: two prongs `gap` apart in space but 4 + gap apart along the cage (via the gap's floor)."""
-    pts = np.array([(0, 0), (1, 0), (1 + gap, 0), (2 + gap, 0), (0, 1), (1, 1), (1 + gap, 1), (2 + gap, 1), (0, 3),
-                    (1, 3), (1 + gap, 3), (2 + gap, 3)], float)
-    quads = [(0, 1, 5, 4), (1, 2, 6, 5), (2, 3, 7, 6), (4, 5, 9, 8), (6, 7, 11, 10)]
-    tris = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))])
-    m = trimesh.creation.extrude_triangulation(pts, tris, height=1.0)
-    return ws.check_cage((m.vertices, m.faces), name="u-cage")
 
 
 def test_graph_distances_follow_the_cage_not_space():
@@ -39,23 +29,23 @@ def test_graph_distances_follow_the_cage_not_space():
 
 
 @pytest.mark.parametrize("settings", SETTINGS, ids=str)
-def test_normal_derivatives_reproduce_zero_and_the_normal(arm_cage, settings):
-    g = normal_derivatives(arm_cage, settings, device="cpu")
+def test_normal_derivatives_reproduce_zero_and_the_normal(arm_cage, settings, device):
+    g = normal_derivatives(arm_cage, settings, device=device)
     assert np.abs(g.sum(axis=1)).max() < 1e-12
     assert np.abs(g @ arm_cage.vertices - unit_normals(arm_cage)).max() < 1e-10
 
 
-def test_normal_derivatives_stay_on_handles_near_the_face_along_the_cage():
+def test_normal_derivatives_stay_on_handles_near_the_face_along_the_cage(device):
     cage = u_cage()
-    g = normal_derivatives(cage, ws.LocalData(), device="cpu")
+    g = normal_derivatives(cage, ws.LocalData(), device=device)
     far = cage_graph_distances(cage)[cage.faces].min(axis=1) > 3.0  # more than 3 mean edges (about 1.3) away
     share = np.abs(g * far).sum(axis=1) / np.abs(g).sum(axis=1)
     assert far.any() and share.max() < 0.05
 
 
-def test_local_field_reproduces_constants_and_linear_functions(arm_cage):
-    grid = ws.voxelize(arm_cage, 20, device="cpu")
-    f = ws.boundary_field(grid, arm_cage, device="cpu", data="local").numpy().astype(np.float64)[grid.n_interior:]
+def test_local_field_reproduces_constants_and_linear_functions(arm_cage, device):
+    grid = ws.voxelize(arm_cage, 20, device=device)
+    f = ws.boundary_field(grid, arm_cage, device=device, data="local").numpy().astype(np.float64)[grid.n_interior:]
     columns = np.column_stack([np.ones(arm_cage.n_handles), arm_cage.vertices - grid.centre])
     x = grid.node_positions(np.arange(grid.n_interior, grid.n_active))
     scale = arm_cage.diagonal
@@ -67,15 +57,15 @@ def test_local_field_reproduces_constants_and_linear_functions(arm_cage):
     assert np.abs(gradient_of_x - np.eye(3)).max() < 1e-5
 
 
-def test_local_data_is_the_hat_function_on_the_cage():
+def test_local_data_is_the_hat_function_on_the_cage(device):
     # a node on a face of a box: q = the face's barycentric coordinates (no Taylor term)
     cage = ws.check_cage(box_cage())
-    grid = ws.voxelize(cage, 16, device="cpu")
-    field = ws.boundary_field(grid, cage, device="cpu", data="local").numpy()
+    grid = ws.voxelize(cage, 16, device=device)
+    field = ws.boundary_field(grid, cage, device=device, data="local").numpy()
     x = grid.node_positions() + grid.centre
     on_top = np.flatnonzero((np.abs(x[:, 2] - 1) < 1e-12) & (np.abs(x[:, :2]) < 1 - 1e-9).all(axis=1))
     assert len(on_top)
-    expected = ws.mean_value_coordinates(cage, x[on_top], device="cpu")  # exact there: the hat functions
+    expected = ws.mean_value_coordinates(cage, x[on_top], device=device)  # exact there: the hat functions
     np.testing.assert_allclose(field[on_top, :, 0], expected, atol=1e-6)
 
 
@@ -92,7 +82,7 @@ def test_folded_edges_are_found_where_the_cage_folds_back(arm_cage):
     assert len(folded_edges(ws.check_cage((sphere.vertices, sphere.faces)))) == 0
 
 
-def test_local_data_decouples_parts_close_in_space_far_along_the_cage():
+def test_local_data_decouples_parts_close_in_space_far_along_the_cage(device):
     # vertices in the left prong, next to the gap: the right prong's tip handles hold much less of their weight
     # with local data than with MVC data (MVC is global: across the gap it carries the other prong)
     cage = u_cage()
@@ -102,13 +92,15 @@ def test_local_data_decouples_parts_close_in_space_far_along_the_cage():
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         for data in ("mvc", "local"):
-            b = ws.bind((points, None), cage, resolution=40, device="cpu", boundary=data)
+            b = ws.bind((points, None), cage, resolution=40, device=device, boundary=data)
             assert b.stats["converged"] and b.stats["linear_precision_error"] < 1e-5
             share[data] = np.abs(b.weights[:, tips]).sum(axis=1).max()
     assert share["local"] < 0.7 * share["mvc"], share
 
 
 def test_the_boundary_data_is_a_bind_and_cli_choice(tmp_path):
+    # the command line as a user runs it: subprocesses on the CPU (the boundary data on every device is tested
+    # above, and the bind's refusal comes before any device work)
     out = tmp_path / "arm.npz"
     proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "bind", str(EXAMPLE / "arm.obj"),
                            str(EXAMPLE / "arm_cage.obj"), "-o", str(out), "--resolution", "16", "--device", "cpu",
@@ -125,21 +117,21 @@ def test_the_boundary_data_is_a_bind_and_cli_choice(tmp_path):
         ws.LocalData(model="nearest")
 
 
-def test_the_cage_check_names_folded_edges_and_the_binding_keeps_the_warning():
+def test_the_cage_check_names_folded_edges_and_the_binding_keeps_the_warning(device):
     with pytest.warns(UserWarning, match=r"folds back on itself at 4 edge\(s\).*36-37 \(173 deg\)"):
         cage = ws.check_cage(EXAMPLE / "arm_cage.obj")
     assert any("folds back" in note for note in cage.notes)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        b = ws.bind(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", resolution=16, device="cpu")
+        b = ws.bind(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", resolution=16, device=device)
     assert any("folds back" in w for w in b.stats["warnings"])
 
 
-def test_a_chunks_local_field_and_its_complement_sum_to_one(arm_cage):
-    grid = ws.voxelize(arm_cage, 20, device="cpu")
+def test_a_chunks_local_field_and_its_complement_sum_to_one(arm_cage, device):
+    grid = ws.voxelize(arm_cage, 20, device=device)
     chunk = slice(5, 21)
-    field = ws.boundary_field(grid, arm_cage, device="cpu", handles=chunk, complement=True, data="local")
+    field = ws.boundary_field(grid, arm_cage, device=device, handles=chunk, complement=True, data="local")
     f = field.numpy().astype(np.float64)[grid.n_interior:]
-    whole = ws.boundary_field(grid, arm_cage, device="cpu", data="local").numpy().astype(np.float64)[grid.n_interior:]
+    whole = ws.boundary_field(grid, arm_cage, device=device, data="local").numpy().astype(np.float64)[grid.n_interior:]
     np.testing.assert_allclose(f[:, :16], whole[:, chunk], atol=1e-6)
     np.testing.assert_allclose(f.sum(1), np.broadcast_to([1.0, 0, 0, 0], (len(f), 4)), atol=1e-5)

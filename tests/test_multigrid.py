@@ -21,9 +21,9 @@ def to_scipy(triplets, n_rows, n_cols):
 
 
 @pytest.fixture(scope="module")
-def arm_hierarchy(arm_cage):
-    grid = ws.voxelize(arm_cage, resolution=40, device="cpu")
-    return grid, ws.Multigrid(grid, device="cpu", coarsest_nodes=60)
+def arm_hierarchy(arm_cage, device):
+    grid = ws.voxelize(arm_cage, resolution=40, device=device)
+    return grid, ws.Multigrid(grid, device=device, coarsest_nodes=60)
 
 
 def test_levels_shrink_and_coarse_operators_are_galerkin_products(arm_hierarchy):
@@ -51,29 +51,29 @@ def test_levels_shrink_and_coarse_operators_are_galerkin_products(arm_hierarchy)
         assert np.bincount(rows).max() <= 27
 
 
-def test_hierarchy_memory_is_known_before_it_is_formed(arm_hierarchy):
+def test_hierarchy_memory_is_known_before_it_is_formed(arm_hierarchy, device):
     grid, mg = arm_hierarchy
-    levels = ws.coarsen(grid, "cpu", coarsest_nodes=60)
+    levels = ws.coarsen(grid, device, coarsest_nodes=60)
     assert [lev.n for lev in levels] == mg.level_sizes
     # the planner's figure, from the level sizes alone, is what the formed hierarchy's arrays hold
     assert ws.solver.multigrid.hierarchy_bytes(levels) == mg.operator_bytes()
 
 
-def test_a_grid_beyond_the_row_limit_is_refused_naming_a_resolution_that_fits(arm_cage):
+def test_a_grid_beyond_the_row_limit_is_refused_naming_a_resolution_that_fits(arm_cage, device):
     # the limit is 2**31 - 1 rows; lowered here so that a small grid meets it
-    limit = ws.voxelize(arm_cage, 24, device="cpu").n_active
+    limit = ws.voxelize(arm_cage, 24, device=device).n_active
     with pytest.raises(ws.ResolutionError, match=r"resolution 32 gives [\d,]+ active grid nodes, more than the "
                        r"[\d,]+ that 32-bit rows can number; resolution (\d+) or less would fit") as e:
-        ws.voxelize(arm_cage, 32, device="cpu", max_rows=limit)
+        ws.voxelize(arm_cage, 32, device=device, max_rows=limit)
     suggested = int(str(e.value).split("resolution ")[-1].split(" or less")[0])
     assert 8 <= suggested < 32
-    assert ws.voxelize(arm_cage, suggested, device="cpu", max_rows=limit).n_active <= limit
+    assert ws.voxelize(arm_cage, suggested, device=device, max_rows=limit).n_active <= limit
 
 
-def test_hermite_prolongation_is_exact_for_cubics_along_axes():
+def test_hermite_prolongation_is_exact_for_cubics_along_axes(device):
     v, f = box_cage(lo=(-1, -1, -1), hi=(1, 1, 1))
-    grid = ws.voxelize(ws.check_cage((v, f)), resolution=24, device="cpu")
-    mg = ws.Multigrid(grid, device="cpu", coarsest_nodes=50)
+    grid = ws.voxelize(ws.check_cage((v, f)), resolution=24, device=device)
+    mg = ws.Multigrid(grid, device=device, coarsest_nodes=50)
     fine, coarse = mg.levels[0], mg.levels[1]
 
     def field(ijk, spacing):
@@ -96,11 +96,11 @@ def test_hermite_prolongation_is_exact_for_cubics_along_axes():
     np.testing.assert_allclose(got[complete], exact_fine[complete], atol=1e-5 * np.abs(exact_fine).max())
 
 
-def test_v_cycle_is_a_symmetric_positive_preconditioner(arm_hierarchy):
+def test_v_cycle_is_a_symmetric_positive_preconditioner(arm_hierarchy, device):
     grid, mg = arm_hierarchy
     rng = np.random.default_rng(5)
-    a = wp.array(rng.normal(size=(grid.n_interior, 2, 4)).astype(np.float32), dtype=wp.vec4f, device="cpu")
-    b = wp.array(rng.normal(size=(grid.n_interior, 2, 4)).astype(np.float32), dtype=wp.vec4f, device="cpu")
+    a = wp.array(rng.normal(size=(grid.n_interior, 2, 4)).astype(np.float32), dtype=wp.vec4f, device=device)
+    b = wp.array(rng.normal(size=(grid.n_interior, 2, 4)).astype(np.float32), dtype=wp.vec4f, device=device)
     ma, mb = wp.empty_like(a), wp.empty_like(b)
     mg.apply(a, ma)
     mg.apply(b, mb)
@@ -111,12 +111,12 @@ def test_v_cycle_is_a_symmetric_positive_preconditioner(arm_hierarchy):
         assert np.sum(ma[:, h] * a[:, h]) > 0
 
 
-def test_cg_iterations_do_not_grow_with_the_resolution(arm_cage):
+def test_cg_iterations_do_not_grow_with_the_resolution(arm_cage, device):
     iterations = {}
     for n in (24, 48, 96):
-        grid = ws.voxelize(arm_cage, resolution=n, device="cpu")
-        field = ws.boundary_field(grid, arm_cage, device="cpu", handles=slice(10, 14))
-        report = ws.solve_biharmonic(grid, field, tol=1e-6, device="cpu")
+        grid = ws.voxelize(arm_cage, resolution=n, device=device)
+        field = ws.boundary_field(grid, arm_cage, device=device, handles=slice(10, 14))
+        report = ws.solve_biharmonic(grid, field, tol=1e-6, device=device)
         assert report.converged
         iterations[n] = report.iterations
     print("multigrid-preconditioned CG iterations by resolution:", iterations)
@@ -124,18 +124,19 @@ def test_cg_iterations_do_not_grow_with_the_resolution(arm_cage):
     assert iterations[96] <= iterations[24] + 2
 
 
-def test_jacobi_iterations_do_grow(arm_cage):
+def test_jacobi_iterations_do_grow(arm_cage, device):
     # the contrast that makes the test above meaningful
     its = []
     for n in (16, 32):
-        grid = ws.voxelize(arm_cage, resolution=n, device="cpu")
-        field = ws.boundary_field(grid, arm_cage, device="cpu", handles=slice(10, 12))
-        its.append(ws.solve_biharmonic(grid, field, tol=1e-6, preconditioner="jacobi", device="cpu").iterations)
+        grid = ws.voxelize(arm_cage, resolution=n, device=device)
+        field = ws.boundary_field(grid, arm_cage, device=device, handles=slice(10, 12))
+        its.append(ws.solve_biharmonic(grid, field, tol=1e-6, preconditioner="jacobi", device=device).iterations)
     assert its[1] > 1.5 * its[0] and its[1] > 40
 
 
 def test_bench_smoother_solves_and_tabulates_every_variant():
-    # the benchmark behind the smoother's degrees, at a tiny size: every variant solves and is tabulated
+    # the benchmark behind the smoother's degrees, at a tiny size: every variant solves and is tabulated (a
+    # subprocess, on the CPU whatever the device under test: the benchmark script is the subject)
     repo = Path(__file__).resolve().parents[1]
     proc = subprocess.run([sys.executable, str(repo / "benchmarks" / "bench_smoother.py"), "--pair", "arm",
                            "--resolution", "16", "--handles", "4", "--device", "cpu",

@@ -13,10 +13,10 @@ from warp_stokes.cli import main
 
 
 @pytest.fixture(scope="module")
-def arm():
+def arm(device):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return ws.bind(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", resolution=20, device="cpu")
+        return ws.bind(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", resolution=20, device=device)
 
 
 def cage_poses(binding, n_frames=5):
@@ -121,14 +121,14 @@ def test_poses_from_arrays_and_usd(arm, tmp_path):
         ws.load_poses(tmp_path / "missing.usd", arm.cage_faces)
 
 
-def test_smpl_rest_to_t_pose(tmp_path):
+def test_smpl_rest_to_t_pose(tmp_path, device):
     mesh_path, cage_path = pair("smpl")
     rest_cage = ws.load_surface(cage_path)
     t_cage = ws.load_surface(cage_path.parent / "cage_tpose.obj")
     t_mesh = ws.load_surface(mesh_path.parent / "model_tpose.obj")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        b = ws.bind(mesh_path, cage_path, resolution=32, device="cpu")
+        b = ws.bind(mesh_path, cage_path, resolution=32, device=device)
     steps = np.linspace(0, 1, 6)
     positions = np.stack([(1 - s) * rest_cage.vertices + s * t_cage.vertices for s in steps])
     path = ws.write_animation(tmp_path / "smpl.usd", b, ws.Poses(positions, np.arange(1.0, 7.0), "interp"))
@@ -143,13 +143,13 @@ def test_smpl_rest_to_t_pose(tmp_path):
     np.testing.assert_allclose(first, b.mesh_vertices, atol=1e-5 * diag)
 
 
-def test_animate_command(arm, tmp_path, capsys):
+def test_animate_command(arm, tmp_path, capsys, device):
     binding = tmp_path / "arm.npz"
     arm.save(binding)
     np.save(tmp_path / "poses.npy", cage_poses(arm, 4))
     out = tmp_path / "arm.usda"
     rc = main(["animate", str(binding), str(tmp_path / "poses.npy"), "-o", str(out), "--fps", "12",
-               "--with-cage", "--device", "cpu"])
+               "--with-cage", "--device", device])
     assert rc == 0 and "4 frames" in capsys.readouterr().out
     stage = Usd.Stage.Open(str(out))
     assert stage.GetTimeCodesPerSecond() == 12 and stage.GetPrimAtPath("/Root/Cage").IsValid()
@@ -159,7 +159,7 @@ def test_animate_command(arm, tmp_path, capsys):
     assert not (tmp_path / "x.usd").exists()
 
 
-def test_normals_from_the_mesh_file_are_kept_and_follow_the_frames(tmp_path):
+def test_normals_from_the_mesh_file_are_kept_and_follow_the_frames(tmp_path, device):
     import trimesh
 
     arm = ws.load_surface(EXAMPLE / "arm.obj")
@@ -174,9 +174,9 @@ def test_normals_from_the_mesh_file_are_kept_and_follow_the_frames(tmp_path):
     assert ws.load_surface(EXAMPLE / "arm.obj").normals is None
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        b = ws.bind(path, EXAMPLE / "arm_cage.obj", resolution=16, device="cpu")
+        b = ws.bind(path, EXAMPLE / "arm_cage.obj", resolution=16, device=device)
     b.save(tmp_path / "b.npz")
-    b = ws.load_binding(tmp_path / "b.npz", device="cpu")
+    b = ws.load_binding(tmp_path / "b.npz", device=device)
     np.testing.assert_allclose(b.mesh_normals, normals, atol=1e-9)
     usd = ws.write_animation(tmp_path / "n.usda", b, ws.Poses(cage_poses(b, 2), np.array([1.0, 2.0]), "g"))
     stage = Usd.Stage.Open(str(usd))
