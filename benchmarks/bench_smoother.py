@@ -30,6 +30,7 @@ def main(argv=None) -> int:
     p.add_argument("--handles", type=int, default=6)
     p.add_argument("--variants", nargs="+", default=["3,3/12/1.1", "3,8/40/1.2"])
     p.add_argument("--coarsest", type=int, default=None, help="coarsest level's node limit")
+    p.add_argument("--first", type=int, nargs="+", default=[0], help="first handle of each chunk solved (0)")
     p.add_argument("--device", default=None)
     p.add_argument("--folder", default=str(WORK))
     args = p.parse_args(argv)
@@ -48,13 +49,15 @@ def main(argv=None) -> int:
     start = time.perf_counter()
     mg = multigrid.Multigrid(grid, device, **({"coarsest_nodes": args.coarsest} if args.coarsest else {}))
     setup = time.perf_counter() - start
-    chunk = slice(0, args.handles)
     print(f"device {device_name}, {args.pair} n = {args.resolution}: levels {mg.level_sizes}, "
           f"voxelize {voxelize:.1f} s, multigrid setup {setup:.1f} s", flush=True)
     rows = []
-    for variant in args.variants:
+    runs = [(v, f) for v in args.variants for f in args.first]
+    for variant, first in runs:
+        chunk = slice(first, min(first + args.handles, cage.n_handles))
         degrees, power, safety = variant.split("/")
-        multigrid.SMOOTHER_DEGREES = tuple(int(d) for d in degrees.split(","))
+        # the variant's degrees whatever the hierarchy's depth
+        multigrid.SMOOTHER_DEGREES = multigrid.DEEP_SMOOTHER_DEGREES = tuple(int(d) for d in degrees.split(","))
         if (int(power), float(safety)) != (multigrid.POWER_ITERATIONS, multigrid.LMAX_SAFETY):
             multigrid.POWER_ITERATIONS, multigrid.LMAX_SAFETY = int(power), float(safety)
             with wp.ScopedDevice(device):
@@ -65,12 +68,14 @@ def main(argv=None) -> int:
             warnings.simplefilter("ignore")
             report = ws.solve_biharmonic(grid, field, handles=cage.vertices, chunk=chunk, preconditioner=mg,
                                          device=device)
-        rows.append((variant + f" lmax {[round(lev.lmax, 2) for lev in mg.levels[:-1]]}", report.iterations, report.seconds, report.identity_error, report.converged,
-                     [r[0] for r in report.rounds]))
+        label = f"{variant} handles {chunk.start}-{chunk.stop - 1}"
+        rows.append((label, report.iterations, report.seconds, report.identity_error, report.converged,
+                     [[r[0], f"{r[1]:.1e}"] for r in report.rounds]))
         print(rows[-1], flush=True)
         del field
-    print("\n" + table_head(("degrees (fine, coarse...), power its, safety", "iterations", "solve s", "s / iteration",
-                             "identity error", "converged", "rounds")))
+    print("\n" + table_head(("degrees (fine, coarse...), power its, safety; chunk", "iterations",
+                             "solve s", "s / iteration", "identity error", "converged",
+                             "rounds (iterations, true residual)")))
     for variant, its, seconds, identity, converged, rounds in rows:
         print(table_row((variant, its, f"{seconds:.2f}", f"{seconds / its:.3f}", f"{identity:.1e}", converged, rounds)))
     return 0

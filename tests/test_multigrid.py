@@ -144,3 +144,25 @@ def test_bench_smoother_solves_and_tabulates_every_variant():
     assert proc.returncode == 0, proc.stderr[-2000:]
     rows = [line for line in proc.stdout.splitlines() if line.startswith("| 3,3")]
     assert len(rows) == 2 and all("| True |" in row for row in rows), proc.stdout
+
+
+def test_deep_hierarchies_smooth_harder(arm_cage, device, monkeypatch):
+    """A hierarchy of DEEP_LEVELS levels or more smooths with DEEP_SMOOTHER_DEGREES; a shallower one does not."""
+    from warp_stokes.solver import multigrid
+
+    grid = ws.voxelize(arm_cage, resolution=32, device=device)  # 8 levels down to one node, 4 down to 60
+    rng = np.random.default_rng(7)
+    r = wp.array(rng.normal(size=(grid.n_interior, 2, 4)).astype(np.float32), dtype=wp.vec4f, device=device)
+
+    def cycle(coarsest_nodes):
+        mg = ws.Multigrid(grid, device=device, coarsest_nodes=coarsest_nodes)
+        z = wp.zeros_like(r)
+        mg.apply(r, z)
+        return len(mg.level_sizes), z.numpy()
+
+    depth_deep, deep = cycle(1)
+    depth_shallow, shallow = cycle(60)
+    assert depth_deep >= multigrid.DEEP_LEVELS > depth_shallow
+    monkeypatch.setattr(multigrid, "DEEP_SMOOTHER_DEGREES", multigrid.SMOOTHER_DEGREES)
+    assert not np.allclose(cycle(1)[1], deep)  # the deep hierarchy used the deep degrees
+    np.testing.assert_array_equal(cycle(60)[1], shallow)  # the shallow one never did

@@ -11,7 +11,7 @@ One V-cycle for all handles at once (every handle a column of the level arrays):
   27-point block stencils: formed by one kernel per level straight from the finer stencil (the fine operator is
   never assembled) and stored as (nodes, 27) 4x4 blocks;
 - smoother: Chebyshev polynomial in D^-1 A (D the 4x4 diagonal blocks) on [lmax/30, lmax], of degree 3 on the
-  two finest levels and 8 below (cheap there; the deep levels' corrections limited convergence: the icosphere
+  two finest levels and 8 below (4, 4 and 12 in hierarchies of 8 levels or more) (cheap there; the deep levels' corrections limited convergence: the icosphere
   pair at n = 512 took 27 CG iterations with degree 3 everywhere, 19 with this, in 21% less time, H100), lmax 1.2
   times the estimate of 40 power iterations (12 underestimated it by 20% at n = 512, and higher degrees then
   diverged); it is a fixed polynomial, so the V-cycle is a symmetric preconditioner;
@@ -36,12 +36,17 @@ from .hierarchy import COARSE_NODE_BYTES, COARSEST_NODES, Level, coarsen, hierar
 from .operator import apply_operator
 
 # the levels' sizes are planned before the hierarchy is formed (solver.hierarchy); offered here too
-__all__ = ["Multigrid", "coarsen", "hierarchy_bytes", "Level", "SMOOTHER_DEGREES", "COARSEST_NODES",
-           "COARSE_NODE_BYTES"]
+__all__ = ["Multigrid", "coarsen", "hierarchy_bytes", "Level", "SMOOTHER_DEGREES", "DEEP_SMOOTHER_DEGREES",
+           "DEEP_LEVELS", "COARSEST_NODES", "COARSE_NODE_BYTES"]
 
 #: Chebyshev degree on the fine level, the first coarse level, ...; the last entry holds for every deeper level
 #: (measured with benchmarks/bench_smoother.py: RESULTS.md)
 SMOOTHER_DEGREES = (3, 3, 8)
+#: hierarchies of at least DEEP_LEVELS levels smooth with DEEP_SMOOTHER_DEGREES: the CG iterations grow with the
+#: depth (the icosphere pair at n = 512, 8 levels, H100: 17-20 iterations per chunk and a restart of 2 with
+#: (3, 3, 8); 16 and a restart of 1 with (4, 4, 12), 12% more time per chunk)
+DEEP_LEVELS = 8
+DEEP_SMOOTHER_DEGREES = (4, 4, 12)
 #: the Chebyshev interval is [lmax / SMOOTHING_RANGE, lmax]: the upper part of the spectrum is smoothed
 SMOOTHING_RANGE = 30.0
 POWER_ITERATIONS = 40
@@ -222,7 +227,8 @@ class Multigrid:
         else:
             self._residual(depth, b, x, r)
             wp.launch(mg.chebyshev_start, dim=shape, inputs=[r, lev.inv_diag, 1.0 / theta], outputs=[x, d])
-        for _ in range(SMOOTHER_DEGREES[min(depth, len(SMOOTHER_DEGREES) - 1)] - 1):
+        degrees = DEEP_SMOOTHER_DEGREES if len(self.levels) >= DEEP_LEVELS else SMOOTHER_DEGREES
+        for _ in range(degrees[min(depth, len(degrees) - 1)] - 1):
             self._residual(depth, b, x, r)
             rho_next = 1.0 / (2.0 * sigma - rho)
             wp.launch(mg.chebyshev_step, dim=shape, inputs=[r, lev.inv_diag, rho_next * rho, 2.0 * rho_next / delta],
