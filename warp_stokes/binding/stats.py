@@ -8,6 +8,7 @@ import warp as wp
 
 from ..device import device_name
 from ..geometry.cage import Cage
+from ..geometry.topology import bounding_diagonal
 from ..geometry.local_boundary import LocalData
 from ..io.scene import Scene
 
@@ -26,7 +27,7 @@ def identity_errors(weights: np.ndarray, handles: np.ndarray, points: np.ndarray
     (0.0, 0.0)
     """
     handles = np.asarray(handles, dtype=np.float64)
-    diag = float(np.linalg.norm(handles.max(axis=0) - handles.min(axis=0)))
+    diag = bounding_diagonal(handles)
     pu = lp = 0.0
     for start in range(0, len(weights), rows):
         w = weights[start : start + rows].astype(np.float64)

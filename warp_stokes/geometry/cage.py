@@ -14,7 +14,7 @@ import numpy as np
 from ..errors import CageError
 from ..io.load import load_surface
 from .cage_faults import FOLD_DEGREES, crossing_faces, folded_edges, unit_normals
-from .topology import MERGE_TOLERANCE, face_edges, interior_edges, is_closed, merge_coincident
+from .topology import MERGE_TOLERANCE, bounding_diagonal, face_edges, interior_edges, is_closed, merge_coincident
 
 __all__ = ["Cage", "check_cage", "signed_volume", "unit_normals", "face_edges", "interior_edges", "folded_edges",
            "crossing_faces", "merge_coincident", "FOLD_DEGREES", "MERGE_TOLERANCE"]
@@ -50,7 +50,7 @@ class Cage:
 
     @property
     def diagonal(self) -> float:
-        return float(np.linalg.norm(self.vertices.max(axis=0) - self.vertices.min(axis=0)))
+        return bounding_diagonal(self.vertices)
 
 
 def signed_volume(vertices: np.ndarray, faces: np.ndarray) -> float:
@@ -165,7 +165,7 @@ def _merged_if_soup(surface, notes: list):
         raise CageError(f"{name}: a cage needs at least 4 vertices, got {len(v)}")
     if len(f) < 4:
         raise CageError(f"{name}: a closed cage needs at least 4 triangles, got {len(f)}")
-    diag = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
+    diag = bounding_diagonal(v)
     if not diag > 0:
         raise CageError(f"{name}: all cage vertices coincide")
     if not is_closed(f):
@@ -179,7 +179,7 @@ def _merged_if_soup(surface, notes: list):
 
 def _check_faces(v: np.ndarray, f: np.ndarray, name: str) -> None:
     """No degenerate (zero-area, or a repeated vertex) and no duplicate faces."""
-    diag = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
+    diag = bounding_diagonal(v)
     repeated = (f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 0] == f[:, 2])
     area2 = np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1)
     degenerate = repeated | (area2 <= 1e-12 * diag * diag)

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .topology import interior_edges
+from .topology import bounding_diagonal, interior_edges
 
 __all__ = ["crossing_faces", "unit_normals", "folded_edges", "FOLD_DEGREES"]
 
@@ -47,7 +47,7 @@ def crossing_faces(vertices: np.ndarray, faces: np.ndarray, device=None) -> np.n
         return np.zeros((0, 2), dtype=np.int64)
     centre = 0.5 * (vertices.min(axis=0) + vertices.max(axis=0))
     relative = vertices - centre
-    diag = float(np.linalg.norm(vertices.max(axis=0) - vertices.min(axis=0)))
+    diag = bounding_diagonal(vertices)
     device = resolve_device(device)
     with wp.ScopedDevice(device):
         mesh = wp.Mesh(points=wp.array(relative.astype(np.float32), dtype=wp.vec3),

@@ -1,13 +1,26 @@
-"""Topology of triangle meshes: directed and interior edges, closedness, and merging a triangle soup."""
+"""Topology and extent of triangle meshes: directed and interior edges, closedness, merging a triangle soup, and
+the bounding-box diagonal that tolerances are relative to."""
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["face_edges", "interior_edges", "is_closed", "merge_coincident", "MERGE_TOLERANCE"]
+__all__ = ["face_edges", "interior_edges", "is_closed", "merge_coincident", "bounding_diagonal", "MERGE_TOLERANCE"]
 
 #: vertices of a triangle soup closer than this fraction of the cage's diagonal are one handle
 MERGE_TOLERANCE = 1e-6
+
+
+def bounding_diagonal(points) -> float:
+    """The length of the bounding box's diagonal: the scale that the package's tolerances and errors are relative to.
+
+    Examples
+    --------
+    >>> bounding_diagonal([[0, 0, 0], [3, 4, 0]])
+    5.0
+    """
+    points = np.asarray(points, dtype=np.float64)
+    return float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
 
 
 def is_closed(faces: np.ndarray) -> bool:

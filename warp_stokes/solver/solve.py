@@ -36,6 +36,7 @@ import warp as wp
 from ..geometry.boundary import COMPLEMENT_COLUMNS
 from ..device import resolve_device
 from ..geometry.grid import Grid
+from ..geometry.topology import bounding_diagonal
 from ..kernels import cg, checks
 from .krylov import BatchedCG, cg_round
 from .multigrid import Multigrid
@@ -215,7 +216,7 @@ def _identity_check(grid: Grid, field: wp.array, handles, device, chunk: slice |
     if handles is None:
         return lambda: 0.0
     handles = np.asarray(handles, dtype=np.float64)
-    scale = float(np.linalg.norm(handles.max(axis=0) - handles.min(axis=0)))
+    scale = bounding_diagonal(handles)
     first, stop, _ = (chunk or slice(None)).indices(len(handles))
     columns = np.zeros((stop - first, 4))
     columns[:, 0] = 1.0
