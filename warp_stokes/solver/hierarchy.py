@@ -10,7 +10,7 @@ import warp as wp
 
 from ..device import resolve_device
 from ..geometry.grid import Grid
-from ..kernels import multigrid as mg
+from ..kernels import multigrid as mg_kernels
 
 __all__ = ["Level", "coarsen", "hierarchy_bytes", "COARSEST_NODES", "COARSE_NODE_BYTES"]
 
@@ -63,7 +63,7 @@ def coarsen(grid: Grid, device=None, coarsest_nodes: int = COARSEST_NODES) -> li
             lev = levels[-1]
             coarse_shape = tuple(int(s) for s in shape // 2 + 1)
             counts = wp.empty(coarse_shape, dtype=wp.int32)
-            wp.launch(mg.coarse_coverage, dim=coarse_shape, inputs=[lev.index, lev.n], outputs=[counts])
+            wp.launch(mg_kernels.coarse_coverage, dim=coarse_shape, inputs=[lev.index, lev.n], outputs=[counts])
             order = np.flatnonzero(counts.numpy().ravel() * 8 >= 27)
             del counts
             if len(order) == 0 or len(order) >= lev.n:

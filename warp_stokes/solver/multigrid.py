@@ -31,7 +31,8 @@ import warp as wp
 
 from ..device import reduction_threads, resolve_device
 from ..geometry.grid import Grid
-from ..kernels import cg, multigrid as mg
+from ..kernels import cg
+from ..kernels import multigrid as mg_kernels
 from .hierarchy import COARSE_NODE_BYTES, COARSEST_NODES, Level, coarsen, hierarchy_bytes
 from .operator import apply_operator
 
@@ -69,7 +70,7 @@ class Multigrid:
     Examples
     --------
     >>> mg = Multigrid(grid, device="cpu")          # doctest: +SKIP
-    >>> mg.apply(residual, correction)              # doctest: +SKIP
+    >>> mg.apply(residual, correction)                      # doctest: +SKIP
     """
 
     def __init__(self, grid: Grid, device=None, coarsest_nodes: int = COARSEST_NODES, levels=None):
@@ -79,7 +80,7 @@ class Multigrid:
         self.seconds = {"galerkin": [], "coarsest": 0.0, "eigenvalues": 0.0}
         with wp.ScopedDevice(self.device):
             self.table = wp.empty(64, dtype=wp.mat44d)
-            wp.launch(mg.hermite_table, dim=64, outputs=[self.table])
+            wp.launch(mg_kernels.hermite_table, dim=64, outputs=[self.table])
             self.levels = levels if levels is not None else coarsen(grid, self.device, coarsest_nodes)
             self._form_operators()
             self._estimate_eigenvalues()
@@ -96,14 +97,14 @@ class Multigrid:
             # each symmetric pair of blocks is formed once: the 14 slots from the centre on, and their transposes
             coarse.blocks = wp.zeros((coarse.n, 27), dtype=wp.mat44f)
             wp.launch(
-                mg.galerkin_blocks,
+                mg_kernels.galerkin_blocks,
                 dim=(coarse.n, 14),
                 inputs=[coarse.ijk_device, coarse.index, coarse.n, finer.index, finer.n,
                         empty if finer.blocks is None else finer.blocks, int(finer.blocks is None), self.table],
                 outputs=[coarse.blocks],
             )
             coarse.inv_diag = wp.empty(coarse.n, dtype=wp.mat44f)
-            wp.launch(mg.diagonal_inverse, dim=coarse.n, inputs=[coarse.blocks], outputs=[coarse.inv_diag])
+            wp.launch(mg_kernels.diagonal_inverse, dim=coarse.n, inputs=[coarse.blocks], outputs=[coarse.inv_diag])
             wp.synchronize_device()
             self.seconds["galerkin"].append(time.perf_counter() - start)
         start = time.perf_counter()
@@ -128,7 +129,7 @@ class Multigrid:
         start = time.perf_counter()
         for depth, lev in enumerate(self.levels[:-1]):
             v = wp.empty((lev.n, 1), dtype=wp.vec4f)
-            wp.launch(mg.random_column, dim=lev.n, inputs=[depth], outputs=[v])
+            wp.launch(mg_kernels.random_column, dim=lev.n, inputs=[depth], outputs=[v])
             av = wp.empty_like(v)
             z = wp.empty_like(v)
             squared = wp.zeros(1, dtype=wp.float64)
@@ -136,10 +137,10 @@ class Multigrid:
             for _ in range(POWER_ITERATIONS):
                 squared.zero_()
                 wp.launch(cg.column_dots, dim=(threads, 1), inputs=[v, v, threads], outputs=[squared])
-                wp.launch(mg.divide_column, dim=lev.n, inputs=[v, squared])
+                wp.launch(mg_kernels.divide_column, dim=lev.n, inputs=[v, squared])
                 self._apply_A(depth, v, av)
                 z.zero_()
-                wp.launch(mg.chebyshev_start, dim=(lev.n, 1), inputs=[av, lev.inv_diag, 1.0], outputs=[z, av])
+                wp.launch(mg_kernels.chebyshev_start, dim=(lev.n, 1), inputs=[av, lev.inv_diag, 1.0], outputs=[z, av])
                 v, z = z, v
             squared.zero_()
             wp.launch(cg.column_dots, dim=(threads, 1), inputs=[v, v, threads], outputs=[squared])
@@ -154,12 +155,12 @@ class Multigrid:
 
         Examples
         --------
-        >>> rows, cols, blocks = mg.operator_triplets(1)    # doctest: +SKIP
+        >>> rows, cols, blocks = mg.operator_triplets(1)            # doctest: +SKIP
         """
         lev = self.levels[depth]
         if lev.blocks is None:  # the fine level: the 19-point stencil, formed as blocks on demand
             blocks = wp.empty((lev.n, 27), dtype=wp.mat44f, device=self.device)
-            wp.launch(mg.stencil_blocks, dim=blocks.shape, inputs=[lev.ijk_device, lev.index, lev.n],
+            wp.launch(mg_kernels.stencil_blocks, dim=blocks.shape, inputs=[lev.ijk_device, lev.index, lev.n],
                       outputs=[blocks], device=self.device)
             blocks = blocks.numpy()
         else:
@@ -181,7 +182,7 @@ class Multigrid:
             rows = wp.empty(8 * fine.n, dtype=int)
             cols = wp.empty(8 * fine.n, dtype=int)
             blocks = wp.empty(8 * fine.n, dtype=wp.mat44f)
-            wp.launch(mg.prolongation_triplets, dim=fine.n,
+            wp.launch(mg_kernels.prolongation_triplets, dim=fine.n,
                       inputs=[fine.ijk_device, coarse.index, coarse.n, self.table], outputs=[rows, cols, blocks])
         rows, cols, blocks = rows.numpy(), cols.numpy(), blocks.numpy()
         keep = rows >= 0
@@ -194,7 +195,7 @@ class Multigrid:
         if depth == 0:
             apply_operator(self.grid, x, out, n_rows=lev.n, device=self.device, precise=False)
         else:
-            wp.launch(mg.stencil_apply, dim=x.shape, inputs=[lev.blocks, lev.ijk_device, lev.index, x],
+            wp.launch(mg_kernels.stencil_apply, dim=x.shape, inputs=[lev.blocks, lev.ijk_device, lev.index, x],
                       outputs=[out])
 
     def _work(self, depth: int, n_cols: int) -> dict:
@@ -223,15 +224,15 @@ class Multigrid:
         sigma = theta / delta
         rho = 1.0 / sigma
         if x_is_zero:
-            wp.launch(mg.chebyshev_start, dim=shape, inputs=[b, lev.inv_diag, 1.0 / theta], outputs=[x, d])
+            wp.launch(mg_kernels.chebyshev_start, dim=shape, inputs=[b, lev.inv_diag, 1.0 / theta], outputs=[x, d])
         else:
             self._residual(depth, b, x, r)
-            wp.launch(mg.chebyshev_start, dim=shape, inputs=[r, lev.inv_diag, 1.0 / theta], outputs=[x, d])
+            wp.launch(mg_kernels.chebyshev_start, dim=shape, inputs=[r, lev.inv_diag, 1.0 / theta], outputs=[x, d])
         degrees = DEEP_SMOOTHER_DEGREES if len(self.levels) >= DEEP_LEVELS else SMOOTHER_DEGREES
         for _ in range(degrees[min(depth, len(degrees) - 1)] - 1):
             self._residual(depth, b, x, r)
             rho_next = 1.0 / (2.0 * sigma - rho)
-            wp.launch(mg.chebyshev_step, dim=shape, inputs=[r, lev.inv_diag, rho_next * rho, 2.0 * rho_next / delta],
+            wp.launch(mg_kernels.chebyshev_step, dim=shape, inputs=[r, lev.inv_diag, rho_next * rho, 2.0 * rho_next / delta],
                       outputs=[x, d])
             rho = rho_next
         if residual:
@@ -244,7 +245,7 @@ class Multigrid:
     def _cycle(self, depth: int, b: wp.array, x: wp.array) -> None:
         n_cols = b.shape[1]
         if depth == len(self.levels) - 1:
-            wp.launch(mg.dense_apply, dim=b.shape, inputs=[self.coarse_inverse, b], outputs=[x])
+            wp.launch(mg_kernels.dense_apply, dim=b.shape, inputs=[self.coarse_inverse, b], outputs=[x])
             return
         lev, coarse_level = self.levels[depth], self.levels[depth + 1]
         work = self._work(depth, n_cols)
@@ -252,10 +253,10 @@ class Multigrid:
         x.zero_()
         self._smooth(depth, b, x, r, d, x_is_zero=True, residual=True)
         coarse = self._work(depth + 1, n_cols)
-        wp.launch(mg.restrict, dim=coarse["b"].shape, inputs=[self.table, coarse_level.ijk_device, lev.index, lev.n, r],
+        wp.launch(mg_kernels.restrict, dim=coarse["b"].shape, inputs=[self.table, coarse_level.ijk_device, lev.index, lev.n, r],
                   outputs=[coarse["b"]])
         self._cycle(depth + 1, coarse["b"], coarse["x"])
-        wp.launch(mg.prolong_add, dim=x.shape, inputs=[self.table, lev.ijk_device, coarse_level.index, coarse["x"]],
+        wp.launch(mg_kernels.prolong_add, dim=x.shape, inputs=[self.table, lev.ijk_device, coarse_level.index, coarse["x"]],
                   outputs=[x])
         self._smooth(depth, b, x, r, d, x_is_zero=False, residual=False)
 
