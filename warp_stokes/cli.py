@@ -172,7 +172,8 @@ def _batch(args) -> int:
     from warp_stokes.batch import format_summary, run_batch
 
     _check_output(args.output, (args.manifest,), folder=True)
-    results = run_batch(args.manifest, args.output, force=args.force, device=args.device)
+    results = run_batch(args.manifest, args.output, force=args.force, device=args.device, workers=args.workers,
+                        ray_address=args.ray_address)
     print(format_summary(results))
     failed = sum(r.status == "failed" for r in results)
     print(f"{len(results) - failed} of {len(results)} assets done, {failed} failed; "
@@ -266,6 +267,11 @@ def _add_batch(sub) -> None:
     p.add_argument("manifest", help="manifest file (.toml or .json); see the README")
     p.add_argument("-o", "--output", required=True, help="output folder")
     p.add_argument("--force", action="store_true", help="redo assets whose outputs are up to date")
+    p.add_argument("--workers", type=_number(int, 1), default=None,
+                   help="bind in N Ray worker processes on a local Ray cluster (on a GPU host, default one per GPU); "
+                        'needs pip install "warp-stokes[ray]"')
+    p.add_argument("--ray-address", default=None, metavar="ADDRESS",
+                   help="join this Ray cluster (e.g. auto) instead of starting one")
     p.add_argument("--device", default=None, help="cpu, cuda or cuda:N")
     p.set_defaults(run=_batch)
 

@@ -105,3 +105,9 @@ def reduction_threads(n_rows: int, n_cols: int, device) -> int:
     if resolve_device(device).is_cuda:
         return int(max(1, min(n_rows, -(-(1 << 17) // n_cols))))
     return int(max(1, min(n_rows, 16)))
+
+
+def cuda_device_count() -> int:
+    """CUDA devices this process can see (0 without a driver): a batch on Ray starts one worker per GPU."""
+    init_warp()
+    return int(wp.get_cuda_device_count()) if wp.is_cuda_available() else 0

@@ -25,7 +25,9 @@ An asset's outputs are written under temporary names and renamed together at its
 an asset whole or missing (re-run, it completes what is missing and removes the killed run's temporary files).
 One batch at a time writes to a folder: a lock file ``OUTDIR/.warp-stokes.lock`` holds the owner's pid, and a
 second batch refuses the folder while that process lives (a lock left by a dead one is taken over).
-``OUTDIR/summary.json`` holds the software version and, per asset, its status, error and warnings.
+``OUTDIR/summary.json`` holds the software version and, per asset, its status, error, warnings, and where it was
+bound (host, pid, device). With ``workers`` or ``ray_address`` the assets are bound in parallel by Ray worker
+processes (:mod:`.distributed`; the optional extra ``warp-stokes[ray]``).
 """
 
 from .lock import LOCK_NAME, folder_lock

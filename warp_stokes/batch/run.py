@@ -18,7 +18,7 @@ from ..io.files import atomic_output
 from .lock import folder_lock
 from .manifest import Asset, read_manifest
 
-__all__ = ["Result", "run_batch", "format_summary"]
+__all__ = ["Result", "run_batch", "bind_one", "skipped", "outputs_of", "format_summary"]
 
 
 @dataclass
@@ -32,6 +32,9 @@ class Result:
     error: str = ""
     outputs: list = field(default_factory=list)
     warnings: list = field(default_factory=list)
+    host: str = ""  # where it was bound: machine, process and Warp device
+    pid: int | None = None
+    device: str = ""
 
 
 def _mtime(path: str) -> float:
@@ -59,7 +62,8 @@ def _progress(stream, k: int, total: int, name: str, stage: str) -> None:
     print(f"[{'#' * done}{'.' * (width - done)}] {k}/{total} {name}: {stage}", file=stream, flush=True)
 
 
-def run_batch(manifest, outdir, force: bool = False, device=None, progress=True) -> list[Result]:
+def run_batch(manifest, outdir, force: bool = False, device=None, progress=True, workers: int | None = None,
+              ray_address: str | None = None) -> list[Result]:
     """Bind every asset of a manifest, writing ``<name>.npz`` and, with poses, ``<name>.usd`` to ``outdir``.
 
     Parameters
@@ -69,6 +73,9 @@ def run_batch(manifest, outdir, force: bool = False, device=None, progress=True)
     force : bool, redo assets whose outputs are newer than their inputs
     device : None | str
     progress : True for progress lines on stderr, a text stream for them, or None/False for silence
+    workers : int, optional, bind in this many Ray worker processes on a local Ray cluster started here (on a GPU
+        host, default one per GPU); see :mod:`warp_stokes.batch.distributed`
+    ray_address : str, optional, join this Ray cluster (e.g. ``"auto"``) instead of starting one
 
     Returns
     -------
@@ -77,66 +84,95 @@ def run_batch(manifest, outdir, force: bool = False, device=None, progress=True)
     Raises
     ------
     WarpStokesError
-        When another live batch holds the folder's lock.
+        When another live batch holds the folder's lock, or Ray is asked for and not installed.
     """
     if progress is True:
         progress = sys.stderr
     assets = read_manifest(manifest)
     outdir = os.fspath(outdir)
+    distributed = workers is not None or ray_address is not None
+    if distributed:
+        from .distributed import require_ray
+
+        require_ray()  # before any work or file
     os.makedirs(outdir, exist_ok=True)
     with folder_lock(outdir):
         # temporary files of a batch killed in this folder (it held the lock, so none is being written now)
         for stale in glob.glob(os.path.join(outdir, ".tmp-*")):
             with contextlib.suppress(OSError):
                 os.unlink(stale)
-        results = _run_assets(assets, outdir, manifest, force, device, progress)
+        if distributed:
+            from .distributed import run_on_ray
+
+            results = run_on_ray(assets, outdir, manifest, force, device, progress, workers, ray_address)
+        else:
+            results = _run_assets(assets, outdir, manifest, force, device, progress)
         _write_json(os.path.join(outdir, "summary.json"), {"warp_stokes_version": __version__,
                                                            "assets": [r.__dict__ for r in results]})
     return results
 
 
+def outputs_of(asset: Asset, outdir: str) -> list[str]:
+    """The files an asset writes: ``<name>.npz`` and, with poses, ``<name>.usd``."""
+    npz = os.path.join(outdir, f"{asset.name}.npz")
+    return [npz] + ([os.path.join(outdir, f"{asset.name}.usd")] if asset.poses else [])
+
+
+def skipped(asset: Asset, outdir: str, manifest, force: bool) -> Result | None:
+    """The asset's result when its outputs are newer than its inputs (and not ``force``), else None."""
+    outputs = outputs_of(asset, outdir)
+    if force or not _up_to_date(asset, outputs, os.fspath(manifest)):
+        return None
+    return Result(asset.name, "skipped", resolution=asset.resolution, outputs=outputs)
+
+
+def bind_one(asset: Asset, outdir: str, device, progress=None, k: int = 0, total: int = 1) -> Result:
+    """Check, bind and (with poses) animate one asset; its outputs go to temporary names and are renamed together
+    when complete, so it is written whole or not at all. A failure is its Result, not an exception; what the bind
+    warned of is in ``Result.warnings``."""
+    import socket
+
+    outputs = outputs_of(asset, outdir)
+    result = Result(asset.name, "ok", resolution=asset.resolution, outputs=outputs, host=socket.gethostname(),
+                    pid=os.getpid())
+    start = time.perf_counter()
+    pending = {path: os.path.join(outdir, f".tmp-{os.path.basename(path)}") for path in outputs}
+    caught = []
+    try:
+        if progress:
+            _progress(progress, k, total, asset.name, "checking the cage")
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            _bind_asset(asset, pending, device, progress, k, total, result)
+        for path, tmp in pending.items():
+            os.replace(tmp, path)
+    except Exception as exc:  # keep going: one asset's failure is reported, not raised
+        result.status = "failed"
+        known = isinstance(exc, (ValueError, OSError))
+        result.error = str(exc) if known else f"{type(exc).__name__}: {exc}"
+        if not known and progress:
+            traceback.print_exc(file=progress)
+    finally:
+        for tmp in pending.values():
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+    result.warnings = list(dict.fromkeys(str(w.message) for w in caught))
+    result.seconds = time.perf_counter() - start
+    return result
+
+
 def _run_assets(assets, outdir, manifest, force, device, progress) -> list[Result]:
     results = []
     for k, asset in enumerate(assets):
-        npz = os.path.join(outdir, f"{asset.name}.npz")
-        usd = os.path.join(outdir, f"{asset.name}.usd")
-        outputs = [npz] + ([usd] if asset.poses else [])
-        result = Result(asset.name, "ok", resolution=asset.resolution, outputs=outputs)
-        start = time.perf_counter()
-        # the outputs under temporary names until the asset is complete, then renamed together
-        pending = {path: os.path.join(outdir, f".tmp-{os.path.basename(path)}") for path in outputs}
-        caught = []
-        try:
-            if not force and _up_to_date(asset, outputs, os.fspath(manifest)):
-                result.status = "skipped"
-                if progress:
-                    _progress(progress, k + 1, len(assets), asset.name, "up to date, skipped")
-                results.append(result)
-                continue
-            if progress:
-                _progress(progress, k, len(assets), asset.name, "checking the cage")
-            with warnings.catch_warnings(record=True) as caught:
-                warnings.simplefilter("always")
-                _bind_asset(asset, pending, device, progress, k, len(assets), result)
-            for path, tmp in pending.items():
-                os.replace(tmp, path)
-        except Exception as exc:  # keep going: one asset's failure is reported, not raised
-            result.status = "failed"
-            known = isinstance(exc, (ValueError, OSError))
-            result.error = str(exc) if known else f"{type(exc).__name__}: {exc}"
-            if not known and progress:
-                traceback.print_exc(file=progress)
-        finally:
-            for tmp in pending.values():  # an asset is written whole or not at all
-                with contextlib.suppress(OSError):
-                    os.unlink(tmp)
-        # what the bind warned of, in the summary and (once the command has run) on stderr
-        result.warnings = list(dict.fromkeys(str(w.message) for w in caught))
-        for message in result.warnings:
-            warnings.warn(message, stacklevel=2)
-        result.seconds = time.perf_counter() - start
+        result = skipped(asset, outdir, manifest, force)
+        if result is None:
+            result = bind_one(asset, outdir, device, progress, k, len(assets))
+            # what the bind warned of, in the summary and (once the command has run) on stderr
+            for message in result.warnings:
+                warnings.warn(message, stacklevel=2)
         if progress:
-            _progress(progress, k + 1, len(assets), asset.name, result.status)
+            _progress(progress, k + 1, len(assets), asset.name,
+                      "up to date, skipped" if result.status == "skipped" else result.status)
         results.append(result)
     return results
 
@@ -168,6 +204,7 @@ def _bind_asset(asset, pending: dict, device, progress, k: int, total: int, resu
                    boundary=asset.boundary, sampling=asset.sampling, cage_prim=asset.cage_prim,
                    mesh_prims=asset.mesh_prims, rest_time=asset.rest_time)
     result.vertices, result.handles = binding.n_vertices, binding.n_handles
+    result.device = binding.stats["device"]
     if not binding.stats["converged"]:
         raise WarpStokesError(
             f"the solver did not converge (residual {binding.stats['residual']:.2g}, identity error "

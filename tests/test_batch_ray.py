@@ -1,0 +1,99 @@
+"""Batches on Ray (the optional extra): a local cluster, a simulated multi-node cluster, a worker killed mid-asset,
+and the one-line error without Ray. Few and small: each starts Ray (a few seconds on 2 cores)."""
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import warp_stokes as ws
+from conftest import EXAMPLE, write_obj
+
+ray = pytest.importorskip("ray")
+
+
+def manifest(folder, names=("arm_a", "arm_b"), broken=True):
+    """Arm assets at n = 16 (the second with poses) and, with ``broken``, one whose cage is open."""
+    cage = ws.load_surface(EXAMPLE / "arm_cage.obj")
+    np.save(folder / "grow.npy", np.stack([cage.vertices * (1 + 0.05 * k) for k in range(3)]))
+    write_obj(folder / "open_cage.obj", cage.vertices, cage.faces[1:])
+    arm, arm_cage = EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj"
+    text = "[defaults]\nresolution = 16\n"
+    for k, name in enumerate(names):
+        text += f'\n[[asset]]\nname = "{name}"\nmesh = "{arm}"\ncage = "{arm_cage}"\n'
+        text += f'poses = "{folder / "grow.npy"}"\n' if k == 1 else ""
+    if broken:
+        text += f'\n[[asset]]\nname = "broken"\nmesh = "{arm}"\ncage = "{folder / "open_cage.obj"}"\n'
+    path = folder / "batch.toml"
+    path.write_text(text)
+    return path
+
+
+def batch(*args, env=None):
+    return subprocess.run([sys.executable, "-m", "warp_stokes.cli", "batch", *map(str, args)], capture_output=True,
+                          text=True, env={**os.environ, **(env or {})}, timeout=600)
+
+
+def summary(folder):
+    return {a["name"]: a for a in json.loads((folder / "summary.json").read_text())["assets"]}
+
+
+def test_workers_give_the_serial_batch_s_files_and_weights(tmp_path):
+    path = manifest(tmp_path)
+    serial = batch(path, "-o", tmp_path / "serial", "--device", "cpu")
+    parallel = batch(path, "-o", tmp_path / "ray", "--device", "cpu", "--workers", "2")
+    assert serial.returncode == parallel.returncode == 1, parallel.stderr  # the broken asset fails in both
+    assert sorted(os.listdir(tmp_path / "ray")) == sorted(os.listdir(tmp_path / "serial"))
+    for name in ("arm_a", "arm_b"):
+        a = ws.load_binding(tmp_path / "serial" / f"{name}.npz", device="cpu")
+        b = ws.load_binding(tmp_path / "ray" / f"{name}.npz", device="cpu")
+        np.testing.assert_allclose(b.weights, a.weights, atol=1e-6)
+    got, expected = summary(tmp_path / "ray"), summary(tmp_path / "serial")
+    assert {k: v["status"] for k, v in got.items()} == {k: v["status"] for k, v in expected.items()}
+    assert "not closed" in got["broken"]["error"]
+    for name in ("arm_a", "arm_b"):
+        assert got[name]["host"] and got[name]["device"] == "cpu" and got[name]["pid"] not in (None, os.getpid())
+    assert "done, " in parallel.stderr and "running" in parallel.stderr and "arm_b: ok" in parallel.stderr
+
+
+def test_a_worker_killed_mid_asset_is_retried_and_the_batch_completes(tmp_path):
+    path = manifest(tmp_path, names=("arm_a",), broken=False)
+    marker = tmp_path / "kill-once"
+    marker.write_text("")
+    result = batch(path, "-o", tmp_path / "out", "--device", "cpu", "--workers", "1",
+                   env={"WARP_STOKES_KILL_WORKER_ONCE": str(marker)})
+    assert result.returncode == 0, result.stderr
+    assert not marker.exists()  # a worker found it and killed itself; Ray ran the task again
+    assert summary(tmp_path / "out")["arm_a"]["status"] == "ok"
+    assert sorted(os.listdir(tmp_path / "out")) == ["arm_a.npz", "summary.json"]  # nothing half-written left
+
+
+def test_a_multi_node_cluster(tmp_path):
+    from ray.cluster_utils import Cluster
+
+    path = manifest(tmp_path, names=("arm_a", "arm_b"), broken=False)
+    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1})
+    try:
+        cluster.add_node(num_cpus=1)
+        cluster.wait_for_nodes()
+        results = ws.run_batch(path, tmp_path / "out", device="cpu", ray_address=cluster.address, progress=False)
+    finally:
+        ray.shutdown()
+        cluster.shutdown()
+    assert [r.status for r in results] == ["ok", "ok"]
+    assert all(r.pid not in (None, os.getpid()) for r in results)
+    assert (tmp_path / "out" / "arm_b.usd").exists()
+
+
+def test_without_ray_workers_is_one_line_and_exit_2(tmp_path):
+    fake = tmp_path / "fake"
+    (fake / "ray").mkdir(parents=True)
+    (fake / "ray" / "__init__.py").write_text("raise ImportError('no ray here')\n")
+    path = manifest(tmp_path, names=("arm_a",), broken=False)
+    result = batch(path, "-o", tmp_path / "out", "--workers", "2", env={"PYTHONPATH": str(fake)})
+    assert result.returncode == 2
+    assert result.stderr.count("\n") == 1 and 'pip install "warp-stokes[ray]"' in result.stderr
+    assert not (tmp_path / "out").exists()
