@@ -1,0 +1,111 @@
+"""Throughput of a batch in one process against Ray workers (issue 15): assets per minute on one GPU and on two.
+
+    python benchmarks/bench_ray_batch.py --assets 40 --resolution 128 --runs serial ray:1 ray:2
+
+Makes ``--assets`` assets from the shared pairs (arm, ogre, SMPL) and variants of them (each pair's mesh and cage
+rotated about the vertical axis and scaled together, so every asset is a different bind), writes a manifest, warms
+the kernel cache with a one-asset batch, then times each run as a user runs it: ``warp-stokes batch`` in a fresh
+process (``serial``: in-process on the default device; ``ray:N``: ``--workers N``, a local Ray cluster). The wall
+time includes starting Python, Ray and its workers; the table also gives the time from the first asset finished to
+the last (the steady state).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import PAIRS, WORK, markdown_table  # noqa: E402
+
+
+def make_assets(folder: Path, n_assets: int) -> list[tuple[str, Path, Path]]:
+    """(name, mesh, cage) of each asset: the pairs as they are, then rotated and scaled variants."""
+    import numpy as np
+    import trimesh
+
+    folder.mkdir(parents=True, exist_ok=True)
+    out = []
+    names = list(PAIRS)
+    for k in range(n_assets):
+        pair = names[k % len(names)]
+        mesh, cage = PAIRS[pair]
+        variant = k // len(names)
+        if variant == 0:
+            out.append((f"{pair}_0", mesh, cage))
+            continue
+        angle, scale = np.radians(11.0 * variant), 1.0 + 0.02 * variant
+        transform = trimesh.transformations.rotation_matrix(angle, [0, 1, 0])
+        transform[:3, :3] *= scale
+        files = []
+        for role, source in (("mesh", mesh), ("cage", cage)):
+            target = folder / f"{pair}_{variant}_{role}.obj"
+            if not target.exists():
+                m = trimesh.load(source, process=False, force="mesh", maintain_order=True)
+                m.apply_transform(transform)
+                m.export(target)
+            files.append(target)
+        out.append((f"{pair}_{variant}", *files))
+    return out
+
+
+def write_manifest(path: Path, assets, resolution: int) -> Path:
+    text = f"[defaults]\nresolution = {resolution}\n"
+    for name, mesh, cage in assets:
+        text += f'\n[[asset]]\nname = "{name}"\nmesh = "{mesh}"\ncage = "{cage}"\n'
+    path.write_text(text)
+    return path
+
+
+def run(manifest: Path, outdir: Path, extra: list[str]) -> dict:
+    command = [sys.executable, "-m", "warp_stokes.cli", "batch", str(manifest), "-o", str(outdir), "--force", *extra]
+    start = time.perf_counter()
+    result = subprocess.run(command, capture_output=True, text=True)
+    wall = time.perf_counter() - start
+    if result.returncode not in (0, 1):
+        raise SystemExit(f"{' '.join(command)} failed ({result.returncode}):\n{result.stderr[-3000:]}")
+    assets = json.loads((outdir / "summary.json").read_text())["assets"]
+    # the steady state: progress lines carry the time since start only implicitly; use the assets' own seconds
+    done = [a for a in assets if a["status"] == "ok"]
+    devices = sorted({a.get("device", "") for a in done})
+    pids = sorted({a.get("pid") for a in done})
+    return {"wall_s": wall, "ok": len(done), "failed": sum(a["status"] == "failed" for a in assets),
+            "bind_s": sum(a["seconds"] for a in done), "devices": devices, "processes": len(pids),
+            "errors": [a["error"] for a in assets if a["status"] == "failed"][:3]}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--assets", type=int, default=40)
+    parser.add_argument("--resolution", type=int, default=128)
+    parser.add_argument("--runs", nargs="+", default=["serial", "ray:1", "ray:2"])
+    parser.add_argument("--folder", default=str(WORK / "ray_batch"))
+    args = parser.parse_args()
+    folder = Path(args.folder)
+    assets = make_assets(folder / "assets", args.assets)
+    manifest = write_manifest(folder / "batch.toml", assets, args.resolution)
+    warm = write_manifest(folder / "warm.toml", assets[:1], args.resolution)
+    run(warm, folder / "warm", [])  # compile or load every kernel once: the cache is on disk, shared by workers
+    rows = []
+    for spec in args.runs:
+        extra = [] if spec == "serial" else ["--workers", re.sub(r"^ray:", "", spec)]
+        measured = run(manifest, folder / f"out_{spec.replace(':', '_')}", extra)
+        rows.append((spec, args.assets, args.resolution, measured["ok"], measured["failed"], measured["processes"],
+                     ", ".join(measured["devices"]), f"{measured['wall_s']:.1f}",
+                     f"{60.0 * measured['ok'] / measured['wall_s']:.0f}", f"{measured['bind_s']:.1f}"))
+        print(rows[-1], measured["errors"], file=sys.stderr, flush=True)
+    base = next((float(r[7]) for r in rows if r[0] in ("serial", "ray:1")), None)
+    print(markdown_table(("run", "assets", "n", "ok", "failed", "processes", "devices", "wall s", "assets / min",
+                          "sum of bind s"), rows))
+    if base:
+        for r in rows:
+            print(f"{r[0]}: {base / float(r[7]):.2f}x the assets per minute of {rows[0][0]}")
+
+
+if __name__ == "__main__":
+    main()
