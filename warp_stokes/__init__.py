@@ -7,8 +7,6 @@
 
 import os as _os
 
-import warp as wp
-
 # Installed, the kernels are the subpackage warp_stokes.kernels. In a source checkout they sit in the top-level
 # kernels/ folder beside this package: let `python -m pytest` or scripts run from the checkout find them there.
 _here = _os.path.dirname(_os.path.abspath(__file__))
@@ -17,25 +15,24 @@ if not _os.path.isdir(_os.path.join(_here, "kernels")) and _os.path.isfile(
 ):
     __path__.append(_os.path.dirname(_here))  # noqa: F821 (the package's own __path__)
 
-# Warp prints a banner on initialisation; a library should stay quiet unless asked.
-wp.config.log_level = wp.LOG_WARNING
-
 __version__ = "0.1.0"
 
-from .errors import BindingError, CageError, MeshError, ResolutionError, WarpStokesError  # noqa: E402
-from .device import resolve_device, device_name  # noqa: E402
-from .io import Surface, load_surface, Poses, load_poses, write_animation  # noqa: E402
-from .geometry import (  # noqa: E402
-    Cage, check_cage, signed_volume, Grid, voxelize, grid_from_mask, classify_points, LocalData, COMPLEMENT_COLUMNS,
-    mean_value_coordinates, boundary_field,
-)
-from .solver import (  # noqa: E402
-    Multigrid, coarsen, MemoryEstimate, estimate_memory, available_memory, plan_chunks, SolveReport,
-    solve_biharmonic, apply_operator,
-)
-from .binding import Binding, bind, load_binding, sample_weights, deform_vertices  # noqa: E402
-from .quality import deformation_quality, mean_value_quality  # noqa: E402
-from .batch import read_manifest, run_batch  # noqa: E402
+# The public names, imported on first use (PEP 562): `warp-stokes --help` and `--version` start without importing
+# Warp, numpy or trimesh; `import warp_stokes as ws; ws.bind(...)` works as if they were imported here.
+_PUBLIC = {
+    ".errors": ["WarpStokesError", "MeshError", "CageError", "BindingError", "ResolutionError"],
+    ".device": ["resolve_device", "device_name"],
+    ".io": ["Surface", "load_surface", "Poses", "load_poses", "write_animation"],
+    ".geometry": ["Cage", "check_cage", "signed_volume", "Grid", "voxelize", "grid_from_mask", "classify_points",
+                  "LocalData", "COMPLEMENT_COLUMNS", "mean_value_coordinates", "boundary_field"],
+    ".solver": ["Multigrid", "coarsen", "MemoryEstimate", "estimate_memory", "available_memory", "plan_chunks",
+                "SolveReport", "solve_biharmonic", "apply_operator"],
+    ".binding": ["Binding", "bind", "load_binding", "sample_weights", "deform_vertices"],
+    ".quality": ["deformation_quality", "mean_value_quality"],
+    ".batch": ["read_manifest", "run_batch"],
+}
+_HOME = {name: module for module, names in _PUBLIC.items() for name in names}
+_SUBPACKAGES = {"errors", "device", "io", "geometry", "solver", "binding", "quality", "batch", "cli", "kernels"}
 
 __all__ = [
     "bind", "load_binding", "Binding",
@@ -49,3 +46,19 @@ __all__ = [
     "Poses", "load_poses", "write_animation", "read_manifest", "run_batch",
     "WarpStokesError", "MeshError", "CageError", "BindingError", "ResolutionError",
 ]
+
+
+def __getattr__(name: str):
+    import importlib
+
+    if name in _HOME:
+        value = getattr(importlib.import_module(_HOME[name], __name__), name)
+        globals()[name] = value  # once: later lookups do not come here
+        return value
+    if name in _SUBPACKAGES:
+        return importlib.import_module(f".{name}", __name__)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_HOME) | _SUBPACKAGES)

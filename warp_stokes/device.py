@@ -10,6 +10,9 @@ import warp as wp
 
 from .errors import WarpStokesError
 
+# Warp prints a banner on initialisation; a library should stay quiet unless asked.
+wp.config.log_level = wp.LOG_WARNING
+
 __all__ = ["resolve_device", "init_warp", "device_name", "available_memory", "reduction_threads"]
 
 
