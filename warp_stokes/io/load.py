@@ -151,6 +151,14 @@ def with_vertex_uvs(surface: Surface, mesh) -> Surface:
                    (np.asarray(uv, dtype=np.float64)[:, :2].copy(), indices.copy()))
 
 
+def _is_trimesh(source) -> bool:
+    """Whether ``source`` is a trimesh.Trimesh, without importing trimesh (it can only be one if trimesh is loaded)."""
+    import sys
+
+    trimesh = sys.modules.get("trimesh")
+    return trimesh is not None and isinstance(source, trimesh.Trimesh)
+
+
 def load_surface(source, name: str | None = None) -> Surface:
     """Load a triangle surface (polygons are fan-triangulated) from a path, a trimesh object or arrays.
 
@@ -179,8 +187,6 @@ def load_surface(source, name: str | None = None) -> Surface:
     >>> s.vertices.shape, s.faces.tolist()
     ((3, 3), [[0, 1, 2]])
     """
-    import trimesh
-
     if isinstance(source, Surface):
         return source
     if isinstance(source, (str, os.PathLike)):
@@ -197,6 +203,8 @@ def load_surface(source, name: str | None = None) -> Surface:
             surface = _from_arrays(verts, polys, name)
             return Surface(surface.vertices, surface.faces, surface.name, normals, surface.face_counts,
                            surface.face_indices, uvs)
+        import trimesh  # here only: importing it takes half a second, and OBJ files do not need it
+
         try:
             loaded = trimesh.load(path, force="mesh", process=False, maintain_order=True)
         except Exception as exc:  # trimesh raises many different types for unreadable files
@@ -204,7 +212,7 @@ def load_surface(source, name: str | None = None) -> Surface:
         if not isinstance(loaded, trimesh.Trimesh) or len(loaded.vertices) == 0:
             raise MeshError(f"{path}: the file has no mesh vertices")
         return with_vertex_uvs(_from_arrays(loaded.vertices, loaded.faces, name), loaded)
-    if isinstance(source, trimesh.Trimesh):
+    if _is_trimesh(source):
         return with_vertex_uvs(_from_arrays(source.vertices, source.faces, name or "<trimesh.Trimesh>"), source)
     if isinstance(source, (tuple, list)) and len(source) == 2:
         return _from_arrays(source[0], source[1], name or "<arrays>")
