@@ -75,3 +75,29 @@ def test_console_script_is_installed(tmp_path):
                            str(tmp_path / "x.npz")], capture_output=True, text=True)
     assert proc.returncode == 2
     assert "nope.obj: no such file" in proc.stderr
+
+
+def test_a_first_run_says_it_compiles_the_kernels(tmp_path, monkeypatch, capsys):
+    import warp as wp
+
+    import warp_stokes.device as device
+
+    assert device.kernels_compiled("cpu")  # the suite has run kernels on the CPU by now
+    empty = tmp_path / "cache"
+    empty.mkdir()
+    monkeypatch.setattr(wp.config, "kernel_cache_dir", str(empty))
+    assert not device.kernels_compiled("cpu")  # nothing compiled in this cache
+    for module in device.KERNEL_MODULES:  # a cache with every module's CPU object file
+        (empty / f"wp_warp_stokes.kernels.{module}_abc1234").mkdir()
+        (empty / f"wp_warp_stokes.kernels.{module}_abc1234" / f"wp_warp_stokes.kernels.{module}.cpu1.o").write_text("")
+    assert device.kernels_compiled("cpu")
+
+
+def test_the_command_says_so_before_it_compiles(tmp_path, monkeypatch, capsys):
+    import warp_stokes.device as device
+
+    monkeypatch.setattr(device, "kernels_compiled", lambda d=None: False)  # as on a fresh machine
+    rc = main(["bind", str(EXAMPLE / "arm.obj"), str(EXAMPLE / "arm_cage.obj"), "-o", str(tmp_path / "a.npz"),
+               "--resolution", "8", "--device", "cpu"])
+    err = capsys.readouterr().err
+    assert rc == 0 and "compiling the kernels for cpu (first run on this machine" in err

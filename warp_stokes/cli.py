@@ -88,10 +88,21 @@ def _check_output(path: str, inputs=(), folder: bool = False) -> None:
             raise WarpStokesError(f"{path}: the output is the input {source}; choose another output name")
 
 
+def _announce_compilation(device) -> None:
+    """One line before a first run's kernel compilation (20-40 s), so that a silent wait is not taken for a hang."""
+    from warp_stokes.device import kernels_compiled, resolve_device
+
+    resolved = resolve_device(device)
+    if not kernels_compiled(resolved):
+        print(f"warp-stokes: compiling the kernels for {resolved.alias} (first run on this machine, 20-40 s; "
+              "later runs load them from Warp's cache)", file=sys.stderr, flush=True)
+
+
 def _bind(args) -> int:
     import warp_stokes as ws
 
     _check_output(args.output, (args.mesh, args.cage))
+    _announce_compilation(args.device)
     budget = None if args.memory_gb is None else args.memory_gb * 2**30
     binding = ws.bind(args.mesh, args.cage, resolution=args.resolution, device=args.device, tol=args.tol,
                       max_iterations=args.max_iterations, solver=args.solver, memory_budget=budget,
@@ -172,6 +183,8 @@ def _batch(args) -> int:
     from warp_stokes.batch import format_summary, run_batch
 
     _check_output(args.output, (args.manifest,), folder=True)
+    if args.workers is None and args.ray_address is None:  # Ray workers compile in their own processes
+        _announce_compilation(args.device)
     results = run_batch(args.manifest, args.output, force=args.force, device=args.device, workers=args.workers,
                         ray_address=args.ray_address)
     print(format_summary(results))

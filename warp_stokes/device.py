@@ -114,3 +114,33 @@ def cuda_device_count() -> int:
     """CUDA devices this process can see (0 without a driver): a batch on Ray starts one worker per GPU."""
     init_warp()
     return int(wp.get_cuda_device_count()) if wp.is_cuda_available() else 0
+
+
+#: the package's kernel modules (warp_stokes.kernels.*): what a first run on a machine compiles
+KERNEL_MODULES = ("cg", "checks", "deform", "intersect", "labels", "local_boundary", "multigrid", "mvc", "sample",
+                  "stencil", "voxel")
+
+
+def kernels_compiled(device=None) -> bool:
+    """Whether Warp's kernel cache on this machine holds the package's kernels for the device's kind (CPU object
+    files, or CUDA binaries). A first run compiles them, 20-40 s; commands say so before they start.
+
+    Examples
+    --------
+    >>> isinstance(kernels_compiled("cpu"), bool)
+    True
+    """
+    d = resolve_device(device)
+    cache = wp.config.kernel_cache_dir
+    if not cache or not os.path.isdir(cache):
+        return False
+    suffixes = (".o",) if d.is_cpu else (".cubin", ".ptx")
+    entries = os.listdir(cache)
+    for module in KERNEL_MODULES:
+        if module == "labels":  # constants only: nothing to compile
+            continue
+        prefix = f"wp_warp_stokes.kernels.{module}_"
+        folders = [os.path.join(cache, e) for e in entries if e.startswith(prefix)]
+        if not any(f.endswith(suffixes) for folder in folders if os.path.isdir(folder) for f in os.listdir(folder)):
+            return False
+    return True
