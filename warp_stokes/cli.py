@@ -1,4 +1,4 @@
-"""Command line: ``warp-stokes bind | deform | animate | batch``."""
+"""Command line: ``warp-stokes bind | deform | animate | encode | batch``."""
 
 from __future__ import annotations
 
@@ -179,6 +179,34 @@ def _animate(args) -> int:
     return 0
 
 
+def _encode(args) -> int:
+    import numpy as np
+
+    import warp_stokes as ws
+    from warp_stokes.binding.encode import encode_poses
+    from warp_stokes.io.files import atomic_output
+    from warp_stokes.io.frames import load_mesh_frames
+    from warp_stokes.io.usd import write_cage_poses
+
+    ext = os.path.splitext(args.output)[1].lower()
+    if ext not in (".npy", ".usd", ".usda", ".usdc"):
+        raise ws.WarpStokesError(f"{args.output}: the poses are written as .npy or USD (.usd, .usda, .usdc)")
+    _check_output(args.output, (args.binding, args.frames))
+    binding = ws.load_binding(args.binding, device="cpu")
+    prims = args.mesh_prim or ([p["path"] for p in binding.parts] if binding.asset else None)
+    frames = load_mesh_frames(args.frames, binding.mesh_faces, binding.n_vertices, prims=prims)
+    poses, rms = encode_poses(binding, frames, smoothness=args.smooth)
+    if ext == ".npy":
+        with atomic_output(args.output, ext) as tmp, open(tmp, "wb") as fh:
+            np.save(fh, poses.positions)
+    else:
+        write_cage_poses(args.output, binding.cage_vertices, binding.cage_faces, poses)
+    worst = int(np.argmax(rms))
+    print(f"wrote {args.output}: {len(rms)} cage poses; RMS error over the cage's diagonal: mean {rms.mean():.2e}, "
+          f"max {rms[worst]:.2e} (frame {poses.frames[worst]:g})")
+    return 0
+
+
 def _batch(args) -> int:
     from warp_stokes.batch import format_summary, run_batch
 
@@ -212,7 +240,7 @@ def _parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="warp-stokes", description="Stokes cage coordinates with NVIDIA Warp.")
     parser.add_argument("--version", action="version", version=f"warp-stokes {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
-    for add in (_add_bind, _add_deform, _add_animate, _add_batch):
+    for add in (_add_bind, _add_deform, _add_animate, _add_encode, _add_batch):
         add(sub)
     return parser
 
@@ -273,6 +301,20 @@ def _add_animate(sub) -> None:
                    help="stage metersPerUnit (1.0; over an asset, the asset's)")
     p.add_argument("--device", default=None, help="cpu, cuda or cuda:N")
     p.set_defaults(run=_animate)
+
+
+def _add_encode(sub) -> None:
+    p = sub.add_parser("encode", help="the cage poses that best reproduce a sequence of meshes (least squares)")
+    p.add_argument("binding", help="binding file written by 'warp-stokes bind'")
+    p.add_argument("frames", help="meshes with the bound mesh's topology: a folder of OBJ frames, a .npy/.npz array "
+                                  "(F, V, 3) or a USD file (time samples)")
+    p.add_argument("-o", "--output", required=True, help="poses to write: .npy (F, L, 3) or USD (an animated cage)")
+    p.add_argument("--smooth", type=_number(float, 0.0), default=0.0,
+                   help="weight of each handle's squared change between consecutive frames (0)")
+    p.add_argument("--mesh-prim", action="append", default=None, metavar="PATH",
+                   help="for USD frames: the mesh prim(s) to read (default: the binding's parts, else the first "
+                        "mesh with the bound mesh's point count)")
+    p.set_defaults(run=_encode)
 
 
 def _add_batch(sub) -> None:

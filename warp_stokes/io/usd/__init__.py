@@ -5,6 +5,7 @@ pxr (usd-core) is imported by the functions that use it, not here: loading the p
 """
 
 from .common import FRAMES_PER_CHUNK
+from .standalone import write_cage_poses
 from .write import write_animation
 
-__all__ = ["write_animation", "FRAMES_PER_CHUNK"]
+__all__ = ["write_animation", "write_cage_poses", "FRAMES_PER_CHUNK"]

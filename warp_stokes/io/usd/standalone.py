@@ -12,7 +12,7 @@ from ..files import atomic_output
 from ..normals import NormalsPlan
 from .common import define_mesh, deformed_frames, extent, new_stage, save_layer, set_timing, vec3f
 
-__all__ = ["write_standalone"]
+__all__ = ["write_standalone", "write_cage_poses"]
 
 
 def _prim_name(path: str, taken: set) -> str:
@@ -103,3 +103,43 @@ def _define_parts(stage, binding, with_normals: bool, with_weights: bool) -> lis
             primvar.Set(Vt.FloatArray.FromNumpy(binding.weights[rows].ravel()))
         writers.append((rows, mesh.GetPointsAttr(), mesh.GetExtentAttr(), mesh.GetNormalsAttr(), plan))
     return writers
+
+
+def write_cage_poses(path, cage_vertices, cage_faces, poses, fps: float | None = None) -> str:
+    """Write cage poses as a stage with the animated cage ``/Root/Cage``: its points per time code (the poses'
+    frame numbers). ``animate`` and :func:`warp_stokes.load_poses` read it back.
+
+    Parameters
+    ----------
+    path : ``.usd``, ``.usdc`` or ``.usda``
+    cage_vertices, cage_faces : the bound cage (its rest points are the default value)
+    poses : Poses (F, L, 3)
+    fps : float, optional, time codes per second (default: the poses' own, else 24)
+
+    Returns
+    -------
+    str, the path written
+    """
+    import os
+
+    from pxr import Usd, UsdGeom
+
+    path = os.fspath(path)
+    ext = os.path.splitext(path)[1].lower()
+    if ext not in (".usd", ".usdc", ".usda"):
+        raise WarpStokesError(f"{path}: the output must end in .usd, .usdc or .usda")
+    frames = np.asarray(poses.frames, dtype=np.float64)
+    with atomic_output(path, ext) as tmp:
+        layer, stage = new_stage(tmp, ext)
+        set_timing(stage, frames, fps or poses.time_codes_per_second or 24.0)
+        root = UsdGeom.Xform.Define(stage, "/Root")
+        stage.SetDefaultPrim(root.GetPrim())
+        cage = define_mesh(stage, "/Root/Cage", np.full(len(cage_faces), 3), np.asarray(cage_faces).ravel(),
+                           np.asarray(cage_vertices, dtype=np.float64))
+        UsdGeom.Imageable(cage).CreatePurposeAttr(UsdGeom.Tokens.guide)
+        for t, pose in zip(frames, np.asarray(poses.positions, dtype=np.float64)):
+            cage.GetPointsAttr().Set(vec3f(pose), Usd.TimeCode(float(t)))
+            cage.GetExtentAttr().Set(extent(pose), Usd.TimeCode(float(t)))
+        save_layer(layer, path)
+        del stage, layer
+    return path

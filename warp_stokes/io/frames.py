@@ -1,0 +1,150 @@
+"""Sequences of meshes in: captured or simulated frames with the bound mesh's topology, to encode as cage poses."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from ..errors import BindingError
+from .load import load_surface
+from .poses import Poses, natural_key, same_triangles
+
+__all__ = ["load_mesh_frames"]
+
+
+def _frame_number(name: str, default: int) -> float:
+    import re
+
+    digits = re.findall(r"\d+", os.path.splitext(name)[0])
+    return float(digits[-1]) if digits else float(default)
+
+
+def _from_folder(path: str, faces: np.ndarray, n_vertices: int) -> Poses:
+    names = sorted((f for f in os.listdir(path) if f.lower().endswith(".obj")), key=natural_key)
+    if not names:
+        raise BindingError(f"{path}: the folder has no .obj frames")
+    positions, numbers = [], []
+    for k, name in enumerate(names):
+        frame = os.path.join(path, name)
+        try:
+            surface = load_surface(frame)
+        except ValueError as exc:  # already names the frame's file
+            raise BindingError(str(exc)) from None
+        if len(surface.vertices) != n_vertices:
+            raise BindingError(f"{frame}: the frame has {len(surface.vertices)} vertices, the bound mesh {n_vertices}")
+        if not same_triangles(surface.faces, faces):
+            raise BindingError(f"{frame}: the frame's faces differ from the bound mesh's (different topology)")
+        positions.append(surface.vertices)
+        numbers.append(_frame_number(name, k + 1))
+    numbers = np.asarray(numbers)
+    if len(np.unique(numbers)) != len(numbers):
+        numbers = np.arange(1, len(numbers) + 1, dtype=np.float64)
+    return Poses(np.stack(positions), numbers, path)
+
+
+def _from_array(path: str, n_vertices: int) -> Poses:
+    try:
+        data = np.load(path, allow_pickle=False)
+    except Exception as exc:
+        raise BindingError(f"{path}: cannot read it as a numpy array ({type(exc).__name__}: {exc})") from None
+    numbers = None
+    if isinstance(data, np.lib.npyio.NpzFile):
+        with data:
+            key = next((k for k in ("frames", "positions", "vertices") if k in data.files), None)
+            key = key or (data.files[0] if data.files else None)
+            if key is None:
+                raise BindingError(f"{path}: the archive is empty")
+            array = data[key]
+            if "times" in data.files:
+                numbers = np.asarray(data["times"], dtype=np.float64)
+    else:
+        array = data
+    array = np.asarray(array, dtype=np.float64)
+    if array.ndim == 2:
+        array = array[None]
+    if array.ndim != 3 or array.shape[1:] != (n_vertices, 3):
+        raise BindingError(f"{path}: frames must have shape (frames, {n_vertices}, 3) for this mesh, got {array.shape}")
+    if not np.isfinite(array).all():
+        raise BindingError(f"{path}: the frames contain NaN or infinite values")
+    if numbers is None or numbers.shape != (len(array),):
+        numbers = np.arange(1, len(array) + 1, dtype=np.float64)
+    return Poses(array, numbers, path)
+
+
+def _from_usd(path: str, n_vertices: int, prims) -> Poses:
+    from pxr import UsdGeom
+
+    from .usd.asset import mesh_prim, open_stage, to_world, world_matrix
+
+    stage = open_stage(path, BindingError)
+    if prims:
+        meshes = [mesh_prim(stage, p, path, BindingError) for p in prims]
+    else:  # the first mesh with the bound mesh's point count and time samples
+        meshes = []
+        for prim in stage.Traverse():
+            points = UsdGeom.Mesh(prim).GetPointsAttr() if prim.IsA(UsdGeom.Mesh) else None
+            if points is not None and points.GetNumTimeSamples() > 0:
+                value = points.Get(points.GetTimeSamples()[0])
+                if value is not None and len(value) == n_vertices:
+                    meshes = [UsdGeom.Mesh(prim)]
+                    break
+        if not meshes:
+            raise BindingError(f"{path}: no mesh with {n_vertices} time-sampled points (the bound mesh's count)")
+    times = meshes[0].GetPointsAttr().GetTimeSamples()
+    if not times:
+        raise BindingError(f"{path}: {meshes[0].GetPrim().GetPath()}'s points have no time samples")
+    positions = []
+    for t in times:
+        frame = [to_world(np.asarray(m.GetPointsAttr().Get(t)), world_matrix(m.GetPrim(), t)) for m in meshes]
+        frame = np.concatenate(frame)
+        if frame.shape != (n_vertices, 3):
+            raise BindingError(f"{path}: the frame at time {t:g} has {len(frame)} points, the bound mesh {n_vertices}")
+        positions.append(frame)
+    return Poses(np.stack(positions), np.asarray(times, dtype=np.float64), path,
+                 float(stage.GetTimeCodesPerSecond()))
+
+
+def load_mesh_frames(source, faces: np.ndarray, n_vertices: int, prims=None) -> Poses:
+    """A sequence of meshes with the bound mesh's topology, as positions (F, V, 3) at frame numbers.
+
+    Parameters
+    ----------
+    source : path | array (F, V, 3)
+        A folder of OBJ frames (sorted naturally, frame numbers from the last number in each name; each frame's
+        triangles must be the bound mesh's), a ``.npy`` array or ``.npz`` archive (``frames``, optional ``times``),
+        or a USD file: the time samples of ``prims`` (concatenated, world space), or of the first mesh with the
+        bound mesh's point count.
+    faces : (T, 3) the bound mesh's triangles
+    n_vertices : int
+    prims : list of str, optional, for USD
+
+    Returns
+    -------
+    Poses, whose positions are mesh vertices
+
+    Raises
+    ------
+    BindingError
+        Naming the file (or frame) and the problem.
+
+    Examples
+    --------
+    >>> frames = load_mesh_frames("capture/", binding.mesh_faces, binding.n_vertices)   # doctest: +SKIP
+    """
+    if isinstance(source, np.ndarray):
+        array = source[None] if source.ndim == 2 else source
+        if array.ndim != 3 or array.shape[1:] != (n_vertices, 3):
+            raise BindingError(f"frames must have shape (frames, {n_vertices}, 3), got {source.shape}")
+        return Poses(array.astype(np.float64), np.arange(1, len(array) + 1, dtype=np.float64), "<array>")
+    path = os.fspath(source)
+    if not os.path.exists(path):
+        raise BindingError(f"{path}: no such file or folder")
+    if os.path.isdir(path):
+        return _from_folder(path, np.asarray(faces), n_vertices)
+    ext = os.path.splitext(path)[1].lower()
+    if ext in (".npy", ".npz"):
+        return _from_array(path, n_vertices)
+    if ext in (".usd", ".usda", ".usdc", ".usdz"):
+        return _from_usd(path, n_vertices, prims)
+    raise BindingError(f"{path}: frames must be a folder of OBJ files, a .npy/.npz array or a USD file")
