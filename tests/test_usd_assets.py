@@ -318,3 +318,74 @@ def Mesh "Empty"
     (tmp_path / "text.usda").write_text("#usda 1.0\n( not usd\n")
     with pytest.raises(ws.MeshError, match="text.usda: cannot open it as a USD stage"):
         ws.bind(tmp_path / "text.usda", EXAMPLE / "arm_cage.obj", resolution=8, device="cpu")
+
+
+def test_what_a_review_found(asset, tmp_path):
+    """The output is never the asset itself; instanced meshes are named; a cage prim may live in another USD file;
+    a transform scaled to zero is one error."""
+    from pxr import Gf
+
+    path, binding, geometry, diagonal = asset
+    poses = ws.load_poses(path, binding.cage_faces, binding.n_handles, cage_prim=CAGE)
+    copy = tmp_path / "char.usda"
+    copy.write_text(open(path).read())
+    moved = ws.Binding(binding.weights, binding.cage_vertices, binding.cage_faces, binding.mesh_vertices,
+                       binding.mesh_faces, binding.settings, binding.stats, device="cpu", parts=binding.parts,
+                       asset={**binding.asset, "path": str(copy)})
+    before = copy.read_text()
+    with pytest.raises(ws.WarpStokesError, match="the output is the asset itself"):
+        ws.write_animation(copy, moved, poses)
+    assert copy.read_text() == before
+    # a cage in its own USD file, the meshes in the asset
+    cage_only = tmp_path / "cage.usda"
+    stage = Usd.Stage.CreateNew(str(cage_only))
+    rig = UsdGeom.Mesh.Define(stage, "/Rig")  # world-space points, no transforms
+    rig.CreateFaceVertexCountsAttr([3] * len(binding.cage_faces))
+    rig.CreateFaceVertexIndicesAttr(binding.cage_faces.astype(int).ravel().tolist())
+    for t, pose in zip(TIMES, geometry["poses"]):
+        rig.GetPointsAttr().Set([Gf.Vec3f(*map(float, p)) for p in pose], t)
+    stage.GetRootLayer().Save()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        separate = ws.bind(path, cage_only, cage_prim="/Rig", resolution=8, device="cpu")
+    assert [p["path"] for p in separate.parts] == [BODY, BAND, CAGE]  # the asset's own cage prim is a mesh there
+    with pytest.raises(ws.CageError, match="arm_cage.obj: a cage prim .* is named, but the cage is not a USD file"):
+        ws.bind(path, EXAMPLE / "arm_cage.obj", cage_prim="Cage", resolution=8, device="cpu")
+    # meshes inside an instance
+    instanced = tmp_path / "instanced.usda"
+    stage = Usd.Stage.CreateNew(str(instanced))
+    holder = UsdGeom.Xform.Define(stage, "/Holder")
+    holder.GetPrim().GetReferences().AddReference(str(path), "/Char")
+    holder.GetPrim().SetInstanceable(True)
+    stage.GetRootLayer().Save()
+    with pytest.raises(ws.MeshError, match="is inside an instance"):
+        ws.bind(instanced, cage_prim="/Holder/Rig/Cage", mesh_prims=["/Holder/Geo/Body"], resolution=8,
+                device="cpu")
+    # a parent scaled to zero at one frame
+    hidden = tmp_path / "hidden.usda"
+    hidden.write_text(open(path).read())
+    stage = Usd.Stage.Open(str(hidden))
+    op = UsdGeom.Xformable(stage.GetPrimAtPath("/Char/Geo")).AddScaleOp(opSuffix="hide")
+    op.Set(Gf.Vec3d(1, 1, 1), TIMES[0])
+    op.Set(Gf.Vec3d(0, 0, 0), TIMES[2])
+    stage.GetRootLayer().Save()
+    with pytest.raises(ws.WarpStokesError, match=r"/Char/Geo/Body: its local-to-world transform at time 104 is "
+                                                 r"singular"):
+        ws.write_animation(tmp_path / "h.usd", moved, poses, asset=hidden)
+    assert not (tmp_path / "h.usd").exists()
+
+
+def test_normals_keep_their_side_on_clockwise_faces(tmp_path):
+    cage = ws.load_surface(EXAMPLE / "arm_cage.obj")
+    diagonal = float(np.linalg.norm(np.ptp(cage.vertices, axis=0)))
+    points, quads, st, normals = box_quads(cage.vertices.mean(axis=0), 0.03 * diagonal)
+    _write_quad_obj(tmp_path / "cw.obj", points, quads[:, ::-1], st, normals)  # clockwise, normals still outward
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        binding = ws.bind(tmp_path / "cw.obj", EXAMPLE / "arm_cage.obj", resolution=RESOLUTION, device="cpu")
+    poses = ws.Poses(np.stack(cage_animation(cage.vertices)), np.array(TIMES), "generated")
+    stage = Usd.Stage.Open(ws.write_animation(tmp_path / "cw.usd", binding, poses))
+    mesh = UsdGeom.Mesh(stage.GetPrimAtPath("/Root/Mesh"))
+    assert mesh.GetOrientationAttr().Get() == UsdGeom.Tokens.leftHanded
+    first = np.asarray(mesh.GetNormalsAttr().Get(TIMES[0]))
+    assert np.all(np.sum(first * binding.mesh_normals, axis=1) > 0.5)  # the file's side, not flipped

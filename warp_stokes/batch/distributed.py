@@ -115,11 +115,13 @@ def run_on_ray(assets, outdir: str, manifest, force: bool, device, progress, wor
             k = pending.pop(finished[0])
             try:
                 result = ray.get(finished[0])
-            except Exception as exc:  # the worker died every time it was tried
+            except Exception as exc:  # the task could not run: its worker died every time, or it failed to start
                 reason = " ".join(str(exc).split())[:300]
+                died = isinstance(exc, (ray.exceptions.WorkerCrashedError, ray.exceptions.NodeDiedError))
+                what = f"its worker died ({TASK_RETRIES + 1} tries)" if died else "the Ray task failed"
                 result = Result(assets[k].name, "failed", resolution=assets[k].resolution,
                                 outputs=outputs_of(assets[k], outdir),
-                                error=f"its worker died ({TASK_RETRIES + 1} tries): {type(exc).__name__}: {reason}")
+                                error=f"{what}: {type(exc).__name__}: {reason}")
             results[k] = result
             done += 1
             failed += result.status == "failed"

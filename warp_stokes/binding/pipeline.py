@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import os
 import time
 import warnings
 
@@ -99,9 +100,13 @@ def bind(mesh, cage=None, resolution: int = 64, device=None, tol: float = 1e-6, 
     device = resolve_device(device)
     seconds = {}
     t = time.perf_counter()
+    cage_argument = cage
     cage = _cage_source(mesh, cage, cage_prim, rest_time)
-    scene = load_scene(mesh, mesh_prims=mesh_prims, cage_prim=cage_prim if cage_prim and is_usd(mesh) else None,
-                       rest_time=rest_time)
+    # the cage's prim is left out of the meshes (and sets the rest time) when it is a prim of the mesh's stage
+    in_stage = bool(cage_prim) and is_usd(mesh) and (
+        cage_argument is None or not isinstance(cage_argument, (str, os.PathLike))
+        or os.path.abspath(os.fspath(cage_argument)) == os.path.abspath(os.fspath(mesh)))
+    scene = load_scene(mesh, mesh_prims=mesh_prims, cage_prim=cage_prim if in_stage else None, rest_time=rest_time)
     surface = scene.surface()
     checked: Cage = check_cage(cage)
     points = surface.vertices
@@ -154,9 +159,9 @@ def bind(mesh, cage=None, resolution: int = 64, device=None, tol: float = 1e-6, 
 
 
 def _cage_source(mesh, cage, cage_prim, rest_time):
-    """What :func:`check_cage` reads: ``cage`` itself (a file, arrays, a checked Cage; ``cage_prim`` then only keeps
-    that prim out of the meshes), or the surface of the prim ``cage_prim`` in ``cage`` when that is a USD file, or
-    in the mesh's stage when no cage is given."""
+    """What :func:`check_cage` reads: ``cage`` itself (a file or arrays; or a checked Cage, when ``cage_prim`` only
+    keeps that prim out of the meshes), or the surface of the prim ``cage_prim`` in ``cage`` when that is a USD file,
+    or in the mesh's stage when no cage is given."""
     if cage_prim is not None and (cage is None or is_usd(cage)):
         from ..io.usd.asset import read_cage_prim
 
@@ -167,6 +172,8 @@ def _cage_source(mesh, cage, cage_prim, rest_time):
     if cage is None:
         raise CageError(f"{getattr(mesh, 'name', mesh)}: no cage: give a cage file, or the cage's prim in the USD "
                         "asset (cage_prim, --cage-prim)")
+    if cage_prim is not None and isinstance(cage, (str, os.PathLike)):
+        raise CageError(f"{cage}: a cage prim ({cage_prim}) is named, but the cage is not a USD file")
     if is_usd(cage):
         raise CageError(f"{cage}: a USD cage needs its prim path (cage_prim, --cage-prim)")
     return cage

@@ -96,7 +96,11 @@ def _from_usd(path: str, n_vertices: int, prims) -> Poses:
         raise BindingError(f"{path}: {meshes[0].GetPrim().GetPath()}'s points have no time samples")
     positions = []
     for t in times:
-        frame = [to_world(np.asarray(m.GetPointsAttr().Get(t)), world_matrix(m.GetPrim(), t)) for m in meshes]
+        values = [m.GetPointsAttr().Get(t) for m in meshes]
+        missing = [str(m.GetPrim().GetPath()) for m, v in zip(meshes, values) if v is None]
+        if missing:
+            raise BindingError(f"{path}: {missing[0]} has no points at time {t:g}")
+        frame = [to_world(np.asarray(v), world_matrix(m.GetPrim(), t)) for m, v in zip(meshes, values)]
         frame = np.concatenate(frame)
         if frame.shape != (n_vertices, 3):
             raise BindingError(f"{path}: the frame at time {t:g} has {len(frame)} points, the bound mesh {n_vertices}")

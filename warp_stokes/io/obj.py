@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import re
+import warnings
 
 import numpy as np
 
@@ -106,7 +107,12 @@ def read_obj(path: str) -> tuple[np.ndarray, np.ndarray | list, np.ndarray | Non
                 except ValueError:
                     raise MeshError(f"{path}: line {line_no}: unreadable face {ln.strip()!r}") from None
         raise
-    uvs = _obj_uvs(lines, tokens) if any(ln.startswith("vt ") for ln in lines) else None
+    uvs = None
+    if any(ln.startswith("vt ") for ln in lines):
+        uvs = _obj_uvs(lines, tokens)
+        if uvs is None:
+            warnings.warn(f"{path}: the texture coordinates (vt) are dropped: not every face corner names one, or "
+                          "one is out of range", stacklevel=3)
     if len(indices) and indices.min() > 0 and len(np.unique(counts)) == 1:
         return verts, indices.reshape(len(counts), counts[0]) - 1, normals, uvs  # the common case
     polys = np.split(indices, np.cumsum(counts)[:-1]) if len(indices) else []

@@ -80,7 +80,13 @@ class Scene:
         if all(s.normals is not None for s in surfaces):
             normals = np.concatenate([s.normals for s in surfaces])
         uvs = None
-        if all(s.uvs is not None for s in surfaces):
+        without = [p.path for p in self.parts if p.surface.uvs is None]
+        if without and len(without) < len(self.parts):
+            import warnings
+
+            warnings.warn(f"{self.name}: the UVs of its meshes are dropped: {len(without)} of {len(self.parts)} have "
+                          f"none (e.g. {without[0]})", stacklevel=2)
+        if not without:
             st_offsets = np.cumsum([0] + [len(s.uvs[0]) for s in surfaces])
             uvs = (np.concatenate([s.uvs[0] for s in surfaces]),
                    np.concatenate([s.uvs[1] + o for s, o in zip(surfaces, st_offsets)]))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import warnings
 
 import numpy as np
 
@@ -43,6 +44,7 @@ def mesh_prim(stage, prim_path: str, name: str, error=MeshError):
         raise error(f"{name}: no prim {prim_path} (mesh prims: {listed or 'none'})")
     if not prim.IsA(UsdGeom.Mesh):
         raise error(f"{name}: {prim_path} is a {prim.GetTypeName() or 'typeless prim'}, not a Mesh")
+
     return UsdGeom.Mesh(prim)
 
 
@@ -145,20 +147,34 @@ def read_asset(path: str, mesh_prims=None, exclude=(), rest_time=None, cage_prim
     MeshError
         Unreadable file, a named prim missing or not a mesh, no mesh prims to bind.
     """
-    from pxr import UsdGeom
+    from pxr import Sdf, Usd, UsdGeom
 
     stage = open_stage(path)
     cage = None
-    if cage_prim is not None and stage.GetPrimAtPath(cage_prim).IsA(UsdGeom.Mesh):
-        cage = UsdGeom.Mesh(stage.GetPrimAtPath(cage_prim))
+    if cage_prim is not None and Sdf.Path.IsValidPathString(cage_prim) and Sdf.Path(cage_prim).IsAbsolutePath():
+        found = stage.GetPrimAtPath(cage_prim)
+        cage = UsdGeom.Mesh(found) if found.IsValid() and found.IsA(UsdGeom.Mesh) else None
     time = rest_time_code(stage, rest_time, cage)
     if mesh_prims:
         meshes = [mesh_prim(stage, p, path) for p in dict.fromkeys(mesh_prims)]
+        for mesh in meshes:
+            if mesh.GetPrim().IsInstanceProxy():
+                raise MeshError(f"{path}: {mesh.GetPrim().GetPath()} is inside an instance (an instanceable prim above "
+                                "it): its points are shared by every instance and cannot be overridden on their own; "
+                                "make that prim not instanceable")
     else:
         skip = {str(p) for p in exclude}
         meshes = [UsdGeom.Mesh(p) for p in stage.Traverse() if p.IsA(UsdGeom.Mesh) and str(p.GetPath()) not in skip]
+        # meshes inside instances: their points are shared by every instance and cannot be overridden per instance
+        instanced = [str(p.GetPath()) for p in Usd.PrimRange(stage.GetPseudoRoot(), Usd.TraverseInstanceProxies())
+                     if p.IsInstanceProxy() and p.IsA(UsdGeom.Mesh)]
+        if instanced:
+            warnings.warn(f"{path}: {len(instanced)} mesh prim(s) inside instances are not bound (e.g. {instanced[0]}): "
+                          "an instance's points cannot be overridden on their own; make the prim not instanceable "
+                          "to bind it", stacklevel=3)
         if not meshes:
-            raise MeshError(f"{path}: the stage has no mesh prims to bind" + (" besides the cage" if skip else ""))
+            raise MeshError(f"{path}: the stage has no mesh prims to bind" + (" besides the cage" if skip else "")
+                            + (f" outside instances ({len(instanced)} inside)" if instanced else ""))
     parts = []
     for mesh in meshes:
         surface, matrix = _surface(mesh, time, path, MeshError)

@@ -36,7 +36,12 @@ class _Override:
     def write(self, world: np.ndarray, cache, time) -> None:
         matrix = np.array(cache.GetLocalToWorldTransform(self.mesh.GetPrim()))
         if self._matrix is None or not np.array_equal(matrix, self._matrix):  # most prims do not move
-            self._matrix, self._inverse = matrix, np.linalg.inv(matrix)
+            try:
+                self._matrix, self._inverse = matrix, np.linalg.inv(matrix)
+            except np.linalg.LinAlgError:
+                raise WarpStokesError(
+                    f"{self.mesh.GetPrim().GetPath()}: its local-to-world transform at time {time.GetValue():g} is "
+                    "singular (scaled to zero?), so its deformed points have no place in its local space") from None
         local = np.asarray(world[self.rows], dtype=np.float64) @ self._inverse[:3, :3] + self._inverse[3, :3]
         self.points.Set(vec3f(local), time)
         self.extent.Set(extent(local), time)
@@ -71,8 +76,12 @@ def _part_override(stage, asset_path: str, part: dict, rows: slice, rest_time) -
     else:
         rest_normals, attr = mesh.GetNormalsAttr().Get(time), mesh.GetNormalsAttr()
     left = mesh.GetOrientationAttr().Get() == UsdGeom.Tokens.leftHanded
-    plan = NormalsPlan(counts, indices, interpolation, len(rest),
-                       None if rest_normals is None else np.asarray(rest_normals), left)
+    rest_normals = None if rest_normals is None else np.asarray(rest_normals)
+    plan = NormalsPlan(counts, indices, interpolation, len(rest), rest_normals, left)
+    if rest_normals is not None and len(rest_normals) == len(plan(np.asarray(rest))) and \
+            np.mean(np.sum(plan(np.asarray(rest)) * rest_normals, axis=1)) < 0:
+        # the asset's normals point against its winding: keep their side
+        plan = NormalsPlan(counts, indices, interpolation, len(rest), rest_normals, not left)
     return _Override(mesh, rows, plan, attr)
 
 
@@ -85,6 +94,9 @@ def write_layer(path, ext, binding, positions, frames, poses, fps, with_cage, wi
     from .asset import open_stage, stage_metadata
 
     asset_path = _asset_path(binding, asset)
+    if os.path.exists(path) and os.path.samefile(path, asset_path):
+        raise WarpStokesError(f"{path}: the output is the asset itself; write the animation layer to another file "
+                              "(it sublayers the asset)")
     metadata = stage_metadata(open_stage(asset_path, WarpStokesError))
     if up_axis is not None and up_axis != metadata["up_axis"]:
         raise WarpStokesError(f"up axis {up_axis}: a layer over {asset_path} keeps its up axis "

@@ -47,7 +47,7 @@ def write_standalone(path, ext, binding, positions, frames, poses, fps, with_cag
         set_timing(stage, frames, rate)
         root = UsdGeom.Xform.Define(stage, "/Root")
         stage.SetDefaultPrim(root.GetPrim())
-        writers = _define_parts(stage, binding, normals is not None, with_weights)
+        writers = _define_parts(stage, binding, normals, with_weights)
         cage = None
         if with_cage:
             cage = define_mesh(stage, "/Root/Cage", np.full(len(binding.cage_faces), 3), binding.cage_faces.ravel(),
@@ -69,9 +69,11 @@ def write_standalone(path, ext, binding, positions, frames, poses, fps, with_cag
     return path
 
 
-def _define_parts(stage, binding, with_normals: bool, with_weights: bool) -> list:
-    """One mesh per part under /Root, with its polygons, UVs and weights: per part (rows, points attribute, extent
-    attribute, normals attribute, NormalsPlan or None)."""
+def _define_parts(stage, binding, normals, with_weights: bool) -> list:
+    """One mesh per part under /Root, with its polygons, UVs and weights, and normals per frame when ``normals``
+    (the rest normals, (V, 3)) are given: per part (rows, points attribute, extent attribute, normals attribute,
+    NormalsPlan or None)."""
+    with_normals = normals is not None
     from pxr import Sdf, UsdGeom, Vt
 
     slices = binding.part_slices()
@@ -97,6 +99,12 @@ def _define_parts(stage, binding, with_normals: bool, with_weights: bool) -> lis
         if with_normals:
             plan = NormalsPlan(part_counts, part_indices, "vertex", rows.stop - rows.start)
             mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
+            rest_normals = None if normals is None else np.asarray(normals)[rows]
+            if rest_normals is not None and np.mean(np.sum(plan(binding.mesh_vertices[rows]) * rest_normals,
+                                                           axis=1)) < 0:
+                # the file's normals point against its winding (clockwise faces): say so, and keep their side
+                mesh.GetOrientationAttr().Set(UsdGeom.Tokens.leftHanded)
+                plan = NormalsPlan(part_counts, part_indices, "vertex", rows.stop - rows.start, left_handed=True)
         if with_weights:
             primvar = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar(
                 "stokesWeights", Sdf.ValueTypeNames.FloatArray, UsdGeom.Tokens.vertex, binding.n_handles)

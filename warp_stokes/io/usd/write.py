@@ -85,7 +85,10 @@ def write_animation(path, binding, poses: Poses, fps: float | None = None, with_
     """
     ext, positions, frames = _check(path, binding, poses, fps)
     path = os.fspath(path)
-    if binding.asset is not None or asset is not None:
+    if binding.asset is None and asset is not None:
+        raise WarpStokesError(f"{asset}: the binding is not of a USD asset (it was bound from "
+                              f"{binding.settings.get('mesh')}); an asset can only be given for a binding of one")
+    if binding.asset is not None:
         if normals is not None:
             raise WarpStokesError("normals: a layer over an asset recomputes the normals the asset authors")
         return write_layer(path, ext, binding, positions, frames, poses, fps, with_cage, with_weights, up_axis,
