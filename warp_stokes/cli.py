@@ -1,4 +1,4 @@
-"""Command line: ``warp-stokes bind | deform | animate | encode | batch``."""
+"""Command line: ``warp-stokes bind | deform | animate | encode | batch | sweep``."""
 
 from __future__ import annotations
 
@@ -207,6 +207,34 @@ def _encode(args) -> int:
     return 0
 
 
+def _resolutions(text: str) -> list:
+    try:
+        values = [int(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a comma-separated list of integers") from None
+    if not values or min(values) < 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: give resolutions >= 1, e.g. 16,24,32")
+    return values
+
+
+def _sweep(args) -> int:
+    from warp_stokes.device import resolve_device
+    from warp_stokes.geometry.cage import check_cage
+    from warp_stokes.sweep import format_sweep, sweep, write_sweep
+
+    _check_output(args.output, (args.mesh, args.cage), folder=True)
+    _announce_compilation(args.device)
+    pose = None
+    if args.pose:
+        pose = _pose(args.pose, check_cage(args.cage).n_handles)
+    rows = sweep(args.mesh, args.cage, args.resolutions, methods=args.methods.split(","), pose=pose,
+                 device=resolve_device(args.device), tol=args.tol)
+    print(format_sweep(rows))
+    csv_path, json_path = write_sweep(rows, args.output)
+    print(f"wrote {csv_path} and {json_path}")
+    return 0
+
+
 def _batch(args) -> int:
     from warp_stokes.batch import format_summary, run_batch
 
@@ -240,7 +268,7 @@ def _parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="warp-stokes", description="Stokes cage coordinates with NVIDIA Warp.")
     parser.add_argument("--version", action="version", version=f"warp-stokes {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
-    for add in (_add_bind, _add_deform, _add_animate, _add_encode, _add_batch):
+    for add in (_add_bind, _add_deform, _add_animate, _add_encode, _add_batch, _add_sweep):
         add(sub)
     return parser
 
@@ -315,6 +343,20 @@ def _add_encode(sub) -> None:
                    help="for USD frames: the mesh prim(s) to read (default: the binding's parts, else the first "
                         "mesh with the bound mesh's point count)")
     p.set_defaults(run=_encode)
+
+
+def _add_sweep(sub) -> None:
+    p = sub.add_parser("sweep", help="bind at several resolutions (and with MVC) and tabulate cost and convergence")
+    p.add_argument("mesh", help="mesh file")
+    p.add_argument("cage", help="closed cage mesh file")
+    p.add_argument("--resolutions", type=_resolutions, required=True, help="comma-separated, e.g. 16,24,32")
+    p.add_argument("--methods", default="stokes", help="comma-separated: stokes, mvc (default stokes)")
+    p.add_argument("--pose", default=None, help="a deformed cage (file or .npy (L, 3)): adds the conformal "
+                                                "distortion's 95th percentile")
+    p.add_argument("-o", "--output", required=True, help="folder for sweep.csv and sweep.json")
+    p.add_argument("--device", default=None, help="cpu, cuda or cuda:N")
+    p.add_argument("--tol", type=_number(float, 0.0, 0.1, low_open=True), default=1e-6, help="solver tolerance")
+    p.set_defaults(run=_sweep)
 
 
 def _add_batch(sub) -> None:

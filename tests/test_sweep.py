@@ -1,0 +1,50 @@
+"""Resolution sweeps: the command as a user runs it, its CSV and JSON read back and checked."""
+
+import csv
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import warp_stokes as ws
+from conftest import EXAMPLE
+from warp_stokes.sweep import COLUMNS, sweep
+
+
+def test_sweep_command_writes_the_table_as_csv_and_json(tmp_path):
+    pose = tmp_path / "bent.npy"
+    np.save(pose, np.load(EXAMPLE / "bend_poses.npy")[-1])
+    run = [sys.executable, "-m", "warp_stokes.cli", "sweep", str(EXAMPLE / "arm.obj"), str(EXAMPLE / "arm_cage.obj"),
+           "--resolutions", "8,16,12", "--methods", "stokes,mvc", "--pose", str(pose), "-o", str(tmp_path / "sweep"),
+           "--device", "cpu"]
+    result = subprocess.run(run, capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    assert "weight_diff_max" in result.stdout and "wrote" in result.stdout
+    with open(tmp_path / "sweep" / "sweep.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert list(rows[0]) == list(COLUMNS) + ["device"]
+    assert [(r["method"], r["resolution"]) for r in rows] == [("stokes", "8"), ("stokes", "12"), ("stokes", "16"),
+                                                              ("mvc", "")]
+    for r in rows:
+        assert int(r["handles"]) == 58 and int(r["vertices"]) == 2089 and r["device"] == "cpu"
+        assert float(r["pu_error"]) < 1e-5 and float(r["lp_error"]) < 1e-5 and float(r["seconds"]) > 0
+        assert float(r["conformal_p95"]) >= 1.0  # the bent pose distorts; 1 is a similarity
+    coarse, middle, finest, mvc = rows
+    assert finest["weight_diff_max"] == "" and mvc["weight_diff_max"] == "" and mvc["iterations"] == ""
+    assert float(coarse["weight_diff_rms"]) > float(middle["weight_diff_rms"]) > 0  # converging to the finest
+    assert float(coarse["weight_diff_max"]) >= float(coarse["weight_diff_rms"])
+    assert int(finest["memory_estimate_bytes"]) > int(coarse["memory_estimate_bytes"]) > 0
+    table = json.loads((tmp_path / "sweep" / "sweep.json").read_text())
+    assert table["columns"] == list(rows[0])
+    assert [str(r["resolution"] or "") for r in table["rows"]] == [r["resolution"] for r in rows]
+    assert table["rows"][1]["weight_diff_max"] == pytest.approx(float(middle["weight_diff_max"]))
+    bad = subprocess.run(run[:5] + ["--resolutions", "8,x", "-o", str(tmp_path / "bad")], capture_output=True,
+                         text=True)
+    assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and "not a comma-separated list" in bad.stderr
+
+
+def test_sweep_in_python_checks_its_methods():
+    with pytest.raises(ws.WarpStokesError, match="methods must be among stokes, mvc, got harmonic"):
+        sweep(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", [8], methods=["harmonic"], device="cpu")
