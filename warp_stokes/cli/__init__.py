@@ -3,34 +3,13 @@
 from __future__ import annotations
 
 import argparse
-import os
 import sys
-import tempfile
 import warnings
 
+from . import commands
+from .commands import format_stats
+
 __all__ = ["main", "format_stats"]
-
-
-def format_stats(stats: dict) -> str:
-    """The stats of a binding as a short two-column table."""
-    sec = stats["seconds"]
-    rows = [
-        ("device", stats["device"]),
-        ("grid", " x ".join(str(s) for s in stats["grid_shape"]) + f"  (h = {stats['spacing']:.4g})"),
-        ("nodes", f"{stats['interior_nodes']} interior, {stats['ring_nodes']} ring, {stats['band_nodes']} band"),
-        ("handles", str(stats["handles"])),
-        ("vertices", f"{stats['vertices']} ({stats['vertices_outside_cage']} outside the cage, "
-                     f"{stats['vertices_beyond_band']} beyond the band)"),
-        ("solver", f"{stats['solver']}, {len(stats['levels'])} level(s), {stats['chunks']} chunk(s), "
-                   f"{stats['iterations']} iterations, residual {stats['residual']:.2e}, "
-                   + ("converged" if stats["converged"] else "NOT converged")),
-        ("memory", f"{stats['memory_estimate_bytes'] / 2**20:.0f} MiB (estimate)"),
-        ("partition of unity", f"max |sum w - 1| = {stats['partition_of_unity_error']:.2e}"),
-        ("linear precision", f"max |W C - P| = {stats['linear_precision_error']:.2e} x diagonal"),
-        ("seconds", ", ".join(f"{k} {v:.2f}" for k, v in sec.items())),
-    ]
-    width = max(len(k) for k, _ in rows)
-    return "\n".join(f"{k:<{width}}  {v}" for k, v in rows)
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None):
@@ -63,150 +42,6 @@ def _number(kind, low=None, high=None, low_open=False):
     return parse
 
 
-def _check_output(path: str, inputs=(), folder: bool = False) -> None:
-    """Before any work: the output's folder exists and is writable, the output is not one of the inputs, and it
-    is not an existing folder (or, with ``folder``, not an existing file)."""
-    from warp_stokes.errors import WarpStokesError
-
-    parent = os.path.dirname(os.path.abspath(path))
-    if not os.path.isdir(parent):
-        raise WarpStokesError(f"{path}: the output folder {parent} does not exist")
-    try:  # a real file, not os.access: root passes that test in read-only and virtual (/proc) folders
-        with tempfile.NamedTemporaryFile(prefix=".tmp-", dir=parent):
-            pass
-    except OSError as exc:
-        raise WarpStokesError(f"{path}: the output folder {parent} takes no new files ({exc.strerror})") from None
-    if folder:
-        if os.path.exists(path) and not os.path.isdir(path):
-            raise WarpStokesError(f"{path}: the output exists and is not a folder")
-        if os.path.isdir(path) and not os.access(path, os.W_OK | os.X_OK):
-            raise WarpStokesError(f"{path}: the output folder is not writable")
-    elif os.path.isdir(path):
-        raise WarpStokesError(f"{path}: the output is a folder, not a file")
-    for source in inputs:
-        if source and os.path.exists(path) and os.path.exists(source) and os.path.samefile(path, source):
-            raise WarpStokesError(f"{path}: the output is the input {source}; choose another output name")
-
-
-def _announce_compilation(device) -> None:
-    """One line before a first run's kernel compilation (20-40 s), so that a silent wait is not taken for a hang."""
-    from warp_stokes.device import kernels_compiled, resolve_device
-
-    resolved = resolve_device(device)
-    if not kernels_compiled(resolved):
-        print(f"warp-stokes: compiling the kernels for {resolved.alias} (first run on this machine, 20-40 s; "
-              "later runs load them from Warp's cache)", file=sys.stderr, flush=True)
-
-
-def _bind(args) -> int:
-    import warp_stokes as ws
-
-    _check_output(args.output, (args.mesh, args.cage))
-    _announce_compilation(args.device)
-    budget = None if args.memory_gb is None else args.memory_gb * 2**30
-    binding = ws.bind(args.mesh, args.cage, resolution=args.resolution, device=args.device, tol=args.tol,
-                      max_iterations=args.max_iterations, solver=args.solver, memory_budget=budget,
-                      boundary=args.boundary, sampling=args.sampling, cage_prim=args.cage_prim,
-                      mesh_prims=args.mesh_prim, rest_time=args.rest_time)
-    binding.save(args.output)
-    print(format_stats(binding.stats))
-    if len(binding.parts) > 1:
-        print(f"{len(binding.parts)} meshes: " + ", ".join(f"{p['path']} ({p['vertices']})" for p in binding.parts))
-    print(f"wrote {args.output}")
-    if not binding.stats["converged"]:
-        print(f"warp-stokes: error: the solver did not converge to tol {args.tol:g}; {args.output} holds its last "
-              "iterate (raise --max-iterations or --tol)", file=sys.stderr)
-        return 1
-    return 0
-
-
-def _deform(args) -> int:
-    import trimesh
-
-    import warp_stokes as ws
-
-    ext = os.path.splitext(args.output)[1].lower().lstrip(".")
-    if ext not in ("obj", "ply", "off", "stl", "glb"):
-        raise ws.WarpStokesError(f"{args.output}: unsupported mesh format {ext!r} (use obj, ply, off, stl or glb)")
-    _check_output(args.output, (args.binding, args.cage))
-    binding = ws.load_binding(args.binding, device=args.device)
-    vertices = binding.deform(_pose(args.cage, binding.n_handles))
-    mesh = trimesh.Trimesh(vertices=vertices, faces=binding.mesh_faces, process=False)
-    from warp_stokes.io.files import atomic_output
-
-    with atomic_output(args.output, "." + ext) as tmp:
-        mesh.export(tmp, file_type=ext)
-    print(f"wrote {args.output} ({len(vertices)} vertices)")
-    return 0
-
-
-def _pose(source: str, n_handles: int):
-    """A deformed cage file, or plain handle positions: a .npy array of shape (L, 3)."""
-    import numpy as np
-
-    from warp_stokes.errors import BindingError
-
-    if not source.lower().endswith(".npy"):
-        return source
-    try:
-        positions = np.load(source, allow_pickle=False)
-    except (OSError, ValueError) as exc:
-        raise BindingError(f"{source}: not a readable .npy array ({exc})") from None
-    if positions.shape != (n_handles, 3):
-        raise BindingError(f"{source}: positions of shape {positions.shape}; the bound cage needs ({n_handles}, 3)")
-    if not np.isfinite(positions).all():
-        raise BindingError(f"{source}: the positions contain NaN or infinite values")
-    return positions.astype(np.float64)
-
-
-def _animate(args) -> int:
-    import warp_stokes as ws
-
-    _check_output(args.output, (args.binding, args.poses, args.asset))
-    binding = ws.load_binding(args.binding, device=args.device)
-    poses = ws.load_poses(args.poses, binding.cage_faces, binding.n_handles, binding.cage_source_index,
-                          cage_prim=args.cage_prim)
-    ws.write_animation(args.output, binding, poses, fps=args.fps, with_cage=args.with_cage,
-                       with_weights=args.with_weights, up_axis=args.up_axis, meters_per_unit=args.meters_per_unit,
-                       asset=args.asset)
-    from pxr import Usd
-
-    stage = Usd.Stage.Open(args.output)
-    form = f"a layer over {stage.GetRootLayer().subLayerPaths[0]}" if binding.asset or args.asset else "a stage"
-    print(f"wrote {args.output} ({form}): {len(poses.frames)} frames ({poses.frames.min():g} to "
-          f"{poses.frames.max():g}) at {stage.GetTimeCodesPerSecond():g} fps, {binding.n_vertices} vertices in "
-          f"{len(binding.parts)} mesh(es)")
-    return 0
-
-
-def _encode(args) -> int:
-    import numpy as np
-
-    import warp_stokes as ws
-    from warp_stokes.binding.encode import encode_poses
-    from warp_stokes.io.files import atomic_output
-    from warp_stokes.io.frames import load_mesh_frames
-    from warp_stokes.io.usd import write_cage_poses
-
-    ext = os.path.splitext(args.output)[1].lower()
-    if ext not in (".npy", ".usd", ".usda", ".usdc"):
-        raise ws.WarpStokesError(f"{args.output}: the poses are written as .npy or USD (.usd, .usda, .usdc)")
-    _check_output(args.output, (args.binding, args.frames))
-    binding = ws.load_binding(args.binding, device="cpu")
-    prims = args.mesh_prim or ([p["path"] for p in binding.parts] if binding.asset else None)
-    frames = load_mesh_frames(args.frames, binding.mesh_faces, binding.n_vertices, prims=prims)
-    poses, rms = encode_poses(binding, frames, smoothness=args.smooth)
-    if ext == ".npy":
-        with atomic_output(args.output, ext) as tmp, open(tmp, "wb") as fh:
-            np.save(fh, poses.positions)
-    else:
-        write_cage_poses(args.output, binding.cage_vertices, binding.cage_faces, poses)
-    worst = int(np.argmax(rms))
-    print(f"wrote {args.output}: {len(rms)} cage poses; RMS error over the cage's diagonal: mean {rms.mean():.2e}, "
-          f"max {rms[worst]:.2e} (frame {poses.frames[worst]:g})")
-    return 0
-
-
 def _resolutions(text: str) -> list:
     try:
         values = [int(v) for v in text.split(",") if v.strip()]
@@ -215,39 +50,6 @@ def _resolutions(text: str) -> list:
     if not values or min(values) < 1:
         raise argparse.ArgumentTypeError(f"{text!r}: give resolutions >= 1, e.g. 16,24,32")
     return values
-
-
-def _sweep(args) -> int:
-    from warp_stokes.device import resolve_device
-    from warp_stokes.geometry.cage import check_cage
-    from warp_stokes.sweep import format_sweep, sweep, write_sweep
-
-    _check_output(args.output, (args.mesh, args.cage), folder=True)
-    _announce_compilation(args.device)
-    pose = None
-    if args.pose:
-        pose = _pose(args.pose, check_cage(args.cage).n_handles)
-    rows = sweep(args.mesh, args.cage, args.resolutions, methods=args.methods.split(","), pose=pose,
-                 device=resolve_device(args.device), tol=args.tol)
-    print(format_sweep(rows))
-    csv_path, json_path = write_sweep(rows, args.output)
-    print(f"wrote {csv_path} and {json_path}")
-    return 0
-
-
-def _batch(args) -> int:
-    from warp_stokes.batch import format_summary, run_batch
-
-    _check_output(args.output, (args.manifest,), folder=True)
-    if args.workers is None and args.ray_address is None:  # Ray workers compile in their own processes
-        _announce_compilation(args.device)
-    results = run_batch(args.manifest, args.output, force=args.force, device=args.device, workers=args.workers,
-                        ray_address=args.ray_address)
-    print(format_summary(results))
-    failed = sum(r.status == "failed" for r in results)
-    print(f"{len(results) - failed} of {len(results)} assets done, {failed} failed; "
-          f"summary in {os.path.join(args.output, 'summary.json')}")
-    return 1 if failed else 0
 
 
 def main(argv=None) -> int:
@@ -297,7 +99,7 @@ def _add_bind(sub) -> None:
                    help="boundary data: local to each node's closest cage point (default) or mean value coordinates")
     p.add_argument("--sampling", choices=["hermite", "trilinear"], default="hermite",
                    help="weights at the vertices: C1 tricubic Hermite of values and gradients (default) or trilinear")
-    p.set_defaults(run=_bind)
+    p.set_defaults(run=commands.bind_command)
 
 
 def _add_deform(sub) -> None:
@@ -307,7 +109,7 @@ def _add_deform(sub) -> None:
                                 "vertex positions as a .npy array of shape (L, 3)")
     p.add_argument("-o", "--output", required=True, help="mesh file to write (obj, ply, off, stl, glb)")
     p.add_argument("--device", default=None, help="cpu, cuda or cuda:N")
-    p.set_defaults(run=_deform)
+    p.set_defaults(run=commands.deform_command)
 
 
 def _add_animate(sub) -> None:
@@ -328,7 +130,7 @@ def _add_animate(sub) -> None:
     p.add_argument("--meters-per-unit", type=_number(float, 0.0, low_open=True), default=None,
                    help="stage metersPerUnit (1.0; over an asset, the asset's)")
     p.add_argument("--device", default=None, help="cpu, cuda or cuda:N")
-    p.set_defaults(run=_animate)
+    p.set_defaults(run=commands.animate_command)
 
 
 def _add_encode(sub) -> None:
@@ -342,7 +144,7 @@ def _add_encode(sub) -> None:
     p.add_argument("--mesh-prim", action="append", default=None, metavar="PATH",
                    help="for USD frames: the mesh prim(s) to read (default: the binding's parts, else the first "
                         "mesh with the bound mesh's point count)")
-    p.set_defaults(run=_encode)
+    p.set_defaults(run=commands.encode_command)
 
 
 def _add_sweep(sub) -> None:
@@ -356,7 +158,7 @@ def _add_sweep(sub) -> None:
     p.add_argument("-o", "--output", required=True, help="folder for sweep.csv and sweep.json")
     p.add_argument("--device", default=None, help="cpu, cuda or cuda:N")
     p.add_argument("--tol", type=_number(float, 0.0, 0.1, low_open=True), default=1e-6, help="solver tolerance")
-    p.set_defaults(run=_sweep)
+    p.set_defaults(run=commands.sweep_command)
 
 
 def _add_batch(sub) -> None:
@@ -370,7 +172,7 @@ def _add_batch(sub) -> None:
     p.add_argument("--ray-address", default=None, metavar="ADDRESS",
                    help="join this Ray cluster (e.g. auto) instead of starting one")
     p.add_argument("--device", default=None, help="cpu, cuda or cuda:N")
-    p.set_defaults(run=_batch)
+    p.set_defaults(run=commands.batch_command)
 
 
 def _main(argv) -> int:
@@ -396,7 +198,3 @@ def _main(argv) -> int:
             shown.add(str(w.message))
             _show_warning(w.message, w.category, w.filename, w.lineno)
     return rc
-
-
-if __name__ == "__main__":
-    sys.exit(main())
