@@ -40,6 +40,12 @@ def test_sweep_command_writes_the_table_as_csv_and_json(tmp_path):
     assert table["columns"] == list(rows[0])
     assert [str(r["resolution"] or "") for r in table["rows"]] == [r["resolution"] for r in rows]
     assert table["rows"][1]["weight_diff_max"] == pytest.approx(float(middle["weight_diff_max"]))
+    import matplotlib.image
+
+    assert "drew" in result.stdout
+    for picture, width in (("convergence.png", 600), ("cost.png", 1000)):
+        pixels = matplotlib.image.imread(tmp_path / "sweep" / picture)  # decoded: a real PNG
+        assert pixels.shape[1] == width and pixels[..., :3].std() > 0.05  # drawn on, not blank
     bad = subprocess.run(run[:5] + ["--resolutions", "8,x", "-o", str(tmp_path / "bad")], capture_output=True,
                          text=True)
     assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and "not a comma-separated list" in bad.stderr

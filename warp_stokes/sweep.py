@@ -6,8 +6,7 @@ pu_error, lp_error, weight_diff_max, weight_diff_rms`` (the largest and RMS per-
 the finest resolution of the same method; empty for the finest) and, with a pose, ``conformal_p95`` (the 95th
 percentile of the deformation's per-triangle conformal distortion). ``mvc`` (mean value coordinates, evaluated at the
 vertices) has no grid: one row with an empty resolution. Peak memory is the device memory pool's high-water mark
-on a GPU and the growth of the process's maximum resident set on a CPU (which only grows: rows are bound from the
-coarsest resolution up).
+on a GPU and the process's peak resident set on a CPU, each above its level when the bind starts.
 """
 
 from __future__ import annotations
@@ -32,19 +31,53 @@ from .io.files import atomic_output
 from .io.load import load_surface
 from .quality import deformation_quality, vertex_weight_difference
 
-__all__ = ["sweep", "write_sweep", "format_sweep", "COLUMNS", "METHODS"]
+__all__ = ["sweep", "write_sweep", "format_sweep", "plot_sweep", "COLUMNS", "METHODS"]
 
 COLUMNS = ("method", "resolution", "handles", "vertices", "seconds", "peak_memory_bytes", "memory_estimate_bytes",
            "iterations", "pu_error", "lp_error", "weight_diff_max", "weight_diff_rms", "conformal_p95")
 METHODS = ("stokes", "mvc")
 
 
-def _peak_bytes(device) -> int:
-    import warp as wp
+def _status_kib(field: str) -> int | None:
+    """A field of /proc/self/status in KiB (VmRSS, VmHWM), or None off Linux."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith(field + ":"):
+                    return int(line.split()[1])
+    except OSError:
+        return None
+    return None
 
-    if device.is_cuda:
-        return int(wp.get_mempool_used_mem_high(device))
-    return int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) * 1024
+
+class _PeakMemory:
+    """Peak memory of one bind: Warp's memory-pool high-water mark above its level on a GPU; on a CPU the process's
+    peak resident set above its size at the start (Linux: the peak is reset first through /proc/self/clear_refs;
+    elsewhere the growth of the maximum resident set, which only grows)."""
+
+    def __init__(self, device):
+        import warp as wp
+
+        self.device = device
+        if device.is_cuda:
+            wp.synchronize_device(device)
+            self.base = int(wp.get_mempool_used_mem_current(device))
+            return
+        try:
+            with open("/proc/self/clear_refs", "w", encoding="ascii") as fh:
+                fh.write("5")  # resets the peak resident set (VmHWM) to the current one
+            self.base, self.linux = _status_kib("VmRSS") * 1024, True
+        except (OSError, TypeError):
+            self.base, self.linux = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024, False
+
+    def bytes(self) -> int:
+        import warp as wp
+
+        if self.device.is_cuda:
+            wp.synchronize_device(self.device)
+            return max(0, int(wp.get_mempool_used_mem_high(self.device)) - self.base)
+        peak = _status_kib("VmHWM") * 1024 if self.linux else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+        return max(0, peak - self.base)
 
 
 def _row(method, resolution, weights, surface, cage, pose, seconds, peak, estimate, iterations) -> dict:
@@ -91,26 +124,19 @@ def sweep(mesh, cage, resolutions, methods=("stokes",), pose=None, device=None, 
     rows, weights = [], {}
     for method in methods:
         if method == "mvc":
-            start, before = time.perf_counter(), _peak_bytes(device)
+            start, peak = time.perf_counter(), _PeakMemory(device)
             w = mean_value_coordinates(checked, surface.vertices, device=device).astype(np.float32)
             seconds = time.perf_counter() - start
-            rows.append(_row("mvc", None, w, surface, checked, pose, seconds, max(0, _peak_bytes(device) - before),
-                             None, None))
+            rows.append(_row("mvc", None, w, surface, checked, pose, seconds, peak.bytes(), None, None))
             continue
         for resolution in resolutions:
-            import warp as wp
-
-            if device.is_cuda:
-                wp.synchronize_device(device)
-            # the high-water marks only grow: rows go from the coarsest resolution up, so each is its bind's peak
-            base = int(wp.get_mempool_used_mem_current(device)) if device.is_cuda else _peak_bytes(device)
+            peak = _PeakMemory(device)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 binding = bind(surface, checked, resolution=resolution, device=device, tol=tol)
-            peak = _peak_bytes(device) - base
             weights[resolution] = binding.weights
             rows.append(_row("stokes", resolution, binding.weights, surface, checked, pose,
-                             binding.stats["seconds"]["total"], max(0, peak), binding.stats["memory_estimate_bytes"],
+                             binding.stats["seconds"]["total"], peak.bytes(), binding.stats["memory_estimate_bytes"],
                              binding.stats["iterations"]))
     if weights:
         finest = weights[max(weights)]
@@ -156,3 +182,77 @@ def write_sweep(rows: list[dict], folder) -> tuple[str, str]:
     with atomic_output(paths[1], ".json") as tmp, open(tmp, "w", encoding="utf-8") as fh:
         json.dump({"columns": columns, "rows": [{c: row.get(c) for c in columns} for row in rows]}, fh, indent=1)
     return paths
+
+
+def plot_sweep(rows: list[dict], folder) -> tuple[str, str]:
+    """Draw ``folder/convergence.png`` (the weights' largest and RMS change against the finest resolution, log-log,
+    per grid method) and ``folder/cost.png`` (seconds and peak memory against the resolution), headless (Agg) and
+    deterministic; each written under a temporary name. Needs matplotlib (``pip install "warp-stokes[plot]"``).
+
+    Returns
+    -------
+    the two paths
+    """
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        raise WarpStokesError('the pictures need matplotlib: pip install "warp-stokes[plot]"') from None
+    folder = os.fspath(folder)
+    os.makedirs(folder, exist_ok=True)
+    grid_rows = [r for r in rows if r.get("resolution") is not None]
+    methods = list(dict.fromkeys(r["method"] for r in grid_rows))
+    paths = os.path.join(folder, "convergence.png"), os.path.join(folder, "cost.png")
+    with plt.rc_context({"svg.hashsalt": "warp-stokes", "figure.dpi": 100}):
+        figure, axes = plt.subplots(figsize=(6, 4.5))
+        for method in methods:
+            mine = [r for r in grid_rows if r["method"] == method and r.get("weight_diff_rms") is not None]
+            if mine:
+                n = [r["resolution"] for r in mine]
+                axes.loglog(n, [r["weight_diff_max"] for r in mine], "o-", label=f"{method}: max over vertices")
+                axes.loglog(n, [r["weight_diff_rms"] for r in mine], "s--", label=f"{method}: RMS over vertices")
+        _integer_ticks(axes, sorted({r["resolution"] for r in grid_rows}))
+        axes.set_xlabel("resolution (cells along the cage's longest axis)")
+        axes.set_ylabel("change of the weights against the finest resolution")
+        axes.set_title(f"Convergence ({rows[0]['handles']} handles, {rows[0]['vertices']} vertices)")
+        axes.grid(True, which="both", alpha=0.3)
+        axes.legend(fontsize=8)
+        figure.tight_layout()
+        with atomic_output(paths[0], ".png") as tmp:
+            figure.savefig(tmp, format="png")
+        plt.close(figure)
+        figure, (seconds, memory) = plt.subplots(1, 2, figsize=(10, 4))
+        for method in methods:
+            mine = [r for r in grid_rows if r["method"] == method]
+            n = [r["resolution"] for r in mine]
+            seconds.loglog(n, [r["seconds"] for r in mine], "o-", label=method)
+            measured = [(r["resolution"], r["peak_memory_bytes"] / 2**20) for r in mine if r["peak_memory_bytes"]]
+            if measured:
+                memory.loglog(*zip(*measured), "o-", label=f"{method}: peak")
+            memory.loglog(n, [(r["memory_estimate_bytes"] or 1) / 2**20 for r in mine], "s--",
+                          label=f"{method}: estimate")
+        seconds.set_xlabel("resolution")
+        seconds.set_ylabel("seconds per bind")
+        memory.set_xlabel("resolution")
+        memory.set_ylabel("MiB")
+        for axes in (seconds, memory):
+            _integer_ticks(axes, sorted({r["resolution"] for r in grid_rows}))
+            axes.grid(True, which="both", alpha=0.3)
+            axes.legend(fontsize=8)
+        figure.suptitle(f"Cost on {rows[0].get('device', '')}")
+        figure.tight_layout()
+        with atomic_output(paths[1], ".png") as tmp:
+            figure.savefig(tmp, format="png")
+        plt.close(figure)
+    return paths
+
+
+def _integer_ticks(axes, resolutions) -> None:
+    """The resolutions themselves as the x ticks of a log axis, written as integers."""
+    from matplotlib.ticker import FixedLocator, NullLocator, ScalarFormatter
+
+    axes.xaxis.set_major_locator(FixedLocator(resolutions))
+    axes.xaxis.set_minor_locator(NullLocator())
+    axes.xaxis.set_major_formatter(ScalarFormatter())

@@ -180,7 +180,8 @@ def encode_command(args) -> int:
 def sweep_command(args) -> int:
     from warp_stokes.device import resolve_device
     from warp_stokes.geometry.cage import check_cage
-    from warp_stokes.sweep import format_sweep, sweep, write_sweep
+    from warp_stokes.errors import WarpStokesError
+    from warp_stokes.sweep import format_sweep, plot_sweep, sweep, write_sweep
 
     check_output(args.output, (args.mesh, args.cage), folder=True)
     announce_compilation(args.device)
@@ -192,6 +193,13 @@ def sweep_command(args) -> int:
     print(format_sweep(rows))
     csv_path, json_path = write_sweep(rows, args.output)
     print(f"wrote {csv_path} and {json_path}")
+    if any(r["method"] == "stokes" for r in rows) and len(args.resolutions) > 1:
+        try:
+            pictures = plot_sweep(rows, args.output)
+        except WarpStokesError as exc:  # matplotlib is an optional extra: the table stands without the pictures
+            print(f"no pictures: {exc}", file=sys.stderr)
+        else:
+            print(f"drew {pictures[0]} and {pictures[1]}")
     return 0
 
 
