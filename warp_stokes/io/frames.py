@@ -7,40 +7,20 @@ import os
 import numpy as np
 
 from ..errors import BindingError
-from .load import load_surface
-from .poses import Poses, natural_key, same_triangles
+from .poses import Poses, obj_sequence, same_triangles
 
 __all__ = ["load_mesh_frames"]
 
 
-def _frame_number(name: str, default: int) -> float:
-    import re
-
-    digits = re.findall(r"\d+", os.path.splitext(name)[0])
-    return float(digits[-1]) if digits else float(default)
-
-
 def _from_folder(path: str, faces: np.ndarray, n_vertices: int) -> Poses:
-    names = sorted((f for f in os.listdir(path) if f.lower().endswith(".obj")), key=natural_key)
-    if not names:
-        raise BindingError(f"{path}: the folder has no .obj frames")
-    positions, numbers = [], []
-    for k, name in enumerate(names):
-        frame = os.path.join(path, name)
-        try:
-            surface = load_surface(frame)
-        except ValueError as exc:  # already names the frame's file
-            raise BindingError(str(exc)) from None
+    def positions_of(surface, frame):
         if len(surface.vertices) != n_vertices:
             raise BindingError(f"{frame}: the frame has {len(surface.vertices)} vertices, the bound mesh {n_vertices}")
         if not same_triangles(surface.faces, faces):
             raise BindingError(f"{frame}: the frame's faces differ from the bound mesh's (different topology)")
-        positions.append(surface.vertices)
-        numbers.append(_frame_number(name, k + 1))
-    numbers = np.asarray(numbers)
-    if len(np.unique(numbers)) != len(numbers):
-        numbers = np.arange(1, len(numbers) + 1, dtype=np.float64)
-    return Poses(np.stack(positions), numbers, path)
+        return surface.vertices
+
+    return obj_sequence(path, positions_of)
 
 
 def _from_array(path: str, n_vertices: int) -> Poses:

@@ -11,7 +11,7 @@ import numpy as np
 from ..errors import BindingError
 from .load import load_surface
 
-__all__ = ["Poses", "load_poses", "natural_key", "pose_vertices", "same_triangles"]
+__all__ = ["Poses", "load_poses", "natural_key", "obj_sequence", "pose_vertices", "same_triangles"]
 
 
 @dataclass
@@ -106,7 +106,10 @@ def _frame_number(name: str, default: int) -> float:
     return float(digits[-1]) if digits else float(default)
 
 
-def _from_folder(path: str, cage_faces: np.ndarray, n_handles: int, source_index=None) -> Poses:
+def obj_sequence(path: str, positions_of) -> Poses:
+    """The OBJ files of a folder as a sequence: sorted naturally, each loaded and turned into positions by
+    ``positions_of(surface, file)`` (which checks it against what it must fit), frame numbers from the last number
+    in each name (1, 2, ... when those do not identify the frames)."""
     names = sorted((f for f in os.listdir(path) if f.lower().endswith(".obj")), key=natural_key)
     if not names:
         raise BindingError(f"{path}: the folder has no .obj frames")
@@ -117,12 +120,17 @@ def _from_folder(path: str, cage_faces: np.ndarray, n_handles: int, source_index
             surface = load_surface(frame)
         except ValueError as exc:  # already names the frame's file
             raise BindingError(str(exc)) from None
-        positions.append(pose_vertices(surface.vertices, surface.faces, cage_faces, source_index, frame))
+        positions.append(positions_of(surface, frame))
         frames.append(_frame_number(name, k + 1))
     frames = np.asarray(frames)
     if len(np.unique(frames)) != len(frames):  # numbers in the names do not identify frames: number them
         frames = np.arange(1, len(frames) + 1, dtype=np.float64)
     return Poses(np.stack(positions), frames, path)
+
+
+def _from_folder(path: str, cage_faces: np.ndarray, n_handles: int, source_index=None) -> Poses:
+    return obj_sequence(path, lambda surface, frame: pose_vertices(surface.vertices, surface.faces, cage_faces,
+                                                                    source_index, frame))
 
 
 def _from_array(path: str, n_handles: int) -> Poses:

@@ -78,8 +78,9 @@ def _part_override(stage, asset_path: str, part: dict, rows: slice, rest_time) -
     left = mesh.GetOrientationAttr().Get() == UsdGeom.Tokens.leftHanded
     rest_normals = None if rest_normals is None else np.asarray(rest_normals)
     plan = NormalsPlan(counts, indices, interpolation, len(rest), rest_normals, left)
-    if rest_normals is not None and len(rest_normals) == len(plan(np.asarray(rest))) and \
-            np.mean(np.sum(plan(np.asarray(rest)) * rest_normals, axis=1)) < 0:
+    recomputed = plan(np.asarray(rest))
+    if rest_normals is not None and len(rest_normals) == len(recomputed) and \
+            np.mean(np.sum(recomputed * rest_normals, axis=1)) < 0:
         # the asset's normals point against its winding: keep their side
         plan = NormalsPlan(counts, indices, interpolation, len(rest), rest_normals, not left)
     return _Override(mesh, rows, plan, attr)
