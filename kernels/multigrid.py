@@ -53,9 +53,34 @@ def node_row(index: wp.array3d(dtype=wp.int32), n_rows: int, p: wp.vec3i):
 # the fine operator's blocks
 
 
+#: the fine operator of a level: a (rows, 27) block array, the 19-point biharmonic stencil, or the 7-point Laplace
+#: one of harmonic coordinates (kernels/laplace.py: q rows 6 q - sum_face q, identity G rows)
+BLOCKS = wp.constant(0)
+BIHARMONIC = wp.constant(1)
+LAPLACE = wp.constant(2)
+
+
 @wp.func
-def fine_block(d: wp.vec3i):
-    """Block of the 19-point operator coupling a node's (q, G) equations to (q, G) of its neighbour p + d."""
+def laplace_block(d: wp.vec3i):
+    """Block of the 7-point Laplace operator (identity gradient rows) coupling a node to its neighbour p + d."""
+    m = wp.mat44d()
+    steps = wp.abs(d[0]) + wp.abs(d[1]) + wp.abs(d[2])
+    if steps == 0:
+        m[0, 0] = wp.float64(6.0)
+        m[1, 1] = wp.float64(1.0)
+        m[2, 2] = wp.float64(1.0)
+        m[3, 3] = wp.float64(1.0)
+    elif steps == 1:
+        m[0, 0] = wp.float64(-1.0)
+    return m
+
+
+@wp.func
+def fine_block(d: wp.vec3i, equation: int):
+    """Block of the fine operator (BIHARMONIC: the 19-point stencil; LAPLACE: the 7-point one) coupling a node's
+    (q, G) equations to (q, G) of its neighbour p + d."""
+    if equation == LAPLACE:
+        return laplace_block(d)
     m = wp.mat44d()
     steps = wp.abs(d[0]) + wp.abs(d[1]) + wp.abs(d[2])
     if steps == 0:
@@ -85,15 +110,16 @@ def stencil_blocks(
     ijk: wp.array(dtype=wp.vec3i),
     index: wp.array3d(dtype=wp.int32),
     n_rows: int,
+    equation: int,
     blocks: wp.array2d(dtype=wp.mat44f),
 ):
-    """The 19-point operator of the unknowns as (rows, 27) blocks, zero where the neighbour is not an unknown:
-    only for small levels (a coarsest level that is the fine one, inspection); launch (rows, 27)."""
+    """The fine operator (BIHARMONIC or LAPLACE) of the unknowns as (rows, 27) blocks, zero where the neighbour is
+    not an unknown: only for small levels (a coarsest level that is the fine one, inspection); launch (rows, 27)."""
     m, o = wp.tid()
     d = neighbour_offset(o)
     b = wp.mat44f()
     if node_row(index, n_rows, ijk[m] + d) >= 0:
-        b = wp.mat44f(fine_block(d))
+        b = wp.mat44f(fine_block(d, equation))
     blocks[m, o] = b
 
 
@@ -159,6 +185,23 @@ def hermite_table(table: wp.array(dtype=wp.mat44d)):
         hy = hermite_1d(1, (parity >> 1) & 1, (side >> 1) & 1)
         hz = hermite_1d(2, (parity >> 2) & 1, (side >> 2) & 1)
         m = to_fine * (hz * (hy * hx))
+    table[t] = m
+
+
+@wp.kernel
+def trilinear_table(table: wp.array(dtype=wp.mat44d)):
+    """The prolongation of the Laplace hierarchy in the layout of :func:`hermite_table`: trilinear interpolation of
+    each of (q, G) on its own (the gradient rows are decoupled identity rows there)."""
+    t = wp.tid()
+    parity = t // 8
+    side = t % 8
+    m = wp.mat44d()
+    if (side & ~parity) == 0:
+        weight = wp.float64(1.0)
+        for a in range(3):
+            if (parity >> a) & 1 == 1:
+                weight = weight * wp.float64(0.5)
+        m = weight * wp.identity(n=4, dtype=wp.float64)
     table[t] = m
 
 
@@ -247,6 +290,23 @@ def stencil_times(d: wp.vec3i, p: wp.mat44d):
     return m
 
 
+@wp.func
+def laplace_times(d: wp.vec3i, p: wp.mat44d):
+    """laplace_block(d) * p without the zeros."""
+    m = wp.mat44d()
+    steps = wp.abs(d[0]) + wp.abs(d[1]) + wp.abs(d[2])
+    if steps == 0:
+        for j in range(4):
+            m[0, j] = wp.float64(6.0) * p[0, j]
+            m[1, j] = p[1, j]
+            m[2, j] = p[2, j]
+            m[3, j] = p[3, j]
+    elif steps == 1:
+        for j in range(4):
+            m[0, j] = -p[0, j]
+    return m
+
+
 @wp.kernel
 def galerkin_blocks(
     coarse_ijk: wp.array(dtype=wp.vec3i),
@@ -255,14 +315,14 @@ def galerkin_blocks(
     fine_index: wp.array3d(dtype=wp.int32),
     n_fine: int,
     fine_blocks: wp.array2d(dtype=wp.mat44f),
-    fine_is_stencil: int,
+    fine_operator: int,
     table: wp.array(dtype=wp.mat44d),
     blocks: wp.array2d(dtype=wp.mat44f),
 ):
     """blocks[m, o] = (P^T A P)[c, c + o] for coarse node c = coarse_ijk[m] and neighbour slot o >= 13 (the centre
     and the 13 neighbours after it), and its transpose, the block of the pair's other row (A is symmetric);
-    launch (coarse nodes, 14) on zeroed `blocks`. A is the 19-point stencil (fine_is_stencil = 1) or a 27-point
-    block stencil `fine_blocks`; sums in float64.
+    launch (coarse nodes, 14) on zeroed `blocks`. A is the 27-point block stencil `fine_blocks` (fine_operator =
+    BLOCKS), the 19-point stencil (BIHARMONIC) or the 7-point one (LAPLACE); sums in float64.
 
     (P^T A P)[c, c'] = sum over the fine unknowns f around c (|f - 2c| <= 1) of P[f, c]^T (A P)[f, c'], with
     (A P)[f, c'] = sum over A's neighbours g of f that lie around c' (|g - 2c'| <= 1) of A[f, g] P[g, c']."""
@@ -285,8 +345,10 @@ def galerkin_blocks(
                 e = f + dt - 2 * other
                 if wp.abs(e[0]) <= 1 and wp.abs(e[1]) <= 1 and wp.abs(e[2]) <= 1:
                     if node_row(fine_index, n_fine, f + dt) >= 0:
-                        if fine_is_stencil != 0:
+                        if fine_operator == BIHARMONIC:
                             ap += stencil_times(dt, table[parent_entry(e)])
+                        elif fine_operator == LAPLACE:
+                            ap += laplace_times(dt, table[parent_entry(e)])
                         else:
                             ap += wp.mat44d(fine_blocks[row_f, t]) * table[parent_entry(e)]
             acc += wp.transpose(table[parent_entry(ds)]) * ap

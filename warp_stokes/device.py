@@ -116,7 +116,8 @@ def cuda_device_count() -> int:
     return int(wp.get_cuda_device_count()) if wp.is_cuda_available() else 0
 
 
-#: the package's kernel modules (warp_stokes.kernels.*): what a first run on a machine compiles
+#: the package's kernel modules (warp_stokes.kernels.*): what a first run on a machine compiles (laplace is left out:
+#: only harmonic coordinates compile it)
 KERNEL_MODULES = ("cg", "checks", "deform", "intersect", "labels", "local_boundary", "multigrid", "mvc", "sample",
                   "stencil", "voxel")
 

@@ -17,6 +17,9 @@ One V-cycle for all handles at once (every handle a column of the level arrays):
   diverged); it is a fixed polynomial, so the V-cycle is a symmetric preconditioner;
 - coarsest level: a dense inverse computed once in float64.
 
+Harmonic coordinates (``equation="laplace"``, the 7-point operator of ``warp_stokes.kernels.laplace``) use the same
+cycle with a trilinear prolongation of each of (q, G): their gradient rows are identity rows, decoupled.
+
 No general sparse matrix is involved: warp.sparse addresses block values with 32-bit offsets
 (`block * block_size` in int), which overflowed once the fine operator's 19 blocks of 16 per interior node passed
 2^31 scalars (8.5 M interior nodes, a bulky cage at n = 256). Every index here is a row of a level (< 2^31).
@@ -34,7 +37,7 @@ from ..geometry.grid import Grid
 from ..kernels import cg
 from ..kernels import multigrid as mg_kernels
 from .hierarchy import COARSE_NODE_BYTES, COARSEST_NODES, Level, coarsen, hierarchy_bytes
-from .operator import apply_operator
+from .operator import apply_operator, check_equation
 
 # the levels' sizes are planned before the hierarchy is formed (solver.hierarchy); offered here too
 __all__ = ["Multigrid", "coarsen", "hierarchy_bytes", "Level", "SMOOTHER_DEGREES", "DEEP_SMOOTHER_DEGREES",
@@ -66,6 +69,9 @@ class Multigrid:
     levels : list of Level, optional
         The output of :func:`coarsen` for this grid and device, when it was computed already (e.g. to plan
         memory); computed here otherwise.
+    equation : "biharmonic" | "laplace"
+        The fine operator: the compact 19-point scheme (Hermite prolongation) or the 7-point Laplace equation of
+        harmonic coordinates (trilinear prolongation).
 
     Examples
     --------
@@ -73,14 +79,17 @@ class Multigrid:
     >>> mg.apply(residual, correction)                      # doctest: +SKIP
     """
 
-    def __init__(self, grid: Grid, device=None, coarsest_nodes: int = COARSEST_NODES, levels=None):
+    def __init__(self, grid: Grid, device=None, coarsest_nodes: int = COARSEST_NODES, levels=None,
+                 equation: str = "biharmonic"):
         self.grid = grid
         self.device = resolve_device(device)
+        self.equation = check_equation(equation)
         #: setup time by phase: Galerkin product per coarse level, the coarsest inverse, eigenvalue estimates
         self.seconds = {"galerkin": [], "coarsest": 0.0, "eigenvalues": 0.0}
         with wp.ScopedDevice(self.device):
             self.table = wp.empty(64, dtype=wp.mat44d)
-            wp.launch(mg_kernels.hermite_table, dim=64, outputs=[self.table])
+            table = mg_kernels.trilinear_table if equation == "laplace" else mg_kernels.hermite_table
+            wp.launch(table, dim=64, outputs=[self.table])
             self.levels = levels if levels is not None else coarsen(grid, self.device, coarsest_nodes)
             self._form_operators()
             self._estimate_eigenvalues()
@@ -89,7 +98,10 @@ class Multigrid:
 
     def _form_operators(self) -> None:
         fine = self.levels[0]
-        inv = np.diag([1.0 / 48.0, 0.25, 0.25, 0.25]).astype(np.float32)  # the stencil's constant diagonal
+        # the stencil's constant diagonal
+        inv = np.diag([1.0 / 6.0, 1.0, 1.0, 1.0] if self.equation == "laplace" else [1.0 / 48.0, 0.25, 0.25, 0.25])
+        inv = inv.astype(np.float32)
+        fine_operator = mg_kernels.LAPLACE if self.equation == "laplace" else mg_kernels.BIHARMONIC
         fine.inv_diag = wp.array(inv[None], dtype=wp.mat44f)
         empty = wp.empty((0, 27), dtype=wp.mat44f)
         for finer, coarse in zip(self.levels, self.levels[1:]):
@@ -100,7 +112,8 @@ class Multigrid:
                 mg_kernels.galerkin_blocks,
                 dim=(coarse.n, 14),
                 inputs=[coarse.ijk_device, coarse.index, coarse.n, finer.index, finer.n,
-                        empty if finer.blocks is None else finer.blocks, int(finer.blocks is None), self.table],
+                        empty if finer.blocks is None else finer.blocks,
+                        int(fine_operator) if finer.blocks is None else int(mg_kernels.BLOCKS), self.table],
                 outputs=[coarse.blocks],
             )
             coarse.inv_diag = wp.empty(coarse.n, dtype=wp.mat44f)
@@ -151,16 +164,18 @@ class Multigrid:
 
     def operator_triplets(self, depth: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The operator of level ``depth`` as (rows, cols, (nnz, 4, 4) blocks) on the host, zero blocks dropped
-        (level 0: the 19-point stencil of the interior nodes, A_II).
+        (level 0: the fine stencil of the interior nodes, A_II).
 
         Examples
         --------
         >>> rows, cols, blocks = mg.operator_triplets(1)            # doctest: +SKIP
         """
         lev = self.levels[depth]
-        if lev.blocks is None:  # the fine level: the 19-point stencil, formed as blocks on demand
+        if lev.blocks is None:  # the fine level: its stencil, formed as blocks on demand
             blocks = wp.empty((lev.n, 27), dtype=wp.mat44f, device=self.device)
-            wp.launch(mg_kernels.stencil_blocks, dim=blocks.shape, inputs=[lev.ijk_device, lev.index, lev.n],
+            equation = mg_kernels.LAPLACE if self.equation == "laplace" else mg_kernels.BIHARMONIC
+            wp.launch(mg_kernels.stencil_blocks, dim=blocks.shape, inputs=[lev.ijk_device, lev.index, lev.n,
+                                                                              int(equation)],
                       outputs=[blocks], device=self.device)
             blocks = blocks.numpy()
         else:
@@ -193,7 +208,7 @@ class Multigrid:
     def _apply_A(self, depth: int, x: wp.array, out: wp.array) -> None:
         lev = self.levels[depth]
         if depth == 0:
-            apply_operator(self.grid, x, out, n_rows=lev.n, device=self.device, precise=False)
+            apply_operator(self.grid, x, out, n_rows=lev.n, device=self.device, precise=False, equation=self.equation)
         else:
             wp.launch(mg_kernels.stencil_apply, dim=x.shape, inputs=[lev.blocks, lev.ijk_device, lev.index, x],
                       outputs=[out])

@@ -1,7 +1,9 @@
-"""Applying the compact 19-point coupled operator to every handle's column at once (launch code).
+"""Applying the fine operator to every handle's column at once (launch code): the compact 19-point coupled
+biharmonic scheme (``warp_stokes.kernels.stencil``), or the 7-point Laplace equation of harmonic coordinates in the
+same (q, G) layout (``warp_stokes.kernels.laplace``).
 
 Both the solver (residuals, Krylov steps) and the multigrid's fine level (smoothing) apply the operator through
-:func:`apply_operator`; the kernel is ``warp_stokes.kernels.stencil``.
+:func:`apply_operator`.
 """
 
 from __future__ import annotations
@@ -10,13 +12,23 @@ import warp as wp
 
 from ..device import resolve_device
 from ..geometry.grid import Grid
-from ..kernels import stencil
+from ..errors import WarpStokesError
+from ..kernels import laplace, stencil
 
-__all__ = ["apply_operator"]
+__all__ = ["apply_operator", "EQUATIONS", "check_equation"]
+
+#: the equations the weights may solve: Stokes coordinates (biharmonic) or harmonic coordinates (Laplace)
+EQUATIONS = ("biharmonic", "laplace")
+
+
+def check_equation(equation: str) -> str:
+    if equation not in EQUATIONS:
+        raise WarpStokesError(f"equation must be 'biharmonic' or 'laplace', got {equation!r}")
+    return equation
 
 
 def apply_operator(grid: Grid, field: wp.array, out: wp.array, n_rows: int | None = None, device=None,
-                   precise: bool = True) -> None:
+                   precise: bool = True, equation: str = "biharmonic") -> None:
     """``out = A field`` at the interior rows, for every handle (one launch).
 
     Parameters
@@ -27,6 +39,7 @@ def apply_operator(grid: Grid, field: wp.array, out: wp.array, n_rows: int | Non
     n_rows : int, rows of ``field`` that are read (others read as zero). Default: all of them.
     device : None | str
     precise : bool, float64 sums (for residuals); float32 sums otherwise (Krylov and smoothing steps)
+    equation : "biharmonic" (the compact 19-point scheme) | "laplace" (7-point, identity gradient rows)
 
     Examples
     --------
@@ -36,6 +49,10 @@ def apply_operator(grid: Grid, field: wp.array, out: wp.array, n_rows: int | Non
     device = resolve_device(device)
     arrays = grid.device_arrays(device)
     n_rows = field.shape[0] if n_rows is None else n_rows
+    if equation == "laplace":
+        wp.launch(laplace.apply_laplacian if precise else laplace.apply_laplacian_fast, dim=out.shape,
+                  inputs=[field, arrays["index"], arrays["active_ijk"], int(n_rows)], outputs=[out], device=device)
+        return
     patches = arrays["patches"]
     groups = -(-field.shape[1] // stencil.GROUP)
     wp.launch(

@@ -18,6 +18,11 @@ floor, measured on the starting field, when that is larger). Otherwise, or when 
 float32 floor, CG restarts from the recomputed residual with a tighter tolerance. Checked against a direct
 float64 solve in tests/test_solve.py.
 
+Harmonic coordinates. ``equation="laplace"`` solves the 7-point Laplace equation instead, with the same data,
+stopping rule, multigrid cycle (trilinear prolongation) and identity check (the 7-point operator reproduces linear
+functions exactly, too); its gradient rows are identity rows, and the interior G are set to the central
+differences of the solved values at the end (``warp_stokes.kernels.laplace``).
+
 Chunks. When the handles are solved a chunk at a time (memory), the chunk's field carries one more column that
 stands for the rest of the cage (``boundary_field(..., complement=True)``): the sum over the other handles of
 w_l, biharmonic too. Chunk and complement sum to 1 exactly, so the same stopping rule applies to each chunk, with
@@ -37,10 +42,10 @@ from ..geometry.boundary import COMPLEMENT_COLUMNS
 from ..device import resolve_device
 from ..geometry.grid import Grid
 from ..geometry.topology import bounding_diagonal
-from ..kernels import cg, checks
+from ..kernels import cg, checks, laplace
 from .krylov import BatchedCG, cg_round
 from .multigrid import Multigrid
-from .operator import apply_operator
+from .operator import apply_operator, check_equation
 
 __all__ = ["SolveReport", "solve_biharmonic", "apply_operator"]
 
@@ -87,8 +92,10 @@ def solve_biharmonic(
     device=None,
     callback=None,
     chunk: slice | None = None,
+    equation: str = "biharmonic",
 ) -> SolveReport:
-    """Solve the compact 19-point coupled scheme in place, for all handles in one batched CG.
+    """Solve the compact 19-point coupled scheme (or the 7-point Laplace equation) in place, for all handles in one
+    batched CG.
 
     Parameters
     ----------
@@ -118,6 +125,9 @@ def solve_biharmonic(
         With ``handles``, when the columns are a chunk of the cage coordinates, ``handles[chunk]``, followed by
         the column of the rest of the cage (``boundary_field(..., handles=chunk, complement=True)``): the
         identity check then checks the chunk's partition of unity.
+    equation : "biharmonic" | "laplace"
+        Stokes coordinates (the compact scheme) or harmonic coordinates (7-point Laplace; the interior gradients
+        are then the central differences of the solved values). A given Multigrid must be for the same equation.
 
     Returns
     -------
@@ -132,13 +142,14 @@ def solve_biharmonic(
     """
     # about 70 lines: the stopping rule (rounds, recomputed residual, identity check, restarts) reads in one place
     device = resolve_device(device)
+    check_equation(equation)
     start = time.perf_counter()
     with wp.ScopedDevice(device):
         deviation = _identity_check(grid, field, handles, device, chunk)  # first: it checks the columns
-        precondition, default_iterations, setup_seconds = _preconditioner(grid, preconditioner, device)
+        precondition, default_iterations, setup_seconds = _preconditioner(grid, preconditioner, device, equation)
         if max_iterations is None:
             max_iterations = default_iterations
-        solver = BatchedCG(grid, field, source, precondition, device)
+        solver = BatchedCG(grid, field, source, precondition, device, equation)
         rel = solver.start()
 
         # The preconditioned residual is a few times smaller than the weight error it stands for: aim ten times
@@ -168,6 +179,8 @@ def solve_biharmonic(
             restarts += 1
             if identity > identity_tol:
                 tol_cg = min(tol_cg, float(rel.max())) / 10.0
+        if equation == "laplace":
+            _gradients_from_values(grid, field, device)
         wp.synchronize_device(device)
 
     residual = float(rel.max()) if len(rel) else 0.0
@@ -191,20 +204,36 @@ def solve_biharmonic(
     )
 
 
-def _preconditioner(grid: Grid, preconditioner, device):
+def _gradients_from_values(grid: Grid, field: wp.array, device) -> None:
+    """The interior rows' G of a Laplace solution: central differences of its values (its G rows solved to 0)."""
+    shape = (grid.n_interior, field.shape[1])
+    arrays = grid.device_arrays(device)
+    gradients = wp.empty(shape, dtype=wp.vec3f, device=device)
+    wp.launch(laplace.gradient_from_values, dim=shape, inputs=[field, arrays["index"], arrays["active_ijk"]],
+              outputs=[gradients], device=device)
+    wp.launch(laplace.store_gradients, dim=shape, inputs=[gradients], outputs=[field], device=device)
+
+
+def _preconditioner(grid: Grid, preconditioner, device, equation: str = "biharmonic"):
     """(apply(r, z), default iteration limit, setup seconds) of the V-cycle (built here for "multigrid", or given
     as a Multigrid) or of the inverse diagonal ("jacobi")."""
     setup_seconds = 0.0
     if preconditioner == "multigrid":
         start = time.perf_counter()
-        preconditioner = Multigrid(grid, device=device)
+        preconditioner = Multigrid(grid, device=device, equation=equation)
         wp.synchronize_device(device)
         setup_seconds = time.perf_counter() - start
     if isinstance(preconditioner, Multigrid):
+        if preconditioner.equation != equation:
+            raise ValueError(f"the multigrid was built for the {preconditioner.equation} equation, the solve is for "
+                             f"the {equation} one")
         return preconditioner.apply, 200, setup_seconds
     if preconditioner == "jacobi":
         def precondition(r, z):
-            wp.launch(cg.jacobi, dim=r.shape, inputs=[r], outputs=[z], device=device)
+            if equation == "laplace":
+                wp.launch(laplace.jacobi, dim=r.shape, inputs=[r], outputs=[z], device=device)
+            else:
+                wp.launch(cg.jacobi, dim=r.shape, inputs=[r], outputs=[z], device=device)
         return precondition, 40 * (grid.resolution + 8) ** 2, setup_seconds
     raise ValueError(f"unknown preconditioner {preconditioner!r}: use 'multigrid' or 'jacobi'")
 
