@@ -1,6 +1,8 @@
-"""Deformation quality of Stokes cage coordinates over resolutions, beside mean value coordinates (issue 19).
+"""Deformation quality of Stokes (and harmonic) cage coordinates over resolutions, beside mean value coordinates
+(issues 17 and 19: the source paper's Table 2).
 
     python benchmarks/bench_quality.py --resolutions 64,128,256,384 --device cuda --json quality.json
+    python benchmarks/bench_quality.py --methods stokes,harmonic --resolutions 128,256 --device cuda
     python benchmarks/bench_quality.py --resolutions 24,32 --device cpu            # smoke test
 
 Pairs (``--pairs``, default all three):
@@ -15,14 +17,15 @@ Pairs (``--pairs``, default all three):
   farthest from the rest cage, RMS over handles); no reference mesh.
 - ``ogre``: ``Ogre.obj`` / ``cage_tri.obj`` deformed by ``cage_deformed_tri.obj``; no reference mesh.
 
-Per pair, mean value coordinates (MVC, evaluated at the vertices, no grid: the reference method) once, then a Stokes
-binding (the package's defaults) at each resolution, all measured by ``warp_stokes.quality``: conformal distortion
+Per pair, mean value coordinates (MVC, evaluated at the vertices, no grid: the reference method) once, then a binding
+by each method of ``--methods`` (the package's defaults otherwise) at each resolution, all measured by ``warp_stokes.quality``: conformal distortion
 p50 / p95 / max over the region's triangles (sigma1 / sigma2); dihedral-angle change p95 against the reference
 (degrees; unsigned angles between normals as in issue 19, and signed); fraction of negative weights (below -1e-5);
 min weight; distant-handle weight (mean over the region's vertices of |w| on handles farther along the cage than a
 quarter of its graph diameter); the weights' change against the next finer resolution in the list (max, and RMS
 over the region's vertices of each one's largest change); seconds (the bind, or evaluating MVC, after a warm-up bind
-that compiles the kernels). Prints a Markdown table; ``--json`` writes every measure.
+that compiles the kernels); peak device memory (CUDA: the memory pool's high-water mark above its level, reset before
+each bind). Prints a Markdown table; ``--json`` writes every measure.
 """
 
 from __future__ import annotations
@@ -40,7 +43,7 @@ import warp_stokes as ws
 from warp_stokes import quality
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import ARM, OGRE, SMPL, markdown_table, select_device, warm_up  # noqa: E402
+from common import ARM, OGRE, SMPL, DevicePeak, markdown_table, select_device, warm_up  # noqa: E402
 
 PAIRS = ("smpl", "arm", "ogre")
 
@@ -126,7 +129,7 @@ def _f(x, digits=3):
 
 def table(rows: list, device: str) -> str:
     head = ("device", "pair", "region", "method", "n", "conformal p50", "p95", "max", "dihedral p95 (signed)",
-            "neg frac", "min w", "distant w", "change max / rms", "s")
+            "neg frac", "min w", "distant w", "change max / rms", "s", "peak MiB", "its")
     lines = []
     for r in rows:
         for region, m in r["quality"]["regions"].items():
@@ -137,36 +140,43 @@ def table(rows: list, device: str) -> str:
             lines.append([
                 device, r["pair"], region, r["method"], str(r["n"] or "-"), _f(c["p50"]), _f(c["p95"]), _f(c["max"]),
                 dihedral, _f(m["negative_fraction"], 4), _f(m["min_weight"]), _f(m["distant_weight"]["mean"]),
-                f"{_f(ch['max'])} / {_f(ch['rms'], 4)}" if ch else "-", _f(r["seconds"], 2)])
+                f"{_f(ch['max'])} / {_f(ch['rms'], 4)}" if ch else "-", _f(r["seconds"], 2),
+                _f(r.get("peak_bytes", float("nan")) / 2**20, 0), str(r.get("iterations", "-"))])
     return markdown_table(head, lines)
 
 
 def run(args) -> list:
     rows = []
-    warm_up(args.device)  # compile and load every kernel on this device
+    for method in args.methods:  # compile and load every kernel on this device
+        warm_up(args.device, method=method)
     for name in args.pairs:
         pair = load_pair(name)
         mesh, cage = pair["mesh"], pair["cage"]
         print(f"{name}: {len(mesh.vertices)} vertices, {cage.n_handles} handles, {pair['note']}", file=sys.stderr)
         start = time.perf_counter()
-        mvc = ws.mean_value_coordinates(cage, mesh.vertices, device=args.device)
+        with DevicePeak(args.device) as peak:
+            mvc = ws.mean_value_coordinates(cage, mesh.vertices, device=args.device)
         rows.append({"pair": name, "method": "MVC", "n": None, "seconds": time.perf_counter() - start,
-                     "quality": measure(pair, mvc, args.device, fraction=args.fraction)})
-        bound = []
-        for n in sorted(args.resolutions):
-            start = time.perf_counter()
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                b = ws.bind(mesh, cage, resolution=n, device=args.device)
-            bound.append((n, b, time.perf_counter() - start))
-            print(f"  n = {n}: {bound[-1][2]:.2f} s, {b.stats['iterations']} iterations", file=sys.stderr, flush=True)
-        for i, (n, b, seconds) in enumerate(bound):
-            finer = bound[i + 1] if i + 1 < len(bound) else None
-            q = measure(pair, b.weights, args.device, None if finer is None else finer[1].weights, args.fraction)
-            rows.append({"pair": name, "method": "Stokes", "n": n, "finer_n": None if finer is None else finer[0],
-                         "seconds": seconds, "quality": q, "iterations": b.stats["iterations"],
-                         "partition_of_unity_error": b.stats["partition_of_unity_error"],
-                         "linear_precision_error": b.stats["linear_precision_error"]})
+                     "peak_bytes": peak.bytes, "quality": measure(pair, mvc, args.device, fraction=args.fraction)})
+        for method in args.methods:
+            bound = []
+            for n in sorted(args.resolutions):
+                start = time.perf_counter()
+                with warnings.catch_warnings(), DevicePeak(args.device) as peak:
+                    warnings.simplefilter("ignore")
+                    b = ws.bind(mesh, cage, resolution=n, device=args.device, method=method)
+                bound.append((n, b, time.perf_counter() - start, peak.bytes))
+                print(f"  {method} n = {n}: {bound[-1][2]:.2f} s, {b.stats['iterations']} iterations", file=sys.stderr,
+                      flush=True)
+            for i, (n, b, seconds, peak_bytes) in enumerate(bound):
+                finer = bound[i + 1] if i + 1 < len(bound) else None
+                q = measure(pair, b.weights, args.device, None if finer is None else finer[1].weights, args.fraction)
+                rows.append({"pair": name, "method": method.capitalize(), "n": n,
+                             "finer_n": None if finer is None else finer[0], "seconds": seconds,
+                             "peak_bytes": peak_bytes, "quality": q, "iterations": b.stats["iterations"],
+                             "partition_of_unity_error": b.stats["partition_of_unity_error"],
+                             "linear_precision_error": b.stats["linear_precision_error"]})
+            del bound
     return rows
 
 
@@ -175,12 +185,15 @@ def main(argv=None) -> int:
     p.add_argument("--resolutions", default="64,128,256,384", help="comma-separated grid resolutions")
     p.add_argument("--device", default=None, help="cpu | cuda | cuda:N (default: CUDA when present)")
     p.add_argument("--pairs", default=",".join(PAIRS), help=f"comma-separated, from {', '.join(PAIRS)}")
+    p.add_argument("--methods", default="stokes", help="comma-separated grid methods: stokes, harmonic (MVC is "
+                                                       "always measured, as the reference)")
     p.add_argument("--fraction", type=float, default=quality.DISTANT_FRACTION,
                    help="distant-handle threshold, as a fraction of the cage's graph diameter")
     p.add_argument("--json", default=None, help="write every measure to this file")
     args = p.parse_args(argv)
     args.resolutions = [int(n) for n in args.resolutions.split(",") if n.strip()]
     args.pairs = [s.strip() for s in args.pairs.split(",") if s.strip()]
+    args.methods = [s.strip() for s in args.methods.split(",") if s.strip()]
     resolved, device = select_device(args.device)
     args.device = resolved.alias
     rows = run(args)

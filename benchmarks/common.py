@@ -146,15 +146,20 @@ def pool_high(device) -> int | None:
 
 class DevicePeak:
     """Peak device memory over a ``with`` block: ``.bytes`` is the high-water mark of Warp's memory pool above its
-    level on entry (NaN off CUDA). The mark is the process's, so the block's own peak must be the highest so far
-    (warm up at a smaller size, or run each case in a fresh process)."""
+    level on entry (NaN off CUDA). The mark is reset on entry through the driver
+    (:func:`warp_stokes.device.reset_peak_memory`); where it cannot be, the mark is the process's and the block's own
+    peak must be the highest so far (warm up at a smaller size, or run each case in a fresh process)."""
 
     def __init__(self, device):
         self.device = device
         self.bytes = float("nan")
 
     def __enter__(self):
+        from warp_stokes.device import reset_peak_memory
+
         self._base = pool_used(self.device)
+        if self._base is not None:
+            reset_peak_memory(self.device)
         return self
 
     def __exit__(self, *exc):

@@ -75,6 +75,7 @@ point_list = wp.types.matrix(shape=(MAX_BLEND, 3), dtype=wp.float64)
 @wp.kernel
 def local_field(
     ijk: wp.array(dtype=wp.vec3i),
+    positions: wp.array(dtype=wp.vec3d),
     first_row: int,
     origin: wp.vec3d,
     spacing: wp.float64,
@@ -91,12 +92,17 @@ def local_field(
 ):
     """field[n, c] = (q, h grad q) of handle first_handle + c at active row n = first_row + thread, for
     c < n_handles, blended over the faces within `band` of the nearest; with `complement`, the column after
-    them stands for the rest of the cage (1 - sum q and its gradient, - sum grad q).
+    them stands for the rest of the cage (1 - sum q and its gradient, - sum grad q). Row n is the grid node ijk[n],
+    or, when `positions` is not empty, the point positions[n] (e.g. mesh vertices beyond the grid).
     `cage` holds the vertices relative to the same centre as `origin`; `tangent_gradients[f, i]` is grad_T of
     corner i's barycentric function on face f and `normal_derivatives[f, l]` is g_l on face f for every handle l."""
     n = first_row + wp.tid()
-    node = ijk[n]
-    x = origin + spacing * wp.vec3d(wp.float64(node[0]), wp.float64(node[1]), wp.float64(node[2]))
+    x = wp.vec3d()
+    if positions.shape[0] > 0:
+        x = positions[n]
+    else:
+        node = ijk[n]
+        x = origin + spacing * wp.vec3d(wp.float64(node[0]), wp.float64(node[1]), wp.float64(node[2]))
     zero = wp.float64(0.0)
     one = wp.float64(1.0)
     nearest = wp.float64(1.0e300)

@@ -32,18 +32,45 @@ def test_vertices_outside_the_cage_are_counted_and_weighted(bindings, device):
     assert b.stats["vertices_beyond_band"] == 0  # they are within 0.67% of the diagonal: inside the band
 
 
-def test_vertex_beyond_the_band_gets_mvc_and_a_warning(arm_cage, device):
+def test_vertex_beyond_the_band_gets_the_boundary_data_and_a_warning(arm_cage, device):
+    from warp_stokes.geometry.local_boundary import local_values
+
     mesh = ws.load_surface(EXAMPLE / "arm.obj")
     far = arm_cage.vertices.max(0) + 0.5 * arm_cage.diagonal
     vertices = np.vstack([mesh.vertices, far])
     # the count and the largest distance, also relative to the cage's diagonal (the vertex is half a diagonal
     # beyond the bounding box's corner on every axis: 1.2 diagonals from the surface)
     with pytest.warns(UserWarning, match=r"1 vertices lie outside .* beyond the grid's band \(up to [\d.]+ from the "
-                                         r"cage, 1\.2 of its diagonal\)"):
+                                         r"cage, 1\.2 of its diagonal\); they get the boundary data"):
         b = ws.bind((vertices, None), arm_cage, resolution=16, device=device)
+    grid = ws.voxelize(arm_cage, 16, device=device)
+    local = local_values(arm_cage, far[None], grid.spacing, device=device)[0]
+    np.testing.assert_allclose(b.weights[-1], local, rtol=1e-5, atol=1e-6)
+    assert abs(local.sum() - 1) < 1e-6 and np.linalg.norm(local @ arm_cage.vertices - far) < 1e-6 * arm_cage.diagonal
+    assert b.stats["vertices_beyond_band"] == 1
+    with pytest.warns(UserWarning, match="beyond the grid's band"):
+        b = ws.bind((vertices, None), arm_cage, resolution=16, device=device, boundary="mvc")
     mvc = ws.mean_value_coordinates(arm_cage, far[None], device=device)[0]
     np.testing.assert_allclose(b.weights[-1], mvc, rtol=1e-5, atol=1e-6)
-    assert b.stats["vertices_beyond_band"] == 1
+
+
+def test_weights_do_not_jump_where_the_band_ends(arm_cage, device):
+    """Along rays out of the cage, the weights of vertices sampled in the band and of those beyond it (the data at
+    their position) meet: 0.05-0.11 apart across the band's last cell at n = 16 (the data's own variation), where
+    mean value coordinates beyond the band were 0.48-0.49 away (measured on the CPU)."""
+    mesh = ws.load_surface(EXAMPLE / "arm.obj")
+    spacing = ws.voxelize(arm_cage, 16, device=device).spacing
+    for face in (10, 40, 77):
+        corners = arm_cage.vertices[arm_cage.faces[face]]
+        normal = np.cross(corners[1] - corners[0], corners[2] - corners[0])
+        ray = corners.mean(0) + np.linspace(0.2, 7, 69)[:, None] * spacing * normal / np.linalg.norm(normal)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            b = ws.bind((np.vstack([mesh.vertices, ray]), None), arm_cage, resolution=16, device=device)
+        weights = b.weights[-len(ray):]
+        edge = len(ray) - b.stats["vertices_beyond_band"]
+        assert 0 < b.stats["vertices_beyond_band"] < len(ray) - 20
+        assert np.abs(weights[edge] - weights[edge - 1]).max() < 0.2, face
 
 
 def test_deform_reproduces_affine_cage_motion(bindings):

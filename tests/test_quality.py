@@ -286,10 +286,27 @@ def test_the_benchmark_finds_the_wrists_and_prints_its_table(capsys, tmp_path):
     for side, wrist in zip(("+x", "-x"), hands["wrists"]):
         assert 0.66 < abs(wrist) < 0.74 and 700 < hands[f"hand {side}"].sum() < 900  # between forearm and palm
     # the benchmark's own run and table are the subject: on the CPU, whatever the device under test
-    assert bench_quality.main(["--resolutions", "16,12", "--pairs", "arm", "--device", "cpu",
-                               "--json", str(tmp_path / "q.json")]) == 0
+    assert bench_quality.main(["--resolutions", "16,12", "--pairs", "arm", "--device", "cpu", "--methods",
+                               "stokes,harmonic", "--json", str(tmp_path / "q.json")]) == 0
     rows = [line.split("|")[1:-1] for line in capsys.readouterr().out.splitlines() if line.startswith("| cpu | arm |")]
-    assert [(r[3].strip(), r[4].strip()) for r in rows] == [("MVC", "-"), ("Stokes", "12"), ("Stokes", "16")]
+    assert [(r[3].strip(), r[4].strip()) for r in rows] == [("MVC", "-"), ("Stokes", "12"), ("Stokes", "16"),
+                                                            ("Harmonic", "12"), ("Harmonic", "16")]
     assert rows[1][12].strip() != "-" and rows[2][12].strip() == "-"  # 12 is compared with 16, 16 with nothing
+    assert rows[3][12].strip() != "-" and int(rows[3][15]) > 0  # harmonic 12 against harmonic 16; iterations
     saved = json.loads((tmp_path / "q.json").read_text())
     assert saved[1]["finer_n"] == 16 and saved[1]["quality"]["regions"]["all"]["change"]["max"] > 0
+
+
+def test_the_refinement_probe_locates_the_largest_change(capsys):
+    sys.path.insert(0, str(REPO / "benchmarks"))
+    try:
+        import probe_where_change
+    finally:
+        sys.path.remove(str(REPO / "benchmarks"))
+    assert probe_where_change.main(["--device", "cpu", "--resolutions", "8,12", "--pairs", "arm"]) == 0
+    out = capsys.readouterr().out
+    lines = [line for line in out.splitlines() if line.startswith("arm ")]
+    assert [line.split(":")[0] for line in lines] == ["arm local", "arm mvc-data", "arm harmonic"]
+    largest = float(lines[0].split("max change ")[1].split(";")[0])
+    first = out.splitlines()[2]  # the vertex that changes most: its change is the largest
+    assert f"change {largest:.3f}" in first and "cells (n = 12) from the cage" in first

@@ -17,7 +17,7 @@ def test_sweep_command_writes_the_table_as_csv_and_json(tmp_path):
     pose = tmp_path / "bent.npy"
     np.save(pose, np.load(EXAMPLE / "bend_poses.npy")[-1])
     run = [sys.executable, "-m", "warp_stokes.cli", "sweep", str(EXAMPLE / "arm.obj"), str(EXAMPLE / "arm_cage.obj"),
-           "--resolutions", "8,16,12", "--methods", "stokes,mvc", "--pose", str(pose), "-o", str(tmp_path / "sweep"),
+           "--resolutions", "8,16,12", "--methods", "stokes,harmonic,mvc", "--pose", str(pose), "-o", str(tmp_path / "sweep"),
            "--device", "cpu"]
     result = subprocess.run(run, capture_output=True, text=True)
     assert result.returncode == 0, result.stderr
@@ -26,12 +26,17 @@ def test_sweep_command_writes_the_table_as_csv_and_json(tmp_path):
         rows = list(csv.DictReader(fh))
     assert list(rows[0]) == list(COLUMNS) + ["device"]
     assert [(r["method"], r["resolution"]) for r in rows] == [("stokes", "8"), ("stokes", "12"), ("stokes", "16"),
-                                                              ("mvc", "")]
+                                                              ("harmonic", "8"), ("harmonic", "12"),
+                                                              ("harmonic", "16"), ("mvc", "")]
     for r in rows:
         assert int(r["handles"]) == 58 and int(r["vertices"]) == 2089 and r["device"] == "cpu"
         assert float(r["pu_error"]) < 1e-5 and float(r["lp_error"]) < 1e-5 and float(r["seconds"]) > 0
         assert float(r["conformal_p95"]) >= 1.0  # the bent pose distorts; 1 is a similarity
-    coarse, middle, finest, mvc = rows
+    coarse, middle, finest = rows[:3]
+    mvc = rows[-1]
+    # harmonic coordinates converge to their own finest grid, and are another field than Stokes coordinates
+    assert rows[5]["weight_diff_max"] == "" and float(rows[3]["weight_diff_rms"]) > float(rows[4]["weight_diff_rms"])
+    assert rows[3]["weight_diff_rms"] != coarse["weight_diff_rms"] and int(rows[3]["iterations"]) > 0
     assert finest["weight_diff_max"] == "" and mvc["weight_diff_max"] == "" and mvc["iterations"] == ""
     assert float(coarse["weight_diff_rms"]) > float(middle["weight_diff_rms"]) > 0  # converging to the finest
     assert float(coarse["weight_diff_max"]) >= float(coarse["weight_diff_rms"])
@@ -52,5 +57,5 @@ def test_sweep_command_writes_the_table_as_csv_and_json(tmp_path):
 
 
 def test_sweep_in_python_checks_its_methods():
-    with pytest.raises(ws.WarpStokesError, match="methods must be among stokes, mvc, got harmonic"):
-        sweep(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", [8], methods=["harmonic"], device="cpu")
+    with pytest.raises(ws.WarpStokesError, match="methods must be among stokes, harmonic, mvc, got laplace"):
+        sweep(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", [8], methods=["laplace"], device="cpu")

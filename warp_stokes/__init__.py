@@ -27,7 +27,7 @@ _PUBLIC = {
                   "LocalData", "COMPLEMENT_COLUMNS", "mean_value_coordinates", "boundary_field"],
     ".solver": ["Multigrid", "coarsen", "MemoryEstimate", "estimate_memory", "available_memory", "plan_chunks",
                 "SolveReport", "solve_biharmonic", "apply_operator"],
-    ".binding": ["Binding", "bind", "load_binding", "sample_weights", "deform_vertices"],
+    ".binding": ["Binding", "bind", "load_binding", "sample_weights", "deform_vertices", "inbetween"],
     ".quality": ["deformation_quality", "mean_value_quality"],
     ".batch": ["read_manifest", "run_batch"],
 }
@@ -43,7 +43,7 @@ __all__ = [
     "sample_weights", "deform_vertices", "deformation_quality", "mean_value_quality",
     "MemoryEstimate", "estimate_memory", "available_memory", "plan_chunks",
     "resolve_device", "device_name",
-    "Poses", "load_poses", "write_animation", "read_manifest", "run_batch",
+    "Poses", "load_poses", "write_animation", "inbetween", "read_manifest", "run_batch",
     "WarpStokesError", "MeshError", "CageError", "BindingError", "ResolutionError",
 ]
 

@@ -145,3 +145,32 @@ def kernels_compiled(device=None) -> bool:
         if not any(f.endswith(suffixes) for folder in folders if os.path.isdir(folder) for f in os.listdir(folder)):
             return False
     return True
+
+
+#: CU_MEMPOOL_ATTR_USED_MEM_HIGH of the CUDA driver API (cuda.h)
+_USED_MEM_HIGH = 8
+
+
+def reset_peak_memory(device) -> bool:
+    """Reset the high-water mark of a CUDA device's memory pool (the one Warp allocates from) to its current use,
+    so that ``wp.get_mempool_used_mem_high`` measures what follows. Warp only reads the mark; the driver resets it
+    (``cuMemPoolSetAttribute``, which accepts 0 only: the mark then restarts from the current use). Returns False
+    where that is not possible (a CPU device, no driver library, the pool not in use): the caller must not trust a
+    mark that an earlier, larger peak may have set."""
+    import ctypes
+    import ctypes.util
+
+    d = resolve_device(device)
+    if not d.is_cuda or not wp.is_mempool_enabled(d):
+        return False
+    try:
+        cuda = ctypes.CDLL(ctypes.util.find_library("cuda") or "libcuda.so.1")
+        handle, pool, zero = ctypes.c_int(), ctypes.c_void_p(), ctypes.c_uint64(0)
+        if cuda.cuDeviceGet(ctypes.byref(handle), ctypes.c_int(d.ordinal)) != 0:
+            return False
+        if cuda.cuDeviceGetMemPool(ctypes.byref(pool), handle) != 0:  # the pool the device allocates from now
+            return False
+        wp.synchronize_device(d)
+        return cuda.cuMemPoolSetAttribute(pool, ctypes.c_int(_USED_MEM_HIGH), ctypes.byref(zero)) == 0
+    except (OSError, AttributeError):
+        return False

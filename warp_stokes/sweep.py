@@ -1,5 +1,5 @@
-"""Resolution sweeps: bind one pair at several grid resolutions (and with mean value coordinates beside), and
-tabulate cost, exactness and convergence, for researchers who benchmark grid resolutions.
+"""Resolution sweeps: bind one pair at several grid resolutions with Stokes and harmonic coordinates (and mean value
+coordinates beside), and tabulate cost, exactness and convergence, for researchers who benchmark grid resolutions.
 
 Each row: ``method, resolution, handles, vertices, seconds, peak_memory_bytes, memory_estimate_bytes, iterations,
 pu_error, lp_error, weight_diff_max, weight_diff_rms`` (the largest and RMS per-vertex change of the weights against
@@ -23,7 +23,7 @@ import numpy as np
 
 from .binding import bind
 from .binding.stats import identity_errors
-from .device import device_name, resolve_device
+from .device import device_name, reset_peak_memory, resolve_device
 from .errors import WarpStokesError
 from .geometry.boundary import mean_value_coordinates
 from .geometry.cage import check_cage
@@ -35,7 +35,7 @@ __all__ = ["sweep", "write_sweep", "format_sweep", "plot_sweep", "COLUMNS", "MET
 
 COLUMNS = ("method", "resolution", "handles", "vertices", "seconds", "peak_memory_bytes", "memory_estimate_bytes",
            "iterations", "pu_error", "lp_error", "weight_diff_max", "weight_diff_rms", "conformal_p95")
-METHODS = ("stokes", "mvc")
+METHODS = ("stokes", "harmonic", "mvc")
 
 
 def _status_kib(field: str) -> int | None:
@@ -51,9 +51,10 @@ def _status_kib(field: str) -> int | None:
 
 
 class _PeakMemory:
-    """Peak memory of one bind: Warp's memory-pool high-water mark above its level on a GPU; on a CPU the process's
-    peak resident set above its size at the start (Linux: the peak is reset first through /proc/self/clear_refs;
-    elsewhere the growth of the maximum resident set, which only grows)."""
+    """Peak memory of one bind: Warp's memory-pool high-water mark above its level on a GPU (the mark reset first
+    through the driver; None where it cannot be and an earlier peak was higher); on a CPU the process's peak resident
+    set above its size at the start (Linux: the peak is reset first through /proc/self/clear_refs; elsewhere the
+    growth of the maximum resident set, which only grows)."""
 
     def __init__(self, device):
         import warp as wp
@@ -62,6 +63,8 @@ class _PeakMemory:
         if device.is_cuda:
             wp.synchronize_device(device)
             self.base = int(wp.get_mempool_used_mem_current(device))
+            # the pool's mark is the process's: without a reset an earlier, larger bind would set it
+            self.trusted = reset_peak_memory(device) or int(wp.get_mempool_used_mem_high(device)) <= self.base
             return
         try:
             with open("/proc/self/clear_refs", "w", encoding="ascii") as fh:
@@ -75,7 +78,7 @@ class _PeakMemory:
 
         if self.device.is_cuda:
             wp.synchronize_device(self.device)
-            return max(0, int(wp.get_mempool_used_mem_high(self.device)) - self.base)
+            return max(0, int(wp.get_mempool_used_mem_high(self.device)) - self.base) if self.trusted else None
         peak = _status_kib("VmHWM") * 1024 if self.linux else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
         return max(0, peak - self.base)
 
@@ -99,7 +102,7 @@ def sweep(mesh, cage, resolutions, methods=("stokes",), pose=None, device=None, 
     ----------
     mesh, cage : what :func:`warp_stokes.bind` takes
     resolutions : iterable of int
-    methods : iterable of "stokes" | "mvc"
+    methods : iterable of "stokes" | "harmonic" | "mvc"
     pose : deformed cage (path, (L, 3) array), optional: adds ``conformal_p95``
     device : None | str
     tol : float
@@ -117,11 +120,11 @@ def sweep(mesh, cage, resolutions, methods=("stokes",), pose=None, device=None, 
     if unknown or not methods:
         raise WarpStokesError(f"methods must be among {', '.join(METHODS)}, got {', '.join(unknown) or 'none'}")
     resolutions = sorted({int(r) for r in resolutions})
-    if "stokes" in methods and not resolutions:
+    if any(m != "mvc" for m in methods) and not resolutions:
         raise WarpStokesError("a sweep needs at least one resolution")
     device = resolve_device(device)
     surface, checked = load_surface(mesh), check_cage(cage)
-    rows, weights = [], {}
+    rows, weights = [], {method: {} for method in methods}
     for method in methods:
         if method == "mvc":
             start, peak = time.perf_counter(), _PeakMemory(device)
@@ -133,18 +136,17 @@ def sweep(mesh, cage, resolutions, methods=("stokes",), pose=None, device=None, 
             peak = _PeakMemory(device)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                binding = bind(surface, checked, resolution=resolution, device=device, tol=tol)
-            weights[resolution] = binding.weights
-            rows.append(_row("stokes", resolution, binding.weights, surface, checked, pose,
+                binding = bind(surface, checked, resolution=resolution, device=device, tol=tol, method=method)
+            weights[method][resolution] = binding.weights
+            rows.append(_row(method, resolution, binding.weights, surface, checked, pose,
                              binding.stats["seconds"]["total"], peak.bytes(), binding.stats["memory_estimate_bytes"],
                              binding.stats["iterations"]))
-    if weights:
-        finest = weights[max(weights)]
-        for row in rows:
-            if row["method"] == "stokes" and row["resolution"] != max(weights):
-                largest, _ = vertex_weight_difference(weights[row["resolution"]], finest)
-                row["weight_diff_max"] = float(largest.max())
-                row["weight_diff_rms"] = float(np.sqrt(np.mean(largest**2)))
+    for row in rows:
+        mine = weights[row["method"]]
+        if mine and row["resolution"] != max(mine):
+            largest, _ = vertex_weight_difference(mine[row["resolution"]], mine[max(mine)])
+            row["weight_diff_max"] = float(largest.max())
+            row["weight_diff_rms"] = float(np.sqrt(np.mean(largest**2)))
     for row in rows:
         row["device"] = device_name(device)
     return rows

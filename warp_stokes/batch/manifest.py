@@ -11,7 +11,7 @@ from ..errors import WarpStokesError
 __all__ = ["Asset", "ManifestError", "read_manifest", "ASSET_KEYS"]
 
 ASSET_KEYS = {"name", "mesh", "cage", "poses", "resolution", "fps", "tol", "with_cage", "with_weights", "boundary",
-              "sampling", "cage_prim", "mesh_prims", "rest_time"}
+              "sampling", "cage_prim", "mesh_prims", "rest_time", "method"}
 
 
 class ManifestError(WarpStokesError):
@@ -32,6 +32,7 @@ class Asset:
     tol: float = 1e-6
     boundary: str = "local"
     sampling: str = "hermite"
+    method: str = "stokes"
     with_cage: bool = False
     with_weights: bool = False
 
@@ -78,6 +79,8 @@ def _checked_entry(merged: dict, where: str) -> None:
         raise ManifestError(f"{where}: 'poses' must be a path")
     if merged.get("boundary", "local") not in ("local", "mvc"):
         raise ManifestError(f"{where}: 'boundary' must be \"local\" or \"mvc\"")
+    if merged.get("method", "stokes") not in ("stokes", "harmonic", "mvc"):
+        raise ManifestError(f"{where}: 'method' must be \"stokes\", \"harmonic\" or \"mvc\"")
     if merged.get("sampling", "hermite") not in ("hermite", "trilinear"):
         raise ManifestError(f"{where}: 'sampling' must be \"hermite\" or \"trilinear\"")
     for key, kind in (("resolution", int), ("fps", (int, float)), ("tol", (int, float)),

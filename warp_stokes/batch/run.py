@@ -201,7 +201,7 @@ def _bind_asset(asset, pending: dict, device, progress, k: int, total: int, resu
     if progress:
         _progress(progress, k, total, asset.name, f"binding at resolution {asset.resolution}")
     binding = bind(asset.mesh, cage, resolution=asset.resolution, device=device, tol=asset.tol,
-                   boundary=asset.boundary, sampling=asset.sampling, cage_prim=asset.cage_prim,
+                   boundary=asset.boundary, sampling=asset.sampling, method=asset.method, cage_prim=asset.cage_prim,
                    mesh_prims=asset.mesh_prims, rest_time=asset.rest_time)
     result.vertices, result.handles = binding.n_vertices, binding.n_handles
     result.device = binding.stats["device"]

@@ -1,10 +1,13 @@
 """A mesh bound to a cage: :func:`bind` (load -> grid -> solve -> sample), the :class:`Binding` it returns (weights
-that deform the mesh, saved as ``.npz``), and the sampling and deformation kernels' launch code."""
+that deform the mesh, saved as ``.npz``), the sampling and deformation kernels' launch code, and
+:func:`inbetween` (frames between key cage poses)."""
 
 from .deform import deform_vertices
+from .inbetween import inbetween
 from .pipeline import bind
 from .stats import identity_errors
 from .sample import sample_weights
 from .store import FORMAT, Binding, load_binding
 
-__all__ = ["bind", "identity_errors", "Binding", "load_binding", "FORMAT", "sample_weights", "deform_vertices"]
+__all__ = ["bind", "identity_errors", "Binding", "load_binding", "FORMAT", "sample_weights", "deform_vertices",
+           "inbetween"]

@@ -12,7 +12,8 @@ from ..geometry.topology import bounding_diagonal
 from ..geometry.local_boundary import LocalData
 from ..io.scene import Scene
 
-__all__ = ["identity_errors", "grid_stats", "solver_stats", "settings_record", "parts_record", "asset_record"]
+__all__ = ["identity_errors", "grid_stats", "solver_stats", "mvc_stats", "settings_record", "parts_record",
+           "asset_record"]
 
 
 def identity_errors(weights: np.ndarray, handles: np.ndarray, points: np.ndarray, rows: int = 1 << 16):
@@ -63,17 +64,47 @@ def grid_stats(grid, checked: Cage, surface, inside, beyond, thin, device) -> di
     }
 
 
-def settings_record(resolution, tol, max_iterations, solver, boundary, sampling, surface, checked: Cage, scene: Scene,
-              cage_prim) -> dict:
-    """The settings a binding was made with, and where its inputs came from."""
+def mvc_stats(checked: Cage, surface, inside, device, pu_error: float, lp_error: float, seconds: dict) -> dict:
+    """The stats of a binding by mean value coordinates: no grid, no solve (the keys a grid binding has, empty)."""
     return {
-        "resolution": int(resolution),
-        "tol": float(tol),
-        "max_iterations": max_iterations,
-        "solver": solver,
-        "boundary": "mvc-central-difference" if boundary == "mvc" else str(
+        "device": device_name(device),
+        "method": "mvc",
+        "grid_shape": None,
+        "handles": checked.n_handles,
+        "vertices": len(surface.vertices),
+        "vertices_outside_cage": int((~inside).sum()),
+        "vertices_beyond_band": 0,
+        "vertices_in_thin_features": 0,
+        "solver": None,
+        "levels": [],
+        "chunks": 0,
+        "iterations": 0,
+        "residual": 0.0,
+        "identity_error": 0.0,
+        "converged": True,
+        # the float32 weights and one float64 block of rows on the device
+        "memory_estimate_bytes": (4 * len(surface.vertices) + 8 * min(len(surface.vertices), 1 << 16))
+        * checked.n_handles,
+        "partition_of_unity_error": pu_error,
+        "linear_precision_error": lp_error,
+        "seconds": seconds,
+        "warnings": list(checked.notes),
+    }
+
+
+def settings_record(resolution, tol, max_iterations, solver, boundary, sampling, surface, checked: Cage, scene: Scene,
+              cage_prim, method: str = "stokes") -> dict:
+    """The settings a binding was made with, and where its inputs came from."""
+    grid = method != "mvc"
+    return {
+        "method": method,
+        "resolution": int(resolution) if grid else None,
+        "tol": float(tol) if grid else None,
+        "max_iterations": max_iterations if grid else None,
+        "solver": solver if grid else None,
+        "boundary": None if not grid else "mvc-central-difference" if boundary == "mvc" else str(
             LocalData() if boundary == "local" else boundary),
-        "sampling": sampling,
+        "sampling": sampling if grid else None,
         "mesh": surface.name,
         "cage": checked.name,
         "cage_prim": cage_prim,

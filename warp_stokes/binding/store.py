@@ -89,8 +89,9 @@ class Binding:
 
     def __repr__(self) -> str:
         parts = f", {len(self.parts)} meshes" if len(self.parts) > 1 else ""
-        return (f"Binding({self.n_vertices} vertices{parts}, {self.n_handles} handles, "
-                f"resolution {self.settings.get('resolution')})")
+        method = self.settings.get("method", "stokes")
+        how = "mean value coordinates" if method == "mvc" else f"{method}, resolution {self.settings.get('resolution')}"
+        return f"Binding({self.n_vertices} vertices{parts}, {self.n_handles} handles, {how})"
 
     def part_slices(self) -> list:
         """Each part's rows of ``weights`` (and of the deformed vertices), in the order of :attr:`parts`."""

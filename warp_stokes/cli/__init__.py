@@ -1,8 +1,9 @@
-"""Command line: ``warp-stokes bind | deform | animate | encode | batch | sweep``."""
+"""Command line: ``warp-stokes bind | deform | animate | encode | batch | sweep | show``."""
 
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import warnings
 
@@ -52,6 +53,33 @@ def _resolutions(text: str) -> list:
     return values
 
 
+def _key_frames(text: str) -> list:
+    """An argparse type: comma-separated frame numbers, finite and strictly increasing (their count is checked
+    against the poses once they are loaded)."""
+    try:
+        values = [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a comma-separated list of numbers, e.g. 0,12,30") from None
+    if not values or not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(f"{text!r}: give finite frame numbers, e.g. 0,12,30")
+    if any(b <= a for a, b in zip(values, values[1:])):
+        raise argparse.ArgumentTypeError(f"{text!r}: the frame numbers must be strictly increasing")
+    return values
+
+
+def _slice(text: str) -> tuple:
+    """An argparse type: ``AXIS=FRACTION`` (e.g. ``z=0.5``), the fraction of the cage's box along x, y or z."""
+    axis, _, fraction = text.partition("=")
+    try:
+        value = float(fraction)
+    except ValueError:
+        value = None
+    if axis.strip().lower() not in ("x", "y", "z") or value is None or not 0.0 <= value <= 1.0:
+        raise argparse.ArgumentTypeError(f"{text!r} is not AXIS=FRACTION with x, y or z and a fraction in [0, 1], "
+                                         "e.g. z=0.5")
+    return axis.strip().lower(), value
+
+
 def main(argv=None) -> int:
     """Entry point of the ``warp-stokes`` command: its exit code (0 done, 1 not converged or an asset failed,
     2 bad input or a failed write, 130 interrupted)."""
@@ -70,7 +98,7 @@ def _parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="warp-stokes", description="Stokes cage coordinates with NVIDIA Warp.")
     parser.add_argument("--version", action="version", version=f"warp-stokes {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
-    for add in (_add_bind, _add_deform, _add_animate, _add_encode, _add_batch, _add_sweep):
+    for add in (_add_bind, _add_deform, _add_animate, _add_encode, _add_batch, _add_sweep, _add_show):
         add(sub)
     return parser
 
@@ -99,6 +127,9 @@ def _add_bind(sub) -> None:
                    help="boundary data: local to each node's closest cage point (default) or mean value coordinates")
     p.add_argument("--sampling", choices=["hermite", "trilinear"], default="hermite",
                    help="weights at the vertices: C1 tricubic Hermite of values and gradients (default) or trilinear")
+    p.add_argument("--method", choices=["stokes", "harmonic", "mvc"], default="stokes",
+                   help="Stokes coordinates (default); harmonic coordinates (Laplace on the same grid and data); or "
+                        "mean value coordinates at the vertices (no grid)")
     p.set_defaults(run=commands.bind_command)
 
 
@@ -124,6 +155,14 @@ def _add_animate(sub) -> None:
     p.add_argument("--asset", default=None, help="the bound USD asset, where it is not at the path the binding records")
     p.add_argument("--fps", type=_number(float, 0.0, low_open=True), default=None,
                    help="time codes per second (default: the poses' USD stage's, else 24)")
+    p.add_argument("--key-frames", type=_key_frames, default=None, metavar="F,F,...",
+                   help="the poses are keys at these frame numbers (one per pose, increasing, e.g. 0,12,30); the "
+                        "frames between them are interpolated")
+    p.add_argument("--inbetween", type=_number(int, 0), default=None, metavar="K",
+                   help="write K interpolated frames between each two key poses (default with --key-frames: every "
+                        "integer frame)")
+    p.add_argument("--interpolation", choices=["linear", "spline"], default=None,
+                   help="between keys: linear (default) or a natural cubic spline (with --key-frames or --inbetween)")
     p.add_argument("--with-cage", action="store_true", help="also write the animated cage (/Root/Cage)")
     p.add_argument("--with-weights", action="store_true", help="write the weights as a primvar")
     p.add_argument("--up-axis", choices=["Y", "Z"], default=None, help="stage up axis (Y; over an asset, the asset's)")
@@ -148,17 +187,36 @@ def _add_encode(sub) -> None:
 
 
 def _add_sweep(sub) -> None:
-    p = sub.add_parser("sweep", help="bind at several resolutions (and with MVC) and tabulate cost and convergence")
+    p = sub.add_parser("sweep", help="bind at several resolutions (Stokes, harmonic, MVC) and tabulate cost and "
+                                     "convergence")
     p.add_argument("mesh", help="mesh file")
     p.add_argument("cage", help="closed cage mesh file")
     p.add_argument("--resolutions", type=_resolutions, required=True, help="comma-separated, e.g. 16,24,32")
-    p.add_argument("--methods", default="stokes", help="comma-separated: stokes, mvc (default stokes)")
+    p.add_argument("--methods", default="stokes", help="comma-separated: stokes, harmonic, mvc (default stokes)")
     p.add_argument("--pose", default=None, help="a deformed cage (file or .npy (L, 3)): adds the conformal "
                                                 "distortion's 95th percentile")
     p.add_argument("-o", "--output", required=True, help="folder for sweep.csv and sweep.json")
     p.add_argument("--device", default=None, help="cpu, cuda or cuda:N")
     p.add_argument("--tol", type=_number(float, 0.0, 0.1, low_open=True), default=1e-6, help="solver tolerance")
     p.set_defaults(run=commands.sweep_command)
+
+
+def _add_show(sub) -> None:
+    p = sub.add_parser("show", help="draw a handle's weight on a slice, or the deformed mesh's distortion (PNG)")
+    p.add_argument("binding", help="binding file written by 'warp-stokes bind'")
+    p.add_argument("--handle", type=_number(int, 0), default=None, metavar="L",
+                   help="draw handle L's weight on a slice through the cage")
+    p.add_argument("--slice", type=_slice, default=None, metavar="AXIS=F",
+                   help="with --handle: the plane at fraction F of the cage's box along x, y or z (default z=0.5)")
+    p.add_argument("--pose", default=None, help="draw the mesh deformed by this cage (file or .npy (L, 3)), coloured "
+                                                "by conformal distortion")
+    p.add_argument("--error", default=None, metavar="MESH",
+                   help="colour the (deformed) mesh by its distance to this reference mesh instead")
+    p.add_argument("--view", choices=["front", "side", "top"], default=None,
+                   help="the mesh's orthographic view (default front: along -z, +y up; a Z-up asset's: along +y)")
+    p.add_argument("-o", "--output", required=True, help="picture to write (.png)")
+    p.add_argument("--device", default=None, help="cpu, cuda or cuda:N")
+    p.set_defaults(run=commands.show_command)
 
 
 def _add_batch(sub) -> None:

@@ -8,14 +8,28 @@ import sys
 import tempfile
 
 __all__ = ["format_stats", "check_output", "announce_compilation", "bind_command", "deform_command",
-           "animate_command", "encode_command", "sweep_command", "batch_command"]
+           "animate_command", "encode_command", "sweep_command", "show_command", "batch_command"]
 
 
 def format_stats(stats: dict) -> str:
     """The stats of a binding as a short two-column table."""
     sec = stats["seconds"]
+    if stats.get("method") == "mvc":  # no grid, no solve
+        rows = [
+            ("device", stats["device"]),
+            ("method", "mean value coordinates at the vertices (no grid)"),
+            ("handles", str(stats["handles"])),
+            ("vertices", f"{stats['vertices']} ({stats['vertices_outside_cage']} outside the cage)"),
+            ("partition of unity", f"max |sum w - 1| = {stats['partition_of_unity_error']:.2e}"),
+            ("linear precision", f"max |W C - P| = {stats['linear_precision_error']:.2e} x diagonal"),
+            ("seconds", ", ".join(f"{k} {v:.2f}" for k, v in sec.items())),
+        ]
+        width = max(len(k) for k, _ in rows)
+        return "\n".join(f"{k:<{width}}  {v}" for k, v in rows)
     rows = [
         ("device", stats["device"]),
+        ("method", {"harmonic": "harmonic coordinates (7-point Laplace)"}.get(stats.get("method"),
+                                                                              "Stokes coordinates (biharmonic)")),
         ("grid", " x ".join(str(s) for s in stats["grid_shape"]) + f"  (h = {stats['spacing']:.4g})"),
         ("nodes", f"{stats['interior_nodes']} interior, {stats['ring_nodes']} ring, {stats['band_nodes']} band"),
         ("handles", str(stats["handles"])),
@@ -77,7 +91,7 @@ def bind_command(args) -> int:
     binding = ws.bind(args.mesh, args.cage, resolution=args.resolution, device=args.device, tol=args.tol,
                       max_iterations=args.max_iterations, solver=args.solver, memory_budget=budget,
                       boundary=args.boundary, sampling=args.sampling, cage_prim=args.cage_prim,
-                      mesh_prims=args.mesh_prim, rest_time=args.rest_time)
+                      mesh_prims=args.mesh_prim, rest_time=args.rest_time, method=args.method)
     binding.save(args.output)
     print(format_stats(binding.stats))
     if len(binding.parts) > 1:
@@ -132,10 +146,19 @@ def pose_argument(source: str, n_handles: int):
 def animate_command(args) -> int:
     import warp_stokes as ws
 
+    keyed = args.key_frames is not None or args.inbetween is not None
+    if args.interpolation is not None and not keyed:
+        raise ws.WarpStokesError("--interpolation needs --key-frames or --inbetween (without them the poses are "
+                                 "written as they are)")
     check_output(args.output, (args.binding, args.poses, args.asset))
     binding = ws.load_binding(args.binding, device=args.device)
     poses = ws.load_poses(args.poses, binding.cage_faces, binding.n_handles, binding.cage_source_index,
                           cage_prim=args.cage_prim)
+    if args.key_frames is not None and len(args.key_frames) != len(poses.frames):
+        raise ws.WarpStokesError(f"--key-frames: {len(args.key_frames)} frame numbers for {len(poses.frames)} poses "
+                                 f"in {poses.name}; give one per pose")
+    if keyed:  # the poses are keys: the frames between them are interpolated
+        poses = ws.inbetween(poses, args.key_frames, args.inbetween, args.interpolation or "linear")
     ws.write_animation(args.output, binding, poses, fps=args.fps, with_cage=args.with_cage,
                        with_weights=args.with_weights, up_axis=args.up_axis, meters_per_unit=args.meters_per_unit,
                        asset=args.asset)
@@ -193,13 +216,52 @@ def sweep_command(args) -> int:
     print(format_sweep(rows))
     csv_path, json_path = write_sweep(rows, args.output)
     print(f"wrote {csv_path} and {json_path}")
-    if any(r["method"] == "stokes" for r in rows) and len(args.resolutions) > 1:
+    if any(r["method"] != "mvc" for r in rows) and len(args.resolutions) > 1:
         try:
             pictures = plot_sweep(rows, args.output)
         except WarpStokesError as exc:  # matplotlib is an optional extra: the table stands without the pictures
             print(f"no pictures: {exc}", file=sys.stderr)
         else:
             print(f"drew {pictures[0]} and {pictures[1]}")
+    return 0
+
+
+def show_command(args) -> int:
+    from warp_stokes.errors import WarpStokesError
+
+    if (args.handle is None) == (args.pose is None and args.error is None):
+        raise WarpStokesError("give --handle L (a weight slice) or --pose/--error (the mesh), not both or neither")
+    if args.handle is None and args.slice is not None:
+        raise WarpStokesError("--slice goes with --handle")
+    if args.handle is not None and args.view is not None:
+        raise WarpStokesError("--view goes with --pose or --error")
+    if not args.output.lower().endswith(".png"):
+        raise WarpStokesError(f"{args.output}: the picture is written as .png")
+    check_output(args.output, (args.binding, args.pose, args.error))
+    import numpy as np
+
+    import warp_stokes as ws
+    from warp_stokes.show import show_mesh, show_weights
+
+    binding = ws.load_binding(args.binding, device=args.device)
+    if args.handle is not None:
+        if args.handle >= binding.n_handles:
+            raise WarpStokesError(f"--handle {args.handle}: the binding has handles 0 to {binding.n_handles - 1}")
+        axis, fraction = args.slice or ("z", 0.5)
+        announce_compilation(args.device)
+        s = show_weights(binding, args.handle, args.output, axis, fraction, device=args.device)
+        values = s.image[~np.isnan(s.image)]
+        where = f"handle {args.handle} ({s.method}) on {axis} = {fraction:g} of the cage ({axis} = {s.position:.6g})"
+        if values.size:
+            print(f"wrote {args.output}: {where}: weights {values.min():.6g} to {values.max():.6g} at {values.size} "
+                  f"{'pixels' if s.resolution is None else 'nodes'} inside the cage")
+        else:
+            print(f"wrote {args.output}: {where}: the plane misses the cage's inside")
+        return 0
+    pose = None if args.pose is None else pose_argument(args.pose, binding.n_handles)
+    drawn = show_mesh(binding, args.output, pose=pose, reference=args.error, view=args.view or "front")
+    print(f"wrote {args.output}: {len(drawn['values'])} triangles, {drawn['label']} from {drawn['range'][0]:.6g} "
+          f"to {drawn['range'][1]:.6g}")
     return 0
 
 

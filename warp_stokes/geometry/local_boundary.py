@@ -28,7 +28,7 @@ from ..device import resolve_device
 from .grid import Grid
 from ..kernels import local_boundary
 
-__all__ = ["LocalData", "cage_graph_distances", "normal_derivatives", "local_field"]
+__all__ = ["LocalData", "cage_graph_distances", "normal_derivatives", "local_field", "local_values"]
 
 #: a node blends the data of the faces whose distance is within this many grid spacings of the nearest face's, so
 #: that the data is continuous where the nearest face changes (and the same on every device: a float32 nearest-face
@@ -208,8 +208,8 @@ def local_field(grid: Grid, cage: Cage, field: wp.array, rows: slice, handles: s
         wp.launch(
             local_boundary.local_field,
             dim=end - start,
-            inputs=[grid.device_arrays(device)["active_ijk"], start, wp.vec3d(*grid.origin),
-                    wp.float64(grid.spacing), wp.float64(BLEND_BAND * grid.spacing), wp.array(relative, dtype=wp.vec3d),
+            inputs=[grid.device_arrays(device)["active_ijk"], wp.empty(0, dtype=wp.vec3d), start,
+                    wp.vec3d(*grid.origin), wp.float64(grid.spacing), wp.float64(BLEND_BAND * grid.spacing), wp.array(relative, dtype=wp.vec3d),
                     wp.array(cage.faces.astype(np.int32), dtype=wp.vec3i),
                     wp.array(unit_normals(cage), dtype=wp.vec3d),
                     wp.array(_tangent_gradients(cage), dtype=wp.vec3d),
@@ -217,3 +217,46 @@ def local_field(grid: Grid, cage: Cage, field: wp.array, rows: slice, handles: s
                     int(complement)],
             outputs=[field],
         )
+
+
+def local_values(cage: Cage, points: np.ndarray, spacing: float, settings: LocalData = LocalData(),
+                 device=None) -> np.ndarray:
+    """The local data's values q_l at arbitrary points (float32 accuracy): what a grid of node spacing ``spacing``
+    would hold at a node there. For mesh vertices beyond a grid's band, so that they get the data their neighbours
+    inside the band are interpolated from.
+
+    Parameters
+    ----------
+    cage : Cage
+    points : (N, 3) array, absolute positions
+    spacing : float, the grid's node spacing (it sets the faces' blending band)
+    settings : LocalData
+    device : None | str
+
+    Returns
+    -------
+    (N, L) float64; rows sum to one and reproduce the points (to float32 rounding)
+
+    Examples
+    --------
+    >>> w = local_values(cage, far_points, grid.spacing)     # doctest: +SKIP
+    """
+    device = resolve_device(device)
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    centre = 0.5 * (cage.vertices.min(axis=0) + cage.vertices.max(axis=0))
+    with wp.ScopedDevice(device):
+        out = wp.empty((len(points), cage.n_handles), dtype=wp.vec4f)
+        if len(points):
+            wp.launch(
+                local_boundary.local_field,
+                dim=len(points),
+                inputs=[wp.empty(0, dtype=wp.vec3i), wp.array(points - centre, dtype=wp.vec3d), 0, wp.vec3d(),
+                        wp.float64(spacing), wp.float64(BLEND_BAND * spacing),
+                        wp.array(cage.vertices - centre, dtype=wp.vec3d),
+                        wp.array(cage.faces.astype(np.int32), dtype=wp.vec3i),
+                        wp.array(unit_normals(cage), dtype=wp.vec3d),
+                        wp.array(_tangent_gradients(cage), dtype=wp.vec3d),
+                        wp.array(normal_derivatives(cage, settings, device), dtype=wp.float64), 0, cage.n_handles, 0],
+                outputs=[out],
+            )
+    return out.numpy()[..., 0].astype(np.float64)
