@@ -59,10 +59,10 @@ def gradient_from_values(
     field: wp.array2d(dtype=wp.vec4f),
     index: wp.array3d(dtype=wp.int32),
     active_ijk: wp.array(dtype=wp.vec3i),
-    gradients: wp.array2d(dtype=wp.vec3f),
 ):
-    """gradients[n] = G of interior row n from the values: G_a = (q(p+e_a) - q(p-e_a)) / 2 (every neighbour of an
-    interior node is an interior or ring node); launch (interior rows, handles)."""
+    """G of interior row n from the values, in place: G_a = (q(p+e_a) - q(p-e_a)) / 2 (every neighbour of an
+    interior node is an interior or ring node); launch (interior rows, handles). A thread reads its neighbours' q
+    and rewrites its own node with the same q: no thread's reads depend on another's writes."""
     n, h = wp.tid()
     p = active_ijk[n]
     g = wp.vec3f()
@@ -72,14 +72,6 @@ def gradient_from_values(
         up = p + e
         down = p - e
         g[a] = wp.float32(0.5) * (field[index[up[0], up[1], up[2]], h][0] - field[index[down[0], down[1], down[2]], h][0])
-    gradients[n, h] = g
-
-
-@wp.kernel
-def store_gradients(gradients: wp.array2d(dtype=wp.vec3f), field: wp.array2d(dtype=wp.vec4f)):
-    """field[n] = (q, gradients[n]) at the interior rows; launch (interior rows, handles)."""
-    n, h = wp.tid()
-    g = gradients[n, h]
     field[n, h] = wp.vec4f(field[n, h][0], g[0], g[1], g[2])
 
 

@@ -91,12 +91,14 @@ def test_a_first_run_says_it_compiles_the_kernels(tmp_path, monkeypatch, capsys)
         (empty / f"wp_warp_stokes.kernels.{module}_abc1234").mkdir()
         (empty / f"wp_warp_stokes.kernels.{module}_abc1234" / f"wp_warp_stokes.kernels.{module}.cpu1.o").write_text("")
     assert device.kernels_compiled("cpu")
+    # harmonic coordinates also need the Laplace kernels, compiled only by a harmonic bind
+    assert not device.kernels_compiled("cpu", device.KERNEL_MODULES + ("laplace",))
 
 
 def test_the_command_says_so_before_it_compiles(tmp_path, monkeypatch, capsys):
     import warp_stokes.device as device
 
-    monkeypatch.setattr(device, "kernels_compiled", lambda d=None: False)  # as on a fresh machine
+    monkeypatch.setattr(device, "kernels_compiled", lambda d=None, modules=None: False)  # as on a fresh machine
     rc = main(["bind", str(EXAMPLE / "arm.obj"), str(EXAMPLE / "arm_cage.obj"), "-o", str(tmp_path / "a.npz"),
                "--resolution", "8", "--device", "cpu"])
     err = capsys.readouterr().err

@@ -101,3 +101,19 @@ def test_frames_from_arrays_and_usd(arm, tmp_path):
     np.testing.assert_allclose(loaded.positions, frames, atol=1e-4)
     with pytest.raises(ws.BindingError, match=r"f.npy: frames must have shape \(frames, 58, 3\)"):
         load_mesh_frames(tmp_path / "f.npy", arm.mesh_faces, 58)
+
+
+def test_device_products_equal_the_host_ones(arm, device, monkeypatch):
+    """W^T W and W^T P summed by the Warp kernels (blocks of vertices, float64 atomics; frames in batches) against
+    numpy's float64 products, with more frames than a batch and far from the origin."""
+    from warp_stokes.binding import encode
+
+    frames = arm.deform(known_poses(arm, n=7, seed=4)).astype(np.float64) + 500.0
+    monkeypatch.setattr(encode, "FRAME_BYTES", 3 * 24 * arm.n_vertices)  # batches of 3 frames: 3 + 3 + 1
+    gram, projected = encode.normal_equations(arm.weights, frames, device=device, kernels=True)
+    w = arm.weights.astype(np.float64)
+    np.testing.assert_allclose(gram, w.T @ w, rtol=1e-10, atol=1e-10 * np.abs(w.T @ w).max())
+    reference = np.einsum("vl,fvd->lfd", w, frames)
+    assert np.abs(projected - reference).max() <= 1e-6 * np.abs(reference).max()
+    host = encode.normal_equations(arm.weights, frames, device="cpu", kernels=False)
+    np.testing.assert_allclose(host[0], w.T @ w, rtol=1e-12)

@@ -243,3 +243,19 @@ def test_views_and_cross_sections():
     segments = cross_section(vertices, faces, 2, 0.25)  # a square of side 2 at z = 0.25
     assert len(segments) == 8 and np.linalg.norm(segments[:, 1] - segments[:, 0], axis=1).sum() == pytest.approx(8)
     assert len(cross_section(vertices, faces, 0, 1.5)) == 0
+
+
+def test_a_slice_is_solved_with_the_bindings_own_boundary_data(arm, tmp_path):
+    """A binding made with other local-data parameters is sliced with them (they are recorded), not the default's."""
+    _, default = arm
+    custom = ws.LocalData(model="least-norm", fold_radius=0)
+    path = tmp_path / "custom.npz"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ws.bind(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", resolution=16, device="cpu", boundary=custom).save(path)
+    binding = ws.load_binding(path, device="cpu")
+    assert ws.LocalData(**binding.settings["boundary_settings"]) == custom
+    mine = weight_slice(binding, 19, "z", 0.3, device="cpu").image
+    theirs = weight_slice(default, 19, "z", 0.3, device="cpu").image
+    inside = ~np.isnan(mine)
+    assert inside.any() and np.abs(mine[inside] - theirs[inside]).max() > 1e-3

@@ -122,7 +122,7 @@ KERNEL_MODULES = ("cg", "checks", "deform", "intersect", "labels", "local_bounda
                   "stencil", "voxel")
 
 
-def kernels_compiled(device=None) -> bool:
+def kernels_compiled(device=None, modules=KERNEL_MODULES) -> bool:
     """Whether Warp's kernel cache on this machine holds the package's kernels for the device's kind (CPU object
     files, or CUDA binaries). A first run compiles them, 20-40 s; commands say so before they start.
 
@@ -137,7 +137,7 @@ def kernels_compiled(device=None) -> bool:
         return False
     suffixes = (".o",) if d.is_cpu else (".cubin", ".ptx")
     entries = os.listdir(cache)
-    for module in KERNEL_MODULES:
+    for module in modules:
         if module == "labels":  # constants only: nothing to compile
             continue
         prefix = f"wp_warp_stokes.kernels.{module}_"

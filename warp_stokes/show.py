@@ -189,12 +189,28 @@ def weight_slice(binding, handle: int, axis="z", fraction: float = 0.5, device=N
                        tuple(x for x in range(3) if x != a), position, method, resolution)
 
 
+def _boundary_data(settings: dict):
+    """The boundary data a binding was made with: "mvc", or its LocalData (bindings that did not record the local
+    data's parameters made before they were recorded: the default, with a warning if it said otherwise)."""
+    from .geometry.local_boundary import LocalData
+
+    described = str(settings.get("boundary", ""))
+    if described.startswith("mvc"):
+        return "mvc"
+    if settings.get("boundary_settings"):
+        return LocalData(**settings["boundary_settings"])
+    if described and described != str(LocalData()):
+        warnings.warn(f"the binding's boundary data ({described}) did not record its parameters; the slice uses the "
+                      f"default local data ({LocalData()})")
+    return "local"
+
+
 def _grid_slice(settings: dict, cage, handle: int, a: int, position: float, lo, hi, device, harmonic: bool):
     """The handle solved on the binding's grid: (image of the interior nodes on the nearest lattice plane, extent,
     the plane's position)."""
     grid = voxelize(cage, int(settings["resolution"]), device=device)
     chunk = slice(handle, handle + 1)
-    data = "mvc" if str(settings.get("boundary", "")).startswith("mvc") else "local"
+    data = _boundary_data(settings)
     field = boundary_field(grid, cage, device=device, handles=chunk, complement=True, data=data)
     extra = {"equation": "laplace"} if harmonic else {}
     tol = float(settings.get("tol") or 1e-6)

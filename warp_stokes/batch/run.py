@@ -123,7 +123,12 @@ def skipped(asset: Asset, outdir: str, manifest, force: bool) -> Result | None:
     outputs = outputs_of(asset, outdir)
     if force or not _up_to_date(asset, outputs, os.fspath(manifest)):
         return None
-    return Result(asset.name, "skipped", resolution=asset.resolution, outputs=outputs)
+    return Result(asset.name, "skipped", resolution=_grid_resolution(asset), outputs=outputs)
+
+
+def _grid_resolution(asset: Asset) -> int | None:
+    """The asset's grid resolution; None for mean value coordinates (no grid)."""
+    return None if asset.method == "mvc" else asset.resolution
 
 
 def bind_one(asset: Asset, outdir: str, device, progress=None, k: int = 0, total: int = 1) -> Result:
@@ -133,7 +138,7 @@ def bind_one(asset: Asset, outdir: str, device, progress=None, k: int = 0, total
     import socket
 
     outputs = outputs_of(asset, outdir)
-    result = Result(asset.name, "ok", resolution=asset.resolution, outputs=outputs, host=socket.gethostname(),
+    result = Result(asset.name, "ok", resolution=_grid_resolution(asset), outputs=outputs, host=socket.gethostname(),
                     pid=os.getpid())
     start = time.perf_counter()
     pending = {path: os.path.join(outdir, f".tmp-{os.path.basename(path)}") for path in outputs}
@@ -199,7 +204,8 @@ def _bind_asset(asset, pending: dict, device, progress, k: int, total: int, resu
         poses = load_poses(asset.poses, cage.faces, cage.n_handles, cage.source_index,
                            cage_prim=asset.cage_prim if is_usd(asset.poses) else None)
     if progress:
-        _progress(progress, k, total, asset.name, f"binding at resolution {asset.resolution}")
+        _progress(progress, k, total, asset.name, "binding by mean value coordinates" if asset.method == "mvc"
+                  else f"binding at resolution {asset.resolution}")
     binding = bind(asset.mesh, cage, resolution=asset.resolution, device=device, tol=asset.tol,
                    boundary=asset.boundary, sampling=asset.sampling, method=asset.method, cage_prim=asset.cage_prim,
                    mesh_prims=asset.mesh_prims, rest_time=asset.rest_time)

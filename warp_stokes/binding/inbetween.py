@@ -70,9 +70,9 @@ def inbetween(poses: Poses, key_frames=None, steps: int | None = None, interpola
     if len(keys) != n_keys:
         raise WarpStokesError(f"{poses.name}: {len(keys)} key frame numbers for {n_keys} key poses")
     if not np.all(np.isfinite(keys)):
-        raise WarpStokesError(f"key frames must be finite, got {keys.tolist()[:10]}")
+        raise WarpStokesError(f"{poses.name}: key frames must be finite, got {keys.tolist()[:10]}")
     if not np.all(np.diff(keys) > 0):
-        raise WarpStokesError(f"key frames must be strictly increasing, got {keys.tolist()[:10]}")
+        raise WarpStokesError(f"{poses.name}: key frames must be strictly increasing, got {keys.tolist()[:10]}")
     if not np.all(np.isfinite(positions)):
         raise WarpStokesError(f"{poses.name}: the key poses contain NaN or infinite coordinates")
     if steps is not None and (isinstance(steps, bool) or not isinstance(steps, numbers.Integral) or steps < 0):

@@ -54,7 +54,7 @@ def bind(mesh, cage=None, resolution: int = 64, device=None, tol: float = 1e-6, 
     Load -> voxelise (winding number) -> boundary data (local data by default) -> batched solve of the compact
     biharmonic scheme for all handles (in chunks when memory asks for it) -> sampling at the vertices (tricubic
     Hermite by default). Vertices outside the cage but within the grid's band are sampled too; vertices beyond it
-    get their mean value coordinates (warning).
+    get the boundary data at their position (warning).
 
     Parameters
     ----------

@@ -3,6 +3,8 @@ settings, and the parts and asset it came from."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import warp as wp
 
@@ -105,6 +107,9 @@ def settings_record(resolution, tol, max_iterations, solver, boundary, sampling,
         "boundary": None if not grid else "mvc-central-difference" if boundary == "mvc" else str(
             LocalData() if boundary == "local" else boundary),
         "sampling": sampling if grid else None,
+        # the local data's parameters, to rebuild it (warp_stokes.show solves a handle again)
+        "boundary_settings": dataclasses.asdict(LocalData() if boundary == "local" else boundary)
+        if grid and boundary != "mvc" else None,
         "mesh": surface.name,
         "cage": checked.name,
         "cage_prim": cage_prim,

@@ -183,6 +183,9 @@ def _add_encode(sub) -> None:
     p.add_argument("--mesh-prim", action="append", default=None, metavar="PATH",
                    help="for USD frames: the mesh prim(s) to read (default: the binding's parts, else the first "
                         "mesh with the bound mesh's point count)")
+    p.add_argument("--device", default=None,
+                   help="where the products over the vertices are summed: cpu (BLAS), cuda or cuda:N (default: CUDA "
+                        "when present)")
     p.set_defaults(run=commands.encode_command)
 
 

@@ -72,12 +72,13 @@ def check_output(path: str, inputs=(), folder: bool = False) -> None:
             raise WarpStokesError(f"{path}: the output is the input {source}; choose another output name")
 
 
-def announce_compilation(device) -> None:
-    """One line before a first run's kernel compilation (20-40 s), so that a silent wait is not taken for a hang."""
-    from warp_stokes.device import kernels_compiled, resolve_device
+def announce_compilation(device, harmonic: bool = False) -> None:
+    """One line before a first run's kernel compilation (20-40 s), so that a silent wait is not taken for a hang;
+    ``harmonic``: the Laplace kernels count too."""
+    from warp_stokes.device import KERNEL_MODULES, kernels_compiled, resolve_device
 
     resolved = resolve_device(device)
-    if not kernels_compiled(resolved):
+    if not kernels_compiled(resolved, KERNEL_MODULES + (("laplace",) if harmonic else ())):
         print(f"warp-stokes: compiling the kernels for {resolved.alias} (first run on this machine, 20-40 s; "
               "later runs load them from Warp's cache)", file=sys.stderr, flush=True)
 
@@ -86,7 +87,7 @@ def bind_command(args) -> int:
     import warp_stokes as ws
 
     check_output(args.output, (args.mesh, args.cage))
-    announce_compilation(args.device)
+    announce_compilation(args.device, harmonic=args.method == "harmonic")
     budget = None if args.memory_gb is None else args.memory_gb * 2**30
     binding = ws.bind(args.mesh, args.cage, resolution=args.resolution, device=args.device, tol=args.tol,
                       max_iterations=args.max_iterations, solver=args.solver, memory_budget=budget,
@@ -185,7 +186,7 @@ def encode_command(args) -> int:
     if ext not in (".npy", ".usd", ".usda", ".usdc"):
         raise ws.WarpStokesError(f"{args.output}: the poses are written as .npy or USD (.usd, .usda, .usdc)")
     check_output(args.output, (args.binding, args.frames))
-    binding = ws.load_binding(args.binding, device="cpu")
+    binding = ws.load_binding(args.binding, device=args.device)
     prims = args.mesh_prim or ([p["path"] for p in binding.parts] if binding.asset else None)
     frames = load_mesh_frames(args.frames, binding.mesh_faces, binding.n_vertices, prims=prims)
     poses, rms = encode_poses(binding, frames, smoothness=args.smooth)
@@ -207,7 +208,7 @@ def sweep_command(args) -> int:
     from warp_stokes.sweep import format_sweep, plot_sweep, sweep, write_sweep
 
     check_output(args.output, (args.mesh, args.cage), folder=True)
-    announce_compilation(args.device)
+    announce_compilation(args.device, harmonic="harmonic" in args.methods.split(","))
     pose = None
     if args.pose:
         pose = pose_argument(args.pose, check_cage(args.cage).n_handles)

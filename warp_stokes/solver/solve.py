@@ -108,7 +108,8 @@ def solve_biharmonic(
     max_iterations : int, optional
         Default: 200 with multigrid, 40 * (resolution + 8)**2 with Jacobi.
     source : (n_interior, handles) array, optional
-        ``f`` at interior nodes; the value equation's right-hand side is ``h**4 / 2 * f``. Zero by default
+        ``f`` at interior nodes; the value equation's right-hand side is ``h**4 / 2 * f`` (``h**2 * f`` for the
+        Laplace equation, ``-Laplace(q) = f``). Zero by default
         (Stokes coordinates); used by manufactured-solution tests.
     handles : (handles, 3) array, optional
         Cage vertices (absolute positions) when the columns are the cage coordinates: enables the identity
@@ -206,12 +207,9 @@ def solve_biharmonic(
 
 def _gradients_from_values(grid: Grid, field: wp.array, device) -> None:
     """The interior rows' G of a Laplace solution: central differences of its values (its G rows solved to 0)."""
-    shape = (grid.n_interior, field.shape[1])
     arrays = grid.device_arrays(device)
-    gradients = wp.empty(shape, dtype=wp.vec3f, device=device)
-    wp.launch(laplace.gradient_from_values, dim=shape, inputs=[field, arrays["index"], arrays["active_ijk"]],
-              outputs=[gradients], device=device)
-    wp.launch(laplace.store_gradients, dim=shape, inputs=[gradients], outputs=[field], device=device)
+    wp.launch(laplace.gradient_from_values, dim=(grid.n_interior, field.shape[1]),
+              inputs=[field, arrays["index"], arrays["active_ijk"]], device=device)
 
 
 def _preconditioner(grid: Grid, preconditioner, device, equation: str = "biharmonic"):
