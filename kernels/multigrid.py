@@ -290,23 +290,6 @@ def stencil_times(d: wp.vec3i, p: wp.mat44d):
     return m
 
 
-@wp.func
-def laplace_times(d: wp.vec3i, p: wp.mat44d):
-    """laplace_block(d) * p without the zeros."""
-    m = wp.mat44d()
-    steps = wp.abs(d[0]) + wp.abs(d[1]) + wp.abs(d[2])
-    if steps == 0:
-        for j in range(4):
-            m[0, j] = wp.float64(6.0) * p[0, j]
-            m[1, j] = p[1, j]
-            m[2, j] = p[2, j]
-            m[3, j] = p[3, j]
-    elif steps == 1:
-        for j in range(4):
-            m[0, j] = -p[0, j]
-    return m
-
-
 @wp.kernel
 def galerkin_blocks(
     coarse_ijk: wp.array(dtype=wp.vec3i),
@@ -348,7 +331,7 @@ def galerkin_blocks(
                         if fine_operator == BIHARMONIC:
                             ap += stencil_times(dt, table[parent_entry(e)])
                         elif fine_operator == LAPLACE:
-                            ap += laplace_times(dt, table[parent_entry(e)])
+                            ap += laplace_block(dt) * table[parent_entry(e)]
                         else:
                             ap += wp.mat44d(fine_blocks[row_f, t]) * table[parent_entry(e)]
             acc += wp.transpose(table[parent_entry(ds)]) * ap

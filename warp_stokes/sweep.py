@@ -16,7 +16,6 @@ import io
 import json
 import os
 import resource
-import time
 import warnings
 
 import numpy as np
@@ -25,7 +24,6 @@ from .binding import bind
 from .binding.stats import identity_errors
 from .device import device_name, reset_peak_memory, resolve_device
 from .errors import WarpStokesError
-from .geometry.boundary import mean_value_coordinates
 from .geometry.cage import check_cage
 from .io.files import atomic_output
 from .io.load import load_surface
@@ -127,10 +125,12 @@ def sweep(mesh, cage, resolutions, methods=("stokes",), pose=None, device=None, 
     rows, weights = [], {method: {} for method in methods}
     for method in methods:
         if method == "mvc":
-            start, peak = time.perf_counter(), _PeakMemory(device)
-            w = mean_value_coordinates(checked, surface.vertices, device=device).astype(np.float32)
-            seconds = time.perf_counter() - start
-            rows.append(_row("mvc", None, w, surface, checked, pose, seconds, peak.bytes(), None, None))
+            peak = _PeakMemory(device)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                binding = bind(surface, checked, device=device, method="mvc")
+            rows.append(_row("mvc", None, binding.weights, surface, checked, pose, binding.stats["seconds"]["total"],
+                             peak.bytes(), None, None))
             continue
         for resolution in resolutions:
             peak = _PeakMemory(device)

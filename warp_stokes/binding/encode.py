@@ -71,7 +71,7 @@ def normal_equations(weights: np.ndarray, positions: np.ndarray, device=None,
     # positions relative to their centre in the kernel, float64 throughout: W^T P = W^T (P - c) + (W^T 1) c
     # (any centre near the frames keeps the sums small: the first frame's box centre, without a pass over all frames)
     centre = 0.5 * (positions[0].min(axis=0) + positions[0].max(axis=0)) if positions.size else np.zeros(3)
-    column_sums = weights.astype(np.float64).sum(axis=0)
+    column_sums = weights.sum(axis=0, dtype=np.float64)
     batch_frames = max(1, FRAME_BYTES // max(1, 24 * n_vertices))
     with wp.ScopedDevice(device):
         w = wp.array(np.ascontiguousarray(weights, dtype=np.float32), dtype=wp.float32)

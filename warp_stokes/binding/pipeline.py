@@ -133,6 +133,7 @@ def bind(mesh, cage=None, resolution: int = 64, device=None, tol: float = 1e-6, 
                                cage_prim, method)
     if method == "mvc":
         weights = _mean_value_weights(checked, points, device, seconds)
+        seconds["total"] = sum(seconds.values())
         pu_error, lp_error = identity_errors(weights, checked.vertices, points)
         stats = mvc_stats(checked, surface, inside, device, pu_error, lp_error, seconds)
         return Binding(weights, checked.vertices, checked.faces, points, surface.faces, settings, stats,
@@ -214,7 +215,6 @@ def _mean_value_weights(checked: Cage, points: np.ndarray, device, seconds: dict
         block = slice(start, start + MVC_ROWS)
         weights[block] = mean_value_coordinates(checked, points[block], device=device)
     seconds["mvc"] = time.perf_counter() - t
-    seconds["total"] = sum(seconds.values())
     return weights
 
 
