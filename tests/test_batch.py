@@ -174,6 +174,33 @@ def test_a_second_batch_refuses_a_folder_in_use_and_stale_files_are_cleaned(mani
     assert ws.load_binding(out / "arm_a.npz", device="cpu").n_handles == 58
 
 
+def test_the_compile_notice_comes_once_the_folder_is_ours(manifest, tmp_path, monkeypatch):
+    import io
+    import subprocess
+    import sys
+
+    import warp_stokes.device as device
+
+    monkeypatch.setattr(device, "kernels_compiled", lambda d=None, modules=None: False)  # as on a fresh machine
+    out = tmp_path / "out"
+    out.mkdir()
+    holder = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        (out / ".warp-stokes.lock").write_text(str(holder.pid))
+        stream = io.StringIO()
+        with pytest.raises(ws.WarpStokesError, match="another batch"):
+            ws.run_batch(manifest, out, device="cpu", progress=stream)
+        assert stream.getvalue() == ""  # a refused folder: no promise of work
+    finally:
+        holder.kill()
+        holder.wait()
+    stream = io.StringIO()
+    ws.run_batch(manifest, out, device="cpu", progress=stream)
+    lines = stream.getvalue().splitlines()
+    assert lines[0].startswith("warp-stokes: compiling the kernels for cpu (first run on this machine")
+    assert sum("compiling the kernels" in line for line in lines) == 1
+
+
 def test_a_batch_killed_with_sigkill_is_completed_by_the_next_run(manifest, tmp_path):
     import signal
     import subprocess

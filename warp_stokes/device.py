@@ -147,6 +147,15 @@ def kernels_compiled(device=None, modules=KERNEL_MODULES) -> bool:
     return True
 
 
+def announce_compilation(device=None, harmonic: bool = False, stream=None) -> None:
+    """One line on ``stream`` (default stderr) before a first run's kernel compilation (20-40 s), so that a silent
+    wait is not taken for a hang; ``harmonic``: the Laplace kernels count too."""
+    resolved = resolve_device(device)
+    if not kernels_compiled(resolved, KERNEL_MODULES + (("laplace",) if harmonic else ())):
+        print(f"warp-stokes: compiling the kernels for {resolved.alias} (first run on this machine, 20-40 s; "
+              "later runs load them from Warp's cache)", file=stream or sys.stderr, flush=True)
+
+
 #: CU_MEMPOOL_ATTR_USED_MEM_HIGH of the CUDA driver API (cuda.h)
 _USED_MEM_HIGH = 8
 

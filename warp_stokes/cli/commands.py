@@ -73,14 +73,10 @@ def check_output(path: str, inputs=(), folder: bool = False) -> None:
 
 
 def announce_compilation(device, harmonic: bool = False) -> None:
-    """One line before a first run's kernel compilation (20-40 s), so that a silent wait is not taken for a hang;
-    ``harmonic``: the Laplace kernels count too."""
-    from warp_stokes.device import KERNEL_MODULES, kernels_compiled, resolve_device
+    """One line on stderr before a first run's kernel compilation (see :func:`warp_stokes.device.announce_compilation`)."""
+    from warp_stokes.device import announce_compilation as announce
 
-    resolved = resolve_device(device)
-    if not kernels_compiled(resolved, KERNEL_MODULES + (("laplace",) if harmonic else ())):
-        print(f"warp-stokes: compiling the kernels for {resolved.alias} (first run on this machine, 20-40 s; "
-              "later runs load them from Warp's cache)", file=sys.stderr, flush=True)
+    announce(device, harmonic=harmonic)
 
 
 def bind_command(args) -> int:
@@ -270,8 +266,6 @@ def batch_command(args) -> int:
     from warp_stokes.batch import format_summary, run_batch
 
     check_output(args.output, (args.manifest,), folder=True)
-    if args.workers is None and args.ray_address is None:  # Ray workers compile in their own processes
-        announce_compilation(args.device)
     results = run_batch(args.manifest, args.output, force=args.force, device=args.device, workers=args.workers,
                         ray_address=args.ray_address)
     print(format_summary(results))
