@@ -147,17 +147,18 @@ def refinement(args) -> int:
                              "handle": int(l), "fold_distance": distance / cage.diagonal,
                              "spacing": bound.stats["spacing"] / cage.diagonal,
                              "iterations": bound.stats["iterations"], "seconds": seconds,
-                             "change_from_previous": change})
+                             "cut_off_nodes": bound.stats.get("cut_off_nodes", 0), "change_from_previous": change})
                 print(json.dumps(rows[-1]), flush=True)
     if args.json:
         with open(args.json, "a") as fh:
             fh.writelines(json.dumps(r) + "\n" for r in rows)
     print(f"\nDevice: {select_device(args.device)[1]}. Distances relative to the cage's diagonal.\n")
     print(table_head(("pair", "data", "n", "min weight", "vertex", "handle", "distance to a folded edge", "cell",
-                      "max change from the previous n", "its", "s")))
+                      "nodes cut off by wedges", "max change from the previous n", "its", "s")))
     for r in rows:
         print(table_row((r["pair"], r["method"], r["n"], f"{r['min_weight']:.3f}", r["vertex"], r["handle"],
-                         f"{r['fold_distance']:.4f}", f"{r['spacing']:.4f}", f"{r['change_from_previous']:.3f}",
+                         f"{r['fold_distance']:.4f}", f"{r['spacing']:.4f}", r["cut_off_nodes"],
+                         f"{r['change_from_previous']:.3f}",
                          r["iterations"], f"{r['seconds']:.2f}")))
     return 0
 

@@ -97,3 +97,102 @@ def nearest_faces(cage: wp.uint64, points: wp.array(dtype=wp.vec3), face: wp.arr
     n = wp.tid()
     query = wp.mesh_query_point_no_sign(cage, points[n], 1.0e30)
     face[n] = query.face
+
+
+@wp.func
+def first_hit(cage: wp.uint64, start: wp.vec3, end: wp.vec3, tolerance: float):
+    """The cage face that the segment from `start` to `end` meets first, more than `tolerance` before `end`; -1
+    where it meets none."""
+    d = end - start
+    length = wp.length(d)
+    face = int(-1)
+    if length > tolerance:
+        hit = wp.mesh_query_ray(cage, start, d / length, length - tolerance)
+        if hit.result:
+            face = hit.face
+    return face
+
+
+@wp.func
+def near_along_the_cage(faces: wp.array2d(dtype=wp.int32), adjacent: wp.array2d(dtype=wp.int8), f: int, g: int):
+    """Whether a corner of cage face f is a corner of g or an edge away from one: the two walls of one thin wedge
+    of outside space where the cage folds back, rather than two parts of the body that happen to be close."""
+    near = bool(False)
+    for a in range(3):
+        for b in range(3):
+            if int(adjacent[faces[f, a], faces[g, b]]) != 0:
+                near = True
+    return near
+
+
+@wp.func
+def data_slope_at(faces: wp.array2d(dtype=wp.int32), handle_slope: wp.array(dtype=float), face: int, u: float,
+                  v: float):
+    """The steepest boundary data around a cage point (face, barycentric u, v): the largest slope of the handles whose
+    hat function is not zero there. The same for either face when the point is on their shared edge."""
+    slope = float(0.0)
+    weights = wp.vec3(u, v, 1.0 - u - v)
+    for c in range(3):
+        if weights[c] > 1.0e-3:
+            slope = wp.max(slope, handle_slope[faces[face, c]])
+    return slope
+
+
+@wp.kernel
+def cut_off_nodes(
+    cage: wp.uint64,
+    faces: wp.array2d(dtype=wp.int32),
+    adjacent: wp.array2d(dtype=wp.int8),
+    handle_slope: wp.array(dtype=float),
+    inside: wp.array3d(dtype=wp.int8),
+    origin: wp.vec3,
+    spacing: float,
+    facing: float,
+    max_change: float,
+    labels: wp.array3d(dtype=wp.int8),
+    count: wp.array(dtype=wp.int32),
+):
+    """RING (known data) for interior nodes that a thin wedge of outside space cuts off from a stencil neighbour:
+    an interior neighbour on the wedge's other side (the link enters and leaves through two walls that face each
+    other, normals' dot product below `facing`, and are near along the cage), or an exterior neighbour whose data
+    comes from the far wall (its closest cage point is hidden behind the wall next to the node, and the data extends
+    from there towards the node's wall). Only where the boundary data extended to the node over a diagonal link
+    (1.5 cells) changes by at most `max_change`: elsewhere the faces are too small for the grid and the node stays
+    an unknown."""
+    i, j, k = wp.tid()
+    if int(inside[i, j, k]) != INTERIOR:
+        return
+    p = node_position(origin, spacing, i, j, k)
+    near = wp.mesh_query_point_no_sign(cage, p, 1.5 * spacing)
+    if not near.result:
+        return  # no link from here reaches the cage
+    if 1.5 * spacing * data_slope_at(faces, handle_slope, near.face, near.u, near.v) > max_change:
+        return
+    cut = bool(False)
+    for di in range(-1, 2):
+        for dj in range(-1, 2):
+            for dk in range(-1, 2):
+                steps = wp.abs(di) + wp.abs(dj) + wp.abs(dk)
+                if steps >= 1 and steps <= 2 and not cut:
+                    neighbour = node_position(origin, spacing, i + di, j + dj, k + dk)
+                    if int(inside[i + di, j + dj, k + dk]) == INTERIOR:
+                        entry = first_hit(cage, p, neighbour, 0.0)
+                        if entry >= 0:
+                            exit = first_hit(cage, neighbour, p, 0.0)
+                            if exit >= 0:
+                                facing_walls = wp.dot(wp.mesh_eval_face_normal(cage, entry),
+                                                      wp.mesh_eval_face_normal(cage, exit)) < facing
+                                cut = facing_walls and near_along_the_cage(faces, adjacent, entry, exit)
+                    else:
+                        closest = wp.mesh_query_point_no_sign(cage, neighbour, 2.0 * spacing)
+                        if closest.result:
+                            y = wp.mesh_eval_position(cage, closest.face, closest.u, closest.v)
+                            wall = first_hit(cage, p, y, 1.0e-3 * spacing)
+                            if wall >= 0:
+                                # the direction the neighbour's data extends in, from its closest point
+                                extension = wp.normalize(neighbour - y)
+                                facing_walls = wp.dot(wp.mesh_eval_face_normal(cage, wall), extension) < facing
+                                cut = facing_walls and near_along_the_cage(faces, adjacent, wall, closest.face)
+    if cut:
+        labels[i, j, k] = wp.int8(RING)
+        wp.atomic_add(count, 0, 1)

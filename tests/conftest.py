@@ -118,3 +118,21 @@ def u_cage(gap: float = 0.2) -> ws.Cage:
     tris = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))])
     m = trimesh.creation.extrude_triangulation(pts, tris, height=1.0)
     return ws.check_cage((m.vertices, m.faces), name="u-cage")
+
+
+def slit_cage(half_width: float = 0.09, depth: float = 1.2):
+    """A 2 x 2 x 2 box with a V-shaped slit cut into its top (z = 1) along y, `depth` deep and `2 half_width` wide at
+    the top (walls about 9 degrees apart: the cage folds back at the slit's floor), rotated so that no grid node lies
+    on a face. Returns (cage, rotation, lip): `lip` are the two handles on the slit's +x lip."""
+    import trimesh
+
+    profile = np.array([(-1, -1), (1, -1), (1, 1), (half_width, 1), (0, 1 - depth), (-half_width, 1), (-1, 1)], float)
+    tip = 4  # the slit's floor sees every other corner: a fan from it triangulates the profile
+    fan = np.array([(tip, j, i) for i, j in zip(range(7), [1, 2, 3, 4, 5, 6, 0]) if tip not in (i, j)])
+    m = trimesh.creation.extrude_triangulation(profile, fan, height=2.0)
+    vertices = m.vertices[:, [0, 2, 1]] - np.array([0.0, 1.0, 0.0])  # extruded along y, the profile in x-z
+    faces = m.faces[:, ::-1]  # swapping two axes mirrors: restore the outward orientation
+    rotation = np.linalg.qr(np.random.default_rng(3).normal(size=(3, 3)))[0]
+    cage = ws.check_cage((vertices @ rotation.T, faces), name="slit")
+    lip = np.flatnonzero(np.isclose(vertices[:, 0], half_width) & np.isclose(vertices[:, 2], 1.0))
+    return cage, rotation, lip

@@ -208,9 +208,9 @@ def _boundary_data(settings: dict):
 def _grid_slice(settings: dict, cage, handle: int, a: int, position: float, lo, hi, device, harmonic: bool):
     """The handle solved on the binding's grid: (image of the interior nodes on the nearest lattice plane, extent,
     the plane's position)."""
-    grid = voxelize(cage, int(settings["resolution"]), device=device)
-    chunk = slice(handle, handle + 1)
     data = _boundary_data(settings)
+    grid = voxelize(cage, int(settings["resolution"]), device=device, boundary=data)
+    chunk = slice(handle, handle + 1)
     field = boundary_field(grid, cage, device=device, handles=chunk, complement=True, data=data)
     extra = {"equation": "laplace"} if harmonic else {}
     tol = float(settings.get("tol") or 1e-6)

@@ -18,7 +18,7 @@ from ..device import resolve_device
 from ..errors import CageError, MeshError, WarpStokesError
 from ..geometry.boundary import boundary_field, mean_value_coordinates
 from ..geometry.cage import Cage, check_cage
-from ..geometry.grid import check_resolution, voxelize
+from ..geometry.grid import check_resolution, voxelize, wedge_resolution
 from ..geometry.inside import classify_points
 from ..geometry.local_boundary import LocalData, local_values
 from ..io.scene import is_usd, load_scene
@@ -143,7 +143,7 @@ def bind(mesh, cage=None, resolution: int = 64, device=None, tol: float = 1e-6, 
     equation = METHODS[method]
 
     t = time.perf_counter()
-    grid = voxelize(checked, resolution, device=device, memory_budget=memory_budget)
+    grid = voxelize(checked, resolution, device=device, memory_budget=memory_budget, boundary=boundary)
     # the levels' sizes first (cheap), so that the plan counts the hierarchy before it is formed
     levels = coarsen(grid, device) if solver == "multigrid" else None
     estimate = estimate_memory(grid, len(points), preconditioner=solver, levels=levels, device=device,
@@ -278,7 +278,7 @@ def _vertices_off_the_grid(surface, checked: Cage, grid, resolution: int, weight
     their neighbours within the band are interpolated from, so that a vertex's weights do not jump when a finer
     grid's band no longer reaches it (MVC there against the local data within the band changed a weight of the
     ogre by 0.12 from n = 256 to 384, H100). Vertices in features thinner than the grid resolves are counted; both
-    are warned of. Returns (notes, beyond, thin): the cage's notes and these warnings, and the two vertex masks."""
+    are warned of, and a resolution too coarse for the cage's folded edges (:func:`wedge_resolution`). Returns (notes, beyond, thin): the cage's notes and these warnings, and the two vertex masks."""
     sampled = (corners >= 0).all(axis=1)
     beyond = ~sampled
     notes = list(checked.notes)  # what the user is warned of, kept in the stats
@@ -302,6 +302,13 @@ def _vertices_off_the_grid(surface, checked: Cage, grid, resolution: int, weight
             f"{checked.name}: {int(thin.sum())} mesh vertices lie in parts of the cage thinner than about two grid "
             f"cells at resolution {resolution}; their weights come from the boundary data alone. "
             f"resolution={suggestion} would resolve them")
+        warnings.warn(notes[-1], stacklevel=3)
+    below = wedge_resolution(checked, boundary)
+    if below is not None and resolution < below:
+        notes.append(
+            f"{checked.name}: at resolution {resolution} the grid does not yet cut off the thin wedges of outside "
+            f"space at the cage's folded edges (it does from resolution {below} on); weights within a few cells of "
+            "those edges converge slowly below it")
         warnings.warn(notes[-1], stacklevel=3)
     return notes, beyond, thin
 

@@ -57,6 +57,7 @@ def grid_stats(grid, checked: Cage, surface, inside, beyond, thin, device) -> di
         "spacing": grid.spacing,
         "interior_nodes": grid.n_interior,
         "ring_nodes": grid.n_ring,
+        "cut_off_nodes": grid.n_cut_off,
         "band_nodes": grid.n_band,
         "handles": checked.n_handles,
         "vertices": len(surface.vertices),

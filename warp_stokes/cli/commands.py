@@ -31,7 +31,9 @@ def format_stats(stats: dict) -> str:
         ("method", {"harmonic": "harmonic coordinates (7-point Laplace)"}.get(stats.get("method"),
                                                                               "Stokes coordinates (biharmonic)")),
         ("grid", " x ".join(str(s) for s in stats["grid_shape"]) + f"  (h = {stats['spacing']:.4g})"),
-        ("nodes", f"{stats['interior_nodes']} interior, {stats['ring_nodes']} ring, {stats['band_nodes']} band"),
+        ("nodes", f"{stats['interior_nodes']} interior, {stats['ring_nodes']} ring"
+                  + (f" ({stats['cut_off_nodes']} inside, cut off by thin wedges of the cage)"
+                     if stats.get("cut_off_nodes") else "") + f", {stats['band_nodes']} band"),
         ("handles", str(stats["handles"])),
         ("vertices", f"{stats['vertices']} ({stats['vertices_outside_cage']} outside the cage, "
                      f"{stats['vertices_beyond_band']} beyond the band)"),

@@ -3,9 +3,10 @@
 
 from .boundary import COMPLEMENT_COLUMNS, boundary_field, mean_value_coordinates
 from .cage import Cage, check_cage, crossing_faces, folded_edges, signed_volume
-from .grid import Grid, grid_from_mask, voxelize
+from .grid import Grid, grid_from_mask, voxelize, wedge_resolution
 from .inside import classify_points
 from .local_boundary import LocalData
 
 __all__ = ["COMPLEMENT_COLUMNS", "boundary_field", "mean_value_coordinates", "Cage", "check_cage", "crossing_faces",
-           "folded_edges", "signed_volume", "Grid", "classify_points", "grid_from_mask", "voxelize", "LocalData"]
+           "folded_edges", "signed_volume", "Grid", "classify_points", "grid_from_mask", "voxelize", "wedge_resolution",
+           "LocalData"]

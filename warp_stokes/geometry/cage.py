@@ -150,8 +150,8 @@ def check_cage(source, name: str | None = None) -> Cage:
         worst = np.argsort(-angle)[:3]
         listed = ", ".join(f"{a}-{b} ({t:.0f} deg)" for (a, b), t in zip(folds[worst].tolist(), angle[worst]))
         notes.append(f"{name}: the cage folds back on itself at {len(folds)} edge(s) whose faces' normals are more "
-                     f"than {FOLD_DEGREES:.0f} degrees apart, e.g. {listed}; weights near them grow slowly with the "
-                     "resolution")
+                     f"than {FOLD_DEGREES:.0f} degrees apart, e.g. {listed}; the wedges of outside space there are thinner "
+                     "than a grid cell near the edge; bind warns where its resolution is too coarse to cut them off")
         warnings.warn(notes[-1], stacklevel=2)
     return cage
 

@@ -15,8 +15,9 @@ from ..kernels import labels as node_labels
 from ..kernels import stencil
 from ..kernels import voxel
 
-__all__ = ["Grid", "voxelize", "check_resolution", "grid_from_mask", "MARGIN", "BAND_WIDTH", "PATCH_LENGTH",
-           "MAX_ROWS", "VOXELIZE_NODE_BYTES", "DEVICE_NODE_BYTES", "HOST_NODE_BYTES"]
+__all__ = ["Grid", "voxelize", "wedge_resolution", "check_resolution", "grid_from_mask", "MARGIN", "BAND_WIDTH",
+           "PATCH_LENGTH", "WEDGE_FACING", "CUT_OFF_MAX_CHANGE", "MAX_ROWS", "VOXELIZE_NODE_BYTES", "DEVICE_NODE_BYTES",
+           "HOST_NODE_BYTES"]
 
 #: nodes of known data kept outside the interior (max-norm distance): the ring plus a sampling band, so that
 #: trilinear sampling of vertices slightly outside the cage reads only known corners
@@ -35,6 +36,12 @@ DEVICE_NODE_BYTES, HOST_NODE_BYTES = 4, 5
 #: the stencil kernel walks patches of columns along z in pieces of at most this many planes, so that short
 #: and long runs balance across threads (64 was the most even of 32, 64 and 128 on an H100, benchmarks/RESULTS.md)
 PATCH_LENGTH = 64
+#: two cage faces are the walls of one thin wedge of outside space when their normals' dot product is below this
+#: (more than 120 degrees apart) and they are near along the cage (kernels.voxel.near_along_the_cage)
+WEDGE_FACING = -0.5
+#: an interior node cut off by such a wedge takes the boundary data only where that data, extended to it over a
+#: diagonal link, changes by at most this much (in weight units); measured on the shared pairs: benchmarks/RESULTS.md
+CUT_OFF_MAX_CHANGE = 1.0
 
 
 @dataclass
@@ -54,6 +61,7 @@ class Grid:
     active_ijk : (N, 3) int32, node coordinates of the active nodes: interior, then ring, then band
     index : (nx, ny, nz) int32, row of each node in ``active_ijk`` or -1
     n_interior, n_ring, n_band : int
+    n_cut_off : int, interior nodes cut off by a thin wedge of outside space, counted in the ring (known data)
     """
 
     centre: np.ndarray
@@ -66,6 +74,7 @@ class Grid:
     n_interior: int
     n_ring: int
     n_band: int
+    n_cut_off: int = 0
     _device_arrays: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
@@ -151,12 +160,21 @@ def check_resolution(resolution) -> int:
     return int(resolution)
 
 
-def voxelize(cage: Cage, resolution: int = 64, device=None, max_rows: int = MAX_ROWS, memory_budget: int | None = None) -> Grid:
+def voxelize(cage: Cage, resolution: int = 64, device=None, max_rows: int = MAX_ROWS, memory_budget: int | None = None,
+             boundary="local") -> Grid:
     """Voxelise the inside of a cage: label grid nodes and number the active ones.
 
     Nodes whose generalised winding number exceeds 1/2 are interior (unknowns). Exterior nodes in the
     19-point stencil of an interior node form the ring (known values and gradients); exterior nodes within
     ``BAND_WIDTH`` nodes of the interior form the band (known values, read by sampling).
+
+    With the local boundary data, interior nodes that a wedge of outside space thinner than a cell cuts off from a
+    stencil neighbour join the ring (``n_cut_off``): where the cage folds back on itself, the stencil would otherwise
+    couple the wedge's two sides, or read ring data that describes the other side (the weights then grew with the
+    resolution). A link is cut when it enters and leaves through the wedge's two walls (faces near along the cage whose
+    normals are more than 120 degrees apart), or when the closest cage point of an exterior neighbour lies on the far
+    wall. Only where the data extended to the node stays within :data:`CUT_OFF_MAX_CHANGE` of its boundary value
+    (faces the grid resolves); elsewhere the node stays an unknown.
 
     Parameters
     ----------
@@ -170,6 +188,9 @@ def voxelize(cage: Cage, resolution: int = 64, device=None, max_rows: int = MAX_
         Most active nodes a grid may have (rows are 32-bit); a lower value is for tests.
     memory_budget : int, optional
         Bytes the grid's dense arrays may take (default: the device's available memory).
+    boundary : "local" | LocalData | "mvc"
+        The boundary data the grid's known nodes will take (as in :func:`warp_stokes.bind`): with the local data,
+        nodes cut off by thin wedges join the ring; with MVC data (global, the same on both sides) none do.
 
     Returns
     -------
@@ -219,7 +240,8 @@ def voxelize(cage: Cage, resolution: int = 64, device=None, max_rows: int = MAX_
             inputs=[mesh.id, wp.vec3(*origin.astype(np.float32)), float(spacing), WINDING_ACCURACY, 1e-5 * spacing],
             outputs=[inside],
         )
-    grid = _number_nodes(inside, centre, origin, spacing, resolution, device, max_rows, cage.name)
+        cut_off = None if boundary == "mvc" else _wedge_cut_off(cage, mesh, inside, origin, spacing, boundary)
+    grid = _number_nodes(inside, centre, origin, spacing, resolution, device, max_rows, cage.name, cut_off)
     if grid.n_interior == 0:
         raise ResolutionError(
             f"{cage.name}: no grid node lies inside the cage at resolution {resolution} "
@@ -265,12 +287,74 @@ def grid_from_mask(interior, spacing: float = 1.0, origin=(0.0, 0.0, 0.0), devic
                          MAX_ROWS, "the interior mask")
 
 
-def _number_nodes(inside: wp.array, centre, origin, spacing, resolution, device, max_rows, name) -> Grid:
-    """Mark the ring and band around the interior nodes of `inside`, and number the active nodes."""
+def wedge_resolution(cage: Cage, boundary="local") -> int | None:
+    """The resolution from which the grid cuts off the thin wedges of outside space at every folded cage edge (faces
+    whose normals are more than 150 degrees apart): below it, nodes next to some of them stay unknowns, coupled
+    across the wedge, and the weights within a few cells of the edge converge slowly.
+
+    Parameters
+    ----------
+    cage : Cage
+    boundary : "local" | LocalData | "mvc"
+
+    Returns
+    -------
+    int, or None when the cage has no folded edge or the data is MVC's (no node is cut off)
+
+    Examples
+    --------
+    >>> import trimesh
+    >>> from warp_stokes.geometry.cage import check_cage
+    >>> box = trimesh.creation.box(extents=[2, 2, 2])
+    >>> wedge_resolution(check_cage((box.vertices, box.faces))) is None
+    True
+    """
+    from .cage_faults import folded_edges
+    from .local_boundary import LocalData, data_slopes  # the local data's module builds on this one
+
+    folds = folded_edges(cage)
+    if boundary == "mvc" or not len(folds):
+        return None
+    slopes = data_slopes(cage, LocalData() if boundary == "local" else boundary)
+    at_fold = cage.faces[np.isin(cage.faces, np.unique(folds)).any(axis=1)]  # the faces around folded edges
+    extent = float((cage.vertices.max(axis=0) - cage.vertices.min(axis=0)).max())
+    # the kernel's test, 1.5 h slope <= CUT_OFF_MAX_CHANGE, with h = extent / resolution
+    return int(np.ceil(1.5 * slopes[at_fold].max() * extent / CUT_OFF_MAX_CHANGE))
+
+
+def _wedge_cut_off(cage: Cage, mesh: wp.Mesh, inside: wp.array, origin, spacing: float, boundary):
+    """The launch that moves interior nodes cut off by thin wedges to the ring (see :func:`voxelize`), as a function
+    of the labels array that returns how many it moved; run after the ring and band are marked."""
+    from .local_boundary import LocalData, data_slopes  # the local data's module builds on this one
+
+    settings = LocalData() if boundary == "local" else boundary
+    adjacent = np.eye(cage.n_handles, dtype=np.int8)
+    edges = cage.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    adjacent[edges[:, 0], edges[:, 1]] = 1
+    adjacent[edges[:, 1], edges[:, 0]] = 1
+    device = inside.device
+    inputs = [wp.array(cage.faces.astype(np.int32), dtype=wp.int32, device=device),
+              wp.array(adjacent, dtype=wp.int8, device=device),
+              wp.array(data_slopes(cage, settings).astype(np.float32), dtype=float, device=device), inside,
+              wp.vec3(*np.asarray(origin, dtype=np.float32)), float(spacing), WEDGE_FACING, CUT_OFF_MAX_CHANGE]
+
+    def cut_off(labels: wp.array) -> int:
+        count = wp.zeros(1, dtype=wp.int32, device=device)
+        wp.launch(voxel.cut_off_nodes, dim=labels.shape, inputs=[mesh.id, *inputs], outputs=[labels, count],
+                  device=device)
+        return int(count.numpy()[0])
+
+    return cut_off
+
+
+def _number_nodes(inside: wp.array, centre, origin, spacing, resolution, device, max_rows, name, cut_off=None) -> Grid:
+    """Mark the ring and band around the interior nodes of `inside` (and those that ``cut_off`` moves to the ring),
+    and number the active nodes."""
     shape = inside.shape
     with wp.ScopedDevice(device):
         labels = wp.empty(shape, dtype=wp.int8)
         wp.launch(voxel.mark_ring_and_band, dim=shape, inputs=[inside, BAND_WIDTH], outputs=[labels])
+        n_cut_off = 0 if cut_off is None else cut_off(labels)
         labels_np = labels.numpy()
     flat = labels_np.ravel()
     rows = [np.flatnonzero(flat == lab) for lab in (node_labels.INTERIOR, node_labels.RING, node_labels.BAND)]
@@ -299,4 +383,5 @@ def _number_nodes(inside: wp.array, centre, origin, spacing, resolution, device,
         n_interior=n_interior,
         n_ring=n_ring,
         n_band=n_band,
+        n_cut_off=n_cut_off,
     )

@@ -28,7 +28,7 @@ from ..device import resolve_device
 from .grid import Grid
 from ..kernels import local_boundary
 
-__all__ = ["LocalData", "cage_graph_distances", "normal_derivatives", "local_field", "local_values"]
+__all__ = ["LocalData", "cage_graph_distances", "normal_derivatives", "data_slopes", "local_field", "local_values"]
 
 #: a node blends the data of the faces whose distance is within this many grid spacings of the nearest face's, so
 #: that the data is continuous where the nearest face changes (and the same on every device: a float32 nearest-face
@@ -154,6 +154,42 @@ def normal_derivatives(cage: Cage, settings: LocalData = LocalData(), device=Non
             to_fold = graph[f][:, :, ends].min(axis=(1, 2)) / (settings.fold_radius * mean_edge)  # (F,)
             share = np.maximum(share, np.clip(2.0 - to_fold, 0.0, 1.0)[:, None])
     return (1.0 - share) * out + share * least
+
+
+def data_slopes(cage: Cage, settings: LocalData = LocalData(), device=None) -> np.ndarray:
+    """How steep the local data is around each handle: the largest |grad_T hat_l + g_l n_f| over all handles l and
+    the faces f that have this handle as a corner.
+
+    Parameters
+    ----------
+    cage : Cage
+    settings : LocalData
+    device : None | str, where MVC is evaluated ("mvc-cut")
+
+    Returns
+    -------
+    (L,) float64, per unit length: the data extended a distance d from a point of those faces changes by at most d
+    times this
+
+    Examples
+    --------
+    >>> from warp_stokes.geometry.cage import check_cage
+    >>> import trimesh
+    >>> box = trimesh.creation.box(extents=[2, 2, 2])
+    >>> slopes = data_slopes(check_cage((box.vertices, box.faces)), device="cpu")
+    >>> slopes.shape, bool((slopes >= 1 / np.sqrt(2)).all())  # a hat falls from 1 to 0 over a height of sqrt(2)
+    ((8,), True)
+    """
+    gradient = normal_derivatives(cage, settings, device)[:, :, None] * unit_normals(cage)[:, None, :]  # (F, L, 3)
+    faces = np.arange(len(cage.faces))
+    tangent = _tangent_gradients(cage)
+    for corner in range(3):
+        gradient[faces, cage.faces[:, corner]] += tangent[:, corner]
+    face_slope = np.linalg.norm(gradient, axis=2).max(axis=1)
+    slope = np.zeros(cage.n_handles)
+    for corner in range(3):
+        np.maximum.at(slope, cage.faces[:, corner], face_slope)
+    return slope
 
 
 def _mvc_normal_derivatives(cage: Cage, mean_edge: float, device) -> np.ndarray:
