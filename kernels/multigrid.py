@@ -344,6 +344,19 @@ def galerkin_blocks(
 # batched (node, handle) operations
 
 
+@wp.func
+def block_row(blocks: wp.array2d(dtype=wp.mat44f), ijk: wp.array(dtype=wp.vec3i), index: wp.array3d(dtype=wp.int32),
+              x: wp.array2d(dtype=wp.vec4f), n: int, h: int):
+    """(A x)[n] for a 27-point block stencil A, column h."""
+    c = ijk[n]
+    acc = wp.vec4f(0.0)
+    for o in range(27):
+        col = node_row(index, x.shape[0], c + neighbour_offset(o))
+        if col >= 0:
+            acc += blocks[n, o] * x[col, h]
+    return acc
+
+
 @wp.kernel
 def stencil_apply(
     blocks: wp.array2d(dtype=wp.mat44f),
@@ -354,13 +367,21 @@ def stencil_apply(
 ):
     """out = A x for a 27-point block stencil A, every handle a column; launch (rows, handles)."""
     n, h = wp.tid()
-    c = ijk[n]
-    acc = wp.vec4f(0.0)
-    for o in range(27):
-        col = node_row(index, x.shape[0], c + neighbour_offset(o))
-        if col >= 0:
-            acc += blocks[n, o] * x[col, h]
-    out[n, h] = acc
+    out[n, h] = block_row(blocks, ijk, index, x, n, h)
+
+
+@wp.kernel
+def stencil_residual(
+    blocks: wp.array2d(dtype=wp.mat44f),
+    ijk: wp.array(dtype=wp.vec3i),
+    index: wp.array3d(dtype=wp.int32),
+    b: wp.array2d(dtype=wp.vec4f),
+    x: wp.array2d(dtype=wp.vec4f),
+    out: wp.array2d(dtype=wp.vec4f),
+):
+    """out = b - A x in one pass (out may alias b, not x); launch (rows, handles)."""
+    n, h = wp.tid()
+    out[n, h] = b[n, h] - block_row(blocks, ijk, index, x, n, h)
 
 
 @wp.kernel
@@ -434,6 +455,21 @@ def chebyshev_start(
     v = scale * (diagonal_block(inv_diag, n) * r[n, h])
     d[n, h] = v
     x[n, h] = x[n, h] + v
+
+
+@wp.kernel
+def chebyshev_first(
+    b: wp.array2d(dtype=wp.vec4f),
+    inv_diag: wp.array(dtype=wp.mat44f),
+    scale: float,
+    x: wp.array2d(dtype=wp.vec4f),
+    d: wp.array2d(dtype=wp.vec4f),
+):
+    """d = x = scale D^-1 b: the first step from x = 0, without reading (or zeroing) x."""
+    n, h = wp.tid()
+    v = scale * (diagonal_block(inv_diag, n) * b[n, h])
+    d[n, h] = v
+    x[n, h] = v
 
 
 @wp.kernel

@@ -35,8 +35,9 @@ BLOCK_DIM = 128
 # about 110 lines: one kernel factory whose body is one walk over a patch of columns (load a plane, reduce it to
 # the terms its nodes and the nodes above and below need, keep them in registers); split, the walk's state would
 # have to pass through memory, which is what it exists to avoid
-def operator_kernel(scalar, patch=(PATCH_I, PATCH_J)):
-    """The batched operator with sums in `scalar` (wp.float32 or wp.float64), walking patches of `patch` columns.
+def operator_kernel(scalar, patch=(PATCH_I, PATCH_J), residual: bool = False):
+    """The batched operator with sums in `scalar` (wp.float32 or wp.float64), walking patches of `patch` columns;
+    with `residual`, the kernel that writes rhs - A x instead (one pass instead of two).
 
     Residuals of a nearly converged float32 field cancel to ~1e-7 of their terms: a float32 sum would stall
     the solver there, so residuals use float64 sums. Krylov and smoothing applications only need float32.
@@ -102,25 +103,11 @@ def operator_kernel(scalar, patch=(PATCH_I, PATCH_J)):
                 t.gz[n] = m[centre][3]
         return t
 
-    @wp.kernel(module="unique")
-    def apply_operator(
-        field: wp.array2d(dtype=wp.vec4f),
-        index: wp.array3d(dtype=wp.int32),
-        patches: wp.array(dtype=wp.vec4i),
-        n_rows: int,
-        out: wp.array2d(dtype=wp.vec4f),
-    ):
-        # out = A field at the interior nodes; launch (handle groups, patches, GROUP). Rows of `field` at or
-        # beyond `n_rows` read as zero: with n_rows = n_interior this is the interior block A_II (Krylov
-        # vectors); with all active rows it includes the known ring data (residuals).
-        # Handles are innermost so a warp reads 32 consecutive handles of one row (512 coalesced bytes), and
-        # the group is outermost so the warps of a block walk neighbouring patches for the same handles: the
-        # rows one warp loads around its patch are rows its neighbour warps load, still in L1.
-        g, s, lane = wp.tid()
-        h = g * GROUP + lane
-        if h >= out.shape[1]:
-            return
-        patch = patches[s]
+    @wp.func
+    def walk(field: wp.array2d(dtype=wp.vec4f), index: wp.array3d(dtype=wp.int32), n_rows: int, patch: wp.vec4i,
+             h: int, rhs: wp.array2d(dtype=wp.vec4f), subtract: int, out: wp.array2d(dtype=wp.vec4f)):
+        # out = A field (subtract = 0) or rhs - A field (subtract = 1, the sums' precision kept through the
+        # difference) at the interior nodes of one patch, for handle h
         i0 = patch[0]
         j0 = patch[1]
         k0 = patch[2]
@@ -144,17 +131,64 @@ def operator_kernel(scalar, patch=(PATCH_I, PATCH_J)):
                         value = mid.value[n] - scalar(10.0) * (q_up + q_down) + (above.faces[n] + below.faces[n])
                         value += three * (gz_up - gz_down)
                         gz = gz_down + four * scalar(mid.gz[n]) + gz_up - three * (q_up - q_down)
-                        out[row, h] = wp.vec4f(wp.float32(value), mid.gx[n], mid.gy[n], wp.float32(gz))
+                        gx = mid.gx[n]
+                        gy = mid.gy[n]
+                        if subtract != 0:
+                            given = rhs[row, h]
+                            value = scalar(given[0]) - value
+                            gz = scalar(given[3]) - gz
+                            gx = given[1] - gx
+                            gy = given[2] - gy
+                        out[row, h] = wp.vec4f(wp.float32(value), gx, gy, wp.float32(gz))
             below = mid
             mid = above
 
-    return apply_operator
+    @wp.kernel(module="unique")
+    def apply_operator(
+        field: wp.array2d(dtype=wp.vec4f),
+        index: wp.array3d(dtype=wp.int32),
+        patches: wp.array(dtype=wp.vec4i),
+        n_rows: int,
+        out: wp.array2d(dtype=wp.vec4f),
+    ):
+        # out = A field at the interior nodes; launch (handle groups, patches, GROUP). Rows of `field` at or
+        # beyond `n_rows` read as zero: with n_rows = n_interior this is the interior block A_II (Krylov
+        # vectors); with all active rows it includes the known ring data (residuals).
+        # Handles are innermost so a warp reads 32 consecutive handles of one row (512 coalesced bytes), and
+        # the group is outermost so the warps of a block walk neighbouring patches for the same handles: the
+        # rows one warp loads around its patch are rows its neighbour warps load, still in L1.
+        g, s, lane = wp.tid()
+        h = g * GROUP + lane
+        if h >= out.shape[1]:
+            return
+        walk(field, index, n_rows, patches[s], h, out, 0, out)
+
+    @wp.kernel(module="unique")
+    def residual_operator(
+        field: wp.array2d(dtype=wp.vec4f),
+        index: wp.array3d(dtype=wp.int32),
+        patches: wp.array(dtype=wp.vec4i),
+        n_rows: int,
+        rhs: wp.array2d(dtype=wp.vec4f),
+        out: wp.array2d(dtype=wp.vec4f),
+    ):
+        # out = rhs - A field at the interior nodes, as apply_operator launches (out may alias rhs: each entry is
+        # read once, by the thread that writes it)
+        g, s, lane = wp.tid()
+        h = g * GROUP + lane
+        if h >= out.shape[1]:
+            return
+        walk(field, index, n_rows, patches[s], h, rhs, 1, out)
+
+    return residual_operator if residual else apply_operator
 
 
 #: residuals (float64 sums)
 apply_operator = operator_kernel(wp.float64)
 #: Krylov and smoothing applications (float32 sums)
 apply_operator_fast = operator_kernel(wp.float32)
+#: b - A x in one pass, for the smoother's residuals (float32 sums, as its applications)
+residual_operator_fast = operator_kernel(wp.float32, residual=True)
 
 
 @wp.kernel

@@ -70,6 +70,25 @@ def test_a_grid_beyond_the_row_limit_is_refused_naming_a_resolution_that_fits(ar
     assert ws.voxelize(arm_cage, suggested, device=device, max_rows=limit).n_active <= limit
 
 
+def test_residuals_in_one_pass_match_the_operator_against_scipy(arm_hierarchy, device):
+    # the smoother's r = b - A x in one kernel, on the fine level (the compact scheme, float32 sums) and on a coarse
+    # level (the Galerkin blocks), against b - A x with the scipy matrices of operator_triplets (float64)
+    grid, mg = arm_hierarchy
+    rng = np.random.default_rng(5)
+    for depth in (0, 1):
+        n = mg.level_sizes[depth]
+        x_np = rng.standard_normal((n, 3, 4)).astype(np.float32)
+        b_np = rng.standard_normal((n, 3, 4)).astype(np.float32)
+        x, b = (wp.array(a, dtype=wp.vec4f, device=device) for a in (x_np, b_np))
+        r = wp.empty_like(b)
+        mg._residual(depth, b, x, r)
+        A = to_scipy(mg.operator_triplets(depth), n, n)
+        for h in range(3):
+            expected = b_np[:, h].ravel().astype(np.float64) - A @ x_np[:, h].ravel().astype(np.float64)
+            scale = np.abs(expected).max()
+            assert np.abs(r.numpy()[:, h].ravel() - expected).max() < 1e-5 * scale
+
+
 def test_hermite_prolongation_is_exact_for_cubics_along_axes(device):
     v, f = box_cage(lo=(-1, -1, -1), hi=(1, 1, 1))
     grid = ws.voxelize(ws.check_cage((v, f)), resolution=24, device=device)
@@ -144,6 +163,21 @@ def test_bench_smoother_solves_and_tabulates_every_variant():
     assert proc.returncode == 0, proc.stderr[-2000:]
     rows = [line for line in proc.stdout.splitlines() if line.startswith("| 3,3")]
     assert len(rows) == 2 and all("| True |" in row for row in rows), proc.stdout
+
+
+def test_bench_speed_tabulates_a_bind_and_a_fresh_process():
+    # issue 16's harness at a tiny size on the CPU (a subprocess: the script is the subject): the phase table, the
+    # throughput line and the fresh processes, whose bind must succeed without a false compile notice
+    repo = Path(__file__).resolve().parents[1]
+    proc = subprocess.run([sys.executable, str(repo / "benchmarks" / "bench_speed.py"), "--device", "cpu", "--pair",
+                           "arm", "--resolutions", "16", "--repeats", "1", "--assets", "2"], capture_output=True,
+                          text=True)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    out = proc.stdout
+    row = next(line for line in out.splitlines() if line.startswith("| 16 | 58 |"))
+    assert len(row.split("|")) >= 10 and "assets/min" in out
+    fresh = [line for line in out.splitlines() if line.startswith("| warp-stokes bind arm n = 16 | warm |")]
+    assert len(fresh) == 1 and fresh[0].rstrip().endswith("| 0 | no |"), out
 
 
 def test_deep_hierarchies_smooth_harder(arm_cage, device, monkeypatch):

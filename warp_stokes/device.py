@@ -120,6 +120,8 @@ def cuda_device_count() -> int:
 #: only harmonic coordinates compile it)
 KERNEL_MODULES = ("cg", "checks", "deform", "intersect", "labels", "local_boundary", "multigrid", "mvc", "sample",
                   "stencil", "voxel")
+#: the modules a bind compiles (deforming compiles "deform" on first use: a bind's process never does)
+BIND_MODULES = tuple(m for m in KERNEL_MODULES if m != "deform")
 
 
 def kernels_compiled(device=None, modules=KERNEL_MODULES) -> bool:
@@ -147,11 +149,12 @@ def kernels_compiled(device=None, modules=KERNEL_MODULES) -> bool:
     return True
 
 
-def announce_compilation(device=None, harmonic: bool = False, stream=None) -> None:
+def announce_compilation(device=None, harmonic: bool = False, stream=None, modules=BIND_MODULES) -> None:
     """One line on ``stream`` (default stderr) before a first run's kernel compilation (20-40 s), so that a silent
-    wait is not taken for a hang; ``harmonic``: the Laplace kernels count too."""
+    wait is not taken for a hang: when the cache lacks one of ``modules`` (a bind's, by default; ``harmonic``: the
+    Laplace kernels count too)."""
     resolved = resolve_device(device)
-    if not kernels_compiled(resolved, KERNEL_MODULES + (("laplace",) if harmonic else ())):
+    if not kernels_compiled(resolved, tuple(modules) + (("laplace",) if harmonic else ())):
         print(f"warp-stokes: compiling the kernels for {resolved.alias} (first run on this machine, 20-40 s; "
               "later runs load them from Warp's cache)", file=stream or sys.stderr, flush=True)
 

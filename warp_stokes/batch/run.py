@@ -13,7 +13,7 @@ import warnings
 from dataclasses import dataclass, field
 
 from .. import __version__
-from ..device import announce_compilation
+from ..device import BIND_MODULES, KERNEL_MODULES, announce_compilation
 from ..errors import WarpStokesError
 from ..io.files import atomic_output
 from .lock import folder_lock
@@ -108,7 +108,8 @@ def run_batch(manifest, outdir, force: bool = False, device=None, progress=True,
             results = run_on_ray(assets, outdir, manifest, force, device, progress, workers, ray_address)
         else:
             if progress:  # once the folder is ours (Ray workers compile in their own processes)
-                announce_compilation(device, harmonic=any(a.method == "harmonic" for a in assets), stream=progress)
+                announce_compilation(device, harmonic=any(a.method == "harmonic" for a in assets), stream=progress,
+                                     modules=KERNEL_MODULES if any(a.poses for a in assets) else BIND_MODULES)
             results = _run_assets(assets, outdir, manifest, force, device, progress)
         _write_json(os.path.join(outdir, "summary.json"), {"warp_stokes_version": __version__,
                                                            "assets": [r.__dict__ for r in results]})

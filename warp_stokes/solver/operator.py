@@ -13,7 +13,7 @@ import warp as wp
 from ..device import resolve_device
 from ..geometry.grid import Grid
 from ..errors import WarpStokesError
-from ..kernels import laplace, stencil
+from ..kernels import cg, laplace, stencil
 
 __all__ = ["apply_operator", "EQUATIONS", "check_equation"]
 
@@ -28,8 +28,8 @@ def check_equation(equation: str) -> str:
 
 
 def apply_operator(grid: Grid, field: wp.array, out: wp.array, n_rows: int | None = None, device=None,
-                   precise: bool = True, equation: str = "biharmonic") -> None:
-    """``out = A field`` at the interior rows, for every handle (one launch).
+                   precise: bool = True, equation: str = "biharmonic", rhs: wp.array | None = None) -> None:
+    """``out = A field`` (or ``rhs - A field``) at the interior rows, for every handle (one launch).
 
     Parameters
     ----------
@@ -40,6 +40,8 @@ def apply_operator(grid: Grid, field: wp.array, out: wp.array, n_rows: int | Non
     device : None | str
     precise : bool, float64 sums (for residuals); float32 sums otherwise (Krylov and smoothing steps)
     equation : "biharmonic" (the compact 19-point scheme) | "laplace" (7-point, identity gradient rows)
+    rhs : wp.array2d(vec4f), optional, (grid.n_interior, handles): write ``rhs - A field`` instead (``out`` may be
+        ``rhs``); one pass for the biharmonic scheme with float32 sums (the smoother's residuals)
 
     Examples
     --------
@@ -49,17 +51,17 @@ def apply_operator(grid: Grid, field: wp.array, out: wp.array, n_rows: int | Non
     device = resolve_device(device)
     arrays = grid.device_arrays(device)
     n_rows = field.shape[0] if n_rows is None else n_rows
+    fused = rhs is not None and equation == "biharmonic" and not precise
     if equation == "laplace":
         wp.launch(laplace.apply_laplacian if precise else laplace.apply_laplacian_fast, dim=out.shape,
                   inputs=[field, arrays["index"], arrays["active_ijk"], int(n_rows)], outputs=[out], device=device)
-        return
-    patches = arrays["patches"]
-    groups = -(-field.shape[1] // stencil.GROUP)
-    wp.launch(
-        stencil.apply_operator if precise else stencil.apply_operator_fast,
-        dim=(groups, patches.shape[0], stencil.GROUP),
-        inputs=[field, arrays["index"], patches, int(n_rows)],
-        outputs=[out],
-        device=device,
-        block_dim=stencil.BLOCK_DIM,
-    )
+    else:
+        patches = arrays["patches"]
+        groups = -(-field.shape[1] // stencil.GROUP)
+        kernel = stencil.residual_operator_fast if fused else (
+            stencil.apply_operator if precise else stencil.apply_operator_fast)
+        wp.launch(kernel, dim=(groups, patches.shape[0], stencil.GROUP),
+                  inputs=[field, arrays["index"], patches, int(n_rows), *([rhs] if fused else [])], outputs=[out],
+                  device=device, block_dim=stencil.BLOCK_DIM)
+    if rhs is not None and not fused:
+        wp.launch(cg.residual, dim=out.shape, inputs=[rhs, out], outputs=[out], device=device)

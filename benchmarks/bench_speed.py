@@ -1,0 +1,179 @@
+"""End-to-end speed of a bind, as issue 16 tracks it: where the time of a warm bind goes, how busy the GPU is, how far
+the fine-level sweeps are from the copy bandwidth, throughput of mixed assets, and a fresh process's start.
+
+    python benchmarks/bench_speed.py --device cuda:0                        # the ogre at 128 / 256 / 512, all tables
+    python benchmarks/bench_speed.py --device cuda:0 --resolutions 128 --skip-fresh --assets 6
+    python benchmarks/bench_speed.py --device cpu --pair arm --resolutions 24 --assets 3   # the CPU path
+
+Tables (markdown): (1) per resolution: median wall of ``ws.bind`` over ``--repeats`` warm binds, its phases
+(``stats["seconds"]``), the GPU's busy time in one bind (``wp.timing``: kernels, copies, memsets), the ten kernels that
+take longest, CG iterations, peak pool memory; the bandwidth limit: the bytes the fine-level stencil launches must
+move (one read of the input and one write of the output per launch, every handle column) over the measured
+device-to-device copy bandwidth; (2) throughput: mixed assets (the arm, SMPL, the ogre, round robin) bound one after
+another in one process, assets per minute; (3) fresh processes: ``warp-stokes --help`` and ``warp-stokes bind`` at the
+first resolution, with Warp's kernel cache warm (and, with ``--cold``, an empty cache: the first run on a machine).
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+import warp as wp
+
+import warp_stokes as ws
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import PAIRS, DevicePeak, markdown_table, select_device, warm_up  # noqa: E402
+
+#: kernels of the fine-level stencil: one application of the compact operator (or the Laplace one) per launch
+FINE_STENCIL = ("apply_compact_patches", "apply_operator", "apply_laplacian")
+
+
+def copy_bandwidth(device, gib: float = 1.0) -> float:
+    """Device-to-device copy bandwidth in bytes per second (read + write counted), median of 5."""
+    n = int(gib * 2**30) // 4
+    a = wp.zeros(n, dtype=wp.float32, device=device)
+    b = wp.empty_like(a)
+    times = []
+    for _ in range(6):
+        wp.synchronize_device(device)
+        t = time.perf_counter()
+        wp.copy(b, a)
+        wp.synchronize_device(device)
+        times.append(time.perf_counter() - t)
+    return 2 * a.capacity / statistics.median(times[1:])
+
+
+def bind_once(mesh, cage, resolution, device):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        t = time.perf_counter()
+        b = ws.bind(mesh, cage, resolution=resolution, device=device)
+        return b, time.perf_counter() - t
+
+
+def profile(mesh, cage, resolution, device, repeats, bandwidth):
+    walls, binding = [], None
+    for _ in range(repeats):
+        binding, wall = bind_once(mesh, cage, resolution, device)
+        walls.append(wall)
+    row = {"n": resolution, "wall": statistics.median(walls), "phases": binding.stats["seconds"],
+           "iterations": binding.stats["iterations"], "interior": binding.stats["interior_nodes"],
+           "handles": binding.stats["handles"], "chunks": binding.stats["chunks"]}
+    if not ws.resolve_device(device).is_cuda:
+        return row, []
+    with DevicePeak(device) as peak:
+        wp.timing_begin(cuda_filter=wp.TIMING_ALL)
+        bind_once(mesh, cage, resolution, device)
+        activities = wp.timing_end()
+    by_name = collections.defaultdict(lambda: [0.0, 0])
+    for a in activities:
+        by_name[a.name][0] += a.elapsed / 1e3
+        by_name[a.name][1] += 1
+    busy = sum(v[0] for v in by_name.values())
+    columns = row["handles"] + (row["chunks"] > 1) * row["chunks"]  # a chunked solve adds one column per chunk
+    fine_launches = sum(v[1] for k, v in by_name.items() if any(s in k for s in FINE_STENCIL))
+    # each launch reads the whole input once and writes the output once (vec4 float32 per node and column); a chunked
+    # solve's launches each cover a share of the columns, so the total is per column, not per launch
+    fine_bytes = fine_launches / max(row["chunks"], 1) * 2 * row["interior"] * columns * 16
+    row.update(busy=busy, peak=peak.bytes / 2**20, fine_launches=fine_launches,
+               limit=fine_bytes / bandwidth if bandwidth else float("nan"))
+    top = sorted(by_name.items(), key=lambda kv: -kv[1][0])[:10]
+    return row, top
+
+
+def throughput(device, resolution, count):
+    names = [n for n in ("arm", "smpl", "ogre") if Path(PAIRS[n][0]).exists()]
+    t = time.perf_counter()
+    for k in range(count):
+        mesh, cage = PAIRS[names[k % len(names)]]
+        bind_once(mesh, cage, resolution, device)
+    seconds = time.perf_counter() - t
+    return names, seconds, 60.0 * count / seconds
+
+
+def fresh(args, device, cold: bool):
+    mesh, cage = PAIRS[args.pair]
+    env = dict(os.environ)
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        if cold:
+            env["WARP_CACHE_PATH"] = os.path.join(tmp, "kernels")
+        for label, command in (("warp-stokes --help", [sys.executable, "-m", "warp_stokes.cli", "--help"]),
+                               (f"warp-stokes bind {args.pair} n = {args.resolutions[0]}",
+                                [sys.executable, "-m", "warp_stokes.cli", "bind", str(mesh), str(cage), "-o",
+                                 os.path.join(tmp, "b.npz"), "--resolution", str(args.resolutions[0]), "--device",
+                                 device])):
+            t = time.perf_counter()
+            proc = subprocess.run(command, capture_output=True, text=True, env=env)
+            seconds = time.perf_counter() - t
+            said = "compiling the kernels" in proc.stderr
+            rows.append((label, "empty (first run)" if cold else "warm", f"{seconds:.2f}", proc.returncode,
+                         "yes" if said else "no"))
+    return rows
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--device", default=None)
+    p.add_argument("--pair", default="ogre", choices=list(PAIRS))
+    p.add_argument("--resolutions", nargs="+", type=int, default=[128, 256, 512])
+    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--assets", type=int, default=12, help="binds in the throughput run (0: skip it)")
+    p.add_argument("--skip-fresh", action="store_true", help="no fresh-process timings")
+    p.add_argument("--cold", action="store_true", help="also time a fresh process with an empty kernel cache")
+    args = p.parse_args(argv)
+    resolved, name = select_device(args.device)
+    device = resolved.alias
+    mesh, cage = PAIRS[args.pair]
+    warm_up(device)
+    bind_once(mesh, cage, args.resolutions[0], device)  # the pair's own first bind (loading, caches)
+    bandwidth = copy_bandwidth(device) if resolved.is_cuda else 0.0
+    print(f"device: {name}" + (f"; copy bandwidth {bandwidth / 1e9:.0f} GB/s (read + write)" if bandwidth else ""))
+
+    rows, tops = [], {}
+    for n in args.resolutions:
+        row, top = profile(mesh, cage, n, device, args.repeats, bandwidth)
+        rows.append(row)
+        tops[n] = top
+    phases = sorted({k for r in rows for k in r["phases"] if k != "total"})
+    head = ["n", "handles", "interior nodes", "wall s (median)", *[f"{k} s" for k in phases], "its"]
+    if resolved.is_cuda:
+        head += ["GPU busy s", "fine stencil launches", "bandwidth limit s", "limit / busy", "peak MiB"]
+    table = []
+    for r in rows:
+        line = [r["n"], r["handles"], f"{r['interior']:,}", f"{r['wall']:.3f}",
+                *[f"{r['phases'].get(k, 0.0):.3f}" for k in phases], r["iterations"]]
+        if resolved.is_cuda:
+            line += [f"{r['busy']:.3f}", r["fine_launches"], f"{r['limit']:.3f}", f"{r['limit'] / r['busy']:.0%}",
+                     f"{r['peak']:.0f}"]
+        table.append(line)
+    print(f"\n{args.pair}: warm binds in one process\n")
+    print(markdown_table(head, table))
+    for n, top in tops.items():
+        if top:
+            print(f"\nGPU time by activity at n = {n} (one bind)\n")
+            print(markdown_table(["activity", "s", "launches"], [(k, f"{v[0]:.4f}", v[1]) for k, v in top]))
+    if args.assets:
+        names, seconds, per_minute = throughput(device, args.resolutions[0], args.assets)
+        print(f"\nthroughput: {args.assets} binds of {', '.join(names)} (round robin) at n = {args.resolutions[0]} in "
+              f"{seconds:.1f} s: {per_minute:.0f} assets/min")
+    if not args.skip_fresh:
+        rows = fresh(args, device, cold=False) + (fresh(args, device, cold=True) if args.cold else [])
+        print("\nfresh processes\n")
+        print(markdown_table(["command", "kernel cache", "s", "exit", "says it compiles"], rows))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
