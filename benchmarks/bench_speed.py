@@ -35,8 +35,10 @@ import warp_stokes as ws
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import PAIRS, DevicePeak, markdown_table, select_device, warm_up  # noqa: E402
 
-#: kernels of the fine-level stencil: one application of the compact operator (or the Laplace one) per launch
+#: kernels of the fine-level stencil: one application of the compact operator (or the Laplace one) per launch, and
+#: the smoother's one-pass residual (which also reads the right-hand side: three streams instead of two)
 FINE_STENCIL = ("apply_compact_patches", "apply_operator", "apply_laplacian")
+FINE_RESIDUAL = ("residual_operator",)
 
 
 def copy_bandwidth(device, gib: float = 1.0) -> float:
@@ -82,10 +84,14 @@ def profile(mesh, cage, resolution, device, repeats, bandwidth):
         by_name[a.name][1] += 1
     busy = sum(v[0] for v in by_name.values())
     columns = row["handles"] + (row["chunks"] > 1) * row["chunks"]  # a chunked solve adds one column per chunk
-    fine_launches = sum(v[1] for k, v in by_name.items() if any(s in k for s in FINE_STENCIL))
-    # each launch reads the whole input once and writes the output once (vec4 float32 per node and column); a chunked
-    # solve's launches each cover a share of the columns, so the total is per column, not per launch
-    fine_bytes = fine_launches / max(row["chunks"], 1) * 2 * row["interior"] * columns * 16
+    applications = sum(v[1] for k, v in by_name.items() if any(s in k for s in FINE_STENCIL))
+    residuals = sum(v[1] for k, v in by_name.items() if any(s in k for s in FINE_RESIDUAL))
+    fine_launches = applications + residuals
+    # each launch reads the whole input once and writes the output once (vec4 float32 per node and column), a residual
+    # also reads the right-hand side; a chunked solve's launches each cover a share of the columns, so the total is per
+    # column, not per launch
+    streams = 2 * applications + 3 * residuals
+    fine_bytes = streams / max(row["chunks"], 1) * row["interior"] * columns * 16
     row.update(busy=busy, peak=peak.bytes / 2**20, fine_launches=fine_launches,
                limit=fine_bytes / bandwidth if bandwidth else float("nan"))
     top = sorted(by_name.items(), key=lambda kv: -kv[1][0])[:10]

@@ -303,7 +303,7 @@ def _vertices_off_the_grid(surface, checked: Cage, grid, resolution: int, weight
             f"cells at resolution {resolution}; their weights come from the boundary data alone. "
             f"resolution={suggestion} would resolve them")
         warnings.warn(notes[-1], stacklevel=3)
-    below = wedge_resolution(checked, boundary)
+    below = wedge_resolution(checked, boundary, device)
     if below is not None and resolution < below:
         notes.append(
             f"{checked.name}: at resolution {resolution} the grid does not yet cut off the thin wedges of outside "

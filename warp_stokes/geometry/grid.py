@@ -287,7 +287,7 @@ def grid_from_mask(interior, spacing: float = 1.0, origin=(0.0, 0.0, 0.0), devic
                          MAX_ROWS, "the interior mask")
 
 
-def wedge_resolution(cage: Cage, boundary="local") -> int | None:
+def wedge_resolution(cage: Cage, boundary="local", device=None) -> int | None:
     """The resolution from which the grid cuts off the thin wedges of outside space at every folded cage edge (faces
     whose normals are more than 150 degrees apart): below it, nodes next to some of them stay unknowns, coupled
     across the wedge, and the weights within a few cells of the edge converge slowly.
@@ -296,6 +296,7 @@ def wedge_resolution(cage: Cage, boundary="local") -> int | None:
     ----------
     cage : Cage
     boundary : "local" | LocalData | "mvc"
+    device : None | str, where the local data's MVC normal derivatives are evaluated
 
     Returns
     -------
@@ -315,7 +316,7 @@ def wedge_resolution(cage: Cage, boundary="local") -> int | None:
     folds = folded_edges(cage)
     if boundary == "mvc" or not len(folds):
         return None
-    slopes = data_slopes(cage, LocalData() if boundary == "local" else boundary)
+    slopes = data_slopes(cage, LocalData() if boundary == "local" else boundary, device)
     at_fold = cage.faces[np.isin(cage.faces, np.unique(folds)).any(axis=1)]  # the faces around folded edges
     extent = float((cage.vertices.max(axis=0) - cage.vertices.min(axis=0)).max())
     # the kernel's test, 1.5 h slope <= CUT_OFF_MAX_CHANGE, with h = extent / resolution
@@ -335,7 +336,7 @@ def _wedge_cut_off(cage: Cage, mesh: wp.Mesh, inside: wp.array, origin, spacing:
     device = inside.device
     inputs = [wp.array(cage.faces.astype(np.int32), dtype=wp.int32, device=device),
               wp.array(adjacent, dtype=wp.int8, device=device),
-              wp.array(data_slopes(cage, settings).astype(np.float32), dtype=float, device=device), inside,
+              wp.array(data_slopes(cage, settings, device).astype(np.float32), dtype=float, device=device), inside,
               wp.vec3(*np.asarray(origin, dtype=np.float32)), float(spacing), WEDGE_FACING, CUT_OFF_MAX_CHANGE]
 
     def cut_off(labels: wp.array) -> int:

@@ -40,8 +40,9 @@ def apply_operator(grid: Grid, field: wp.array, out: wp.array, n_rows: int | Non
     device : None | str
     precise : bool, float64 sums (for residuals); float32 sums otherwise (Krylov and smoothing steps)
     equation : "biharmonic" (the compact 19-point scheme) | "laplace" (7-point, identity gradient rows)
-    rhs : wp.array2d(vec4f), optional, (grid.n_interior, handles): write ``rhs - A field`` instead (``out`` may be
-        ``rhs``); one pass for the biharmonic scheme with float32 sums (the smoother's residuals)
+    rhs : wp.array2d(vec4f), optional, (grid.n_interior, handles): write ``rhs - A field`` instead; one pass for the
+        biharmonic scheme with float32 sums (the smoother's residuals), where ``out`` may be ``rhs``; otherwise two
+        passes, and ``out`` must not be ``rhs``
 
     Examples
     --------
@@ -52,6 +53,8 @@ def apply_operator(grid: Grid, field: wp.array, out: wp.array, n_rows: int | Non
     arrays = grid.device_arrays(device)
     n_rows = field.shape[0] if n_rows is None else n_rows
     fused = rhs is not None and equation == "biharmonic" and not precise
+    if rhs is not None and not fused and rhs.ptr == out.ptr:
+        raise ValueError("apply_operator: out may be rhs only for the biharmonic scheme with precise=False")
     if equation == "laplace":
         wp.launch(laplace.apply_laplacian if precise else laplace.apply_laplacian_fast, dim=out.shape,
                   inputs=[field, arrays["index"], arrays["active_ijk"], int(n_rows)], outputs=[out], device=device)
