@@ -94,7 +94,7 @@ def test_batch_keeps_going_and_reports(manifest, tmp_path, capsys, device):
     assert b.settings["resolution"] == 16
 
 
-def test_rerun_skips_up_to_date_assets_unless_forced(manifest, tmp_path, device):
+def test_rerun_skips_up_to_date_assets_unless_forced(manifest, tmp_path, device, monkeypatch):
     out = tmp_path / "out"
     first = {r.name: r.status for r in ws.run_batch(manifest, out, device=device, progress=None)}
     again = {r.name: r.status for r in ws.run_batch(manifest, out, device=device, progress=None)}
@@ -113,6 +113,13 @@ def test_rerun_skips_up_to_date_assets_unless_forced(manifest, tmp_path, device)
     os.utime(manifest, (future, future))
     changed = {r.name: r.status for r in ws.run_batch(manifest, out, device=device, progress=None)}
     assert changed["arm_b"] == "ok"
+    # outputs of another version of warp-stokes (other weights, possibly) are redone too
+    assert ws.load_binding(out / "arm_b.npz").settings["warp_stokes_version"] == ws.__version__
+    from warp_stokes.batch import run as batch_run
+
+    monkeypatch.setattr(batch_run, "__version__", "0.0.1")
+    older = {r.name: r.status for r in ws.run_batch(manifest, out, device=device, progress=None)}
+    assert older["arm_b"] == "ok" and older["arm_a"] == "ok"
 
 
 def test_json_manifest_and_manifest_errors(tmp_path, device):
@@ -199,6 +206,14 @@ def test_the_compile_notice_comes_once_the_folder_is_ours(manifest, tmp_path, mo
     lines = stream.getvalue().splitlines()
     assert lines[0].startswith("warp-stokes: compiling the kernels for cpu (first run on this machine")
     assert sum("compiling the kernels" in line for line in lines) == 1
+    # a rerun with every asset up to date binds nothing: no notice
+    only_good = tmp_path / "good.json"
+    only_good.write_text(json.dumps({"assets": [{"mesh": str(EXAMPLE / "arm.obj"), "cage": str(EXAMPLE / "arm_cage.obj"),
+                                                 "resolution": 16}]}))
+    for expected in ("compiling", "skipped"):
+        stream = io.StringIO()
+        ws.run_batch(only_good, tmp_path / "good", device="cpu", progress=stream)
+        assert expected in stream.getvalue() and ("compiling" in stream.getvalue()) == (expected == "compiling")
 
 
 def test_a_batch_killed_with_sigkill_is_completed_by_the_next_run(manifest, tmp_path):

@@ -70,7 +70,7 @@ def test_mvc_are_positive_inside_a_convex_cage(device):
 
 
 def test_boundary_field_reproduces_linear_functions(arm_cage, device):
-    grid = ws.voxelize(arm_cage, resolution=16, device=device)
+    grid = ws.voxelize(arm_cage, resolution=16, device=device, boundary="mvc")
     field = ws.boundary_field(grid, arm_cage, device=device).numpy().astype(np.float64)  # (N, L, 4)
     q, g = field[..., 0], field[..., 1:]
     n_grad = grid.n_interior + grid.n_ring
@@ -91,7 +91,7 @@ def test_boundary_field_reproduces_linear_functions(arm_cage, device):
 def test_complement_column_is_the_rest_of_the_cage(arm_cage, device):
     # The column after a chunk stands for the other handles: sum_l w_l over the handles outside the chunk,
     # value and gradient, computed here from those handles' own fields.
-    grid = ws.voxelize(arm_cage, resolution=16, device=device)
+    grid = ws.voxelize(arm_cage, resolution=16, device=device, boundary="mvc")
     chunk = slice(20, 35)
     field = ws.boundary_field(grid, arm_cage, device=device, handles=chunk, complement=True).numpy()
     assert field.shape == (grid.n_active, 15 + ws.COMPLEMENT_COLUMNS, 4) and ws.COMPLEMENT_COLUMNS == 1

@@ -85,14 +85,25 @@ def test_unreadable_and_empty_files_name_the_file(tmp_path):
         ws.load_surface(broken)
 
 
-def test_fast_and_general_obj_paths_agree(tmp_path):
-    # CRLF line ends and a quad take the general path; plain triangles the fast one
+def test_fast_and_general_obj_paths_agree(tmp_path, monkeypatch):
+    from warp_stokes.io import obj
+
+    # plain triangles take the fast path, with LF or CRLF line ends; the general one reads them the same
     text = (EXAMPLE / "arm.obj").read_text()
     crlf = tmp_path / "arm_crlf.obj"
     crlf.write_bytes(text.replace("\n", "\r\n").encode())
-    fast, general = ws.load_surface(EXAMPLE / "arm.obj"), ws.load_surface(crlf)
-    np.testing.assert_array_equal(fast.vertices, general.vertices)
-    np.testing.assert_array_equal(fast.faces, general.faces)
+    assert obj._read_obj_triangles(text) is not None and obj._read_obj_triangles(crlf.read_text()) is not None
+    fast = [ws.load_surface(p) for p in (EXAMPLE / "arm.obj", crlf)]
+    monkeypatch.setattr(obj, "_read_obj_triangles", lambda text: None)
+    general = ws.load_surface(EXAMPLE / "arm.obj")
+    for surface in fast:
+        np.testing.assert_array_equal(surface.vertices, general.vertices)
+        np.testing.assert_array_equal(surface.faces, general.faces)
+    monkeypatch.undo()
+    # records the fast path cannot take (a v/vt/vn corner, a quad, a vertex with colours, a negative index) go to the
+    # general one
+    for odd in ("f 1/1/1 2/2/2 3/3/3\n", "f 1 2 3 4\n", "v 0 0 0 1 0 0\nf 1 2 3\n", "f -4 -3 -2\n"):
+        assert obj._read_obj_triangles("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n" + odd) is None, odd
     mixed = tmp_path / "mixed.obj"
     mixed.write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1/1/1 2/2/2 3/3/3\nf 1 3 4 2\n")
     assert ws.load_surface(mixed).faces.tolist() == [[0, 1, 2], [0, 2, 3], [0, 3, 1]]

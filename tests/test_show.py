@@ -259,3 +259,24 @@ def test_a_slice_is_solved_with_the_bindings_own_boundary_data(arm, tmp_path):
     theirs = weight_slice(default, 19, "z", 0.3, device="cpu").image
     inside = ~np.isnan(mine)
     assert inside.any() and np.abs(mine[inside] - theirs[inside]).max() > 1e-3
+
+
+def test_a_slice_draws_the_nodes_cut_off_by_a_thin_wedge():
+    """Nodes inside the cage that a thin wedge cuts off hold known data: the slice draws them with it, not as outside."""
+    from conftest import slit_cage
+    from warp_stokes.kernels import labels as L
+
+    cage, rotation, _ = slit_cage()
+    points = np.random.default_rng(0).uniform(-0.5, 0.5, size=(50, 3)) @ rotation.T
+    binding = ws.bind((points, None), cage, resolution=24, device="cpu")
+    grid = ws.voxelize(cage, 24, device="cpu")
+    assert grid.n_cut_off > 0
+    cut_off = np.zeros(grid.shape, dtype=bool)
+    cut_off[tuple(grid.active_ijk[grid.n_interior: grid.n_inside].T)] = True
+    k = int(np.argmax(np.bincount(grid.active_ijk[grid.n_interior: grid.n_inside, 2])))  # the z plane with most
+    lo, hi = cage.vertices.min(0)[2], cage.vertices.max(0)[2]
+    position = grid.centre[2] + grid.origin[2] + grid.spacing * k
+    s = weight_slice(binding, 0, "z", (position - lo) / (hi - lo), device="cpu")
+    assert np.isclose(s.position, position)
+    inside = (grid.labels[:, :, k] == L.INTERIOR) | cut_off[:, :, k]
+    assert np.isfinite(s.image).sum() == inside.sum() and cut_off[:, :, k].sum() > 0

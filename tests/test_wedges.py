@@ -31,6 +31,8 @@ def test_nodes_a_thin_wedge_cuts_off_join_the_ring():
     inside, distance = ws.classify_points(cage, positions, device="cpu")
     # exactly the ring nodes inside the cage are the cut-off ones, all within a diagonal link of the slit's walls
     assert inside.sum() == grid.n_cut_off
+    # numbered first in the ring: the rows below n_inside are the nodes inside the cage
+    assert grid.n_inside == grid.n_interior + grid.n_cut_off and inside[: grid.n_cut_off].all()
     assert (distance[inside] <= 1.5 * grid.spacing).all()
     local = positions[inside] @ rotation  # back in the slit's frame: next to x = 0, above its floor at z = -0.2
     assert (np.abs(local[:, 0]) < 0.09 + 1.5 * grid.spacing).all() and (local[:, 2] > -0.2 - 1.5 * grid.spacing).all()
@@ -46,13 +48,17 @@ def test_cut_off_nodes_hold_the_local_data():
 
     cage, _, _ = slit_cage()
     grid = ws.voxelize(cage, 24, device="cpu")
-    field = ws.boundary_field(grid, cage, device="cpu", data="local").numpy()
-    ring_rows = np.arange(grid.n_interior, grid.n_interior + grid.n_ring)
-    positions = grid.node_positions(ring_rows) + grid.centre
-    inside, _ = ws.classify_points(cage, positions, device="cpu")
-    rows = ring_rows[inside]
-    expected = local_values(cage, positions[inside], grid.spacing, device="cpu")
+    assert grid.boundary == ws.LocalData()
+    field = ws.boundary_field(grid, cage, device="cpu").numpy()  # the grid's own data by default
+    np.testing.assert_array_equal(field, ws.boundary_field(grid, cage, device="cpu", data="local").numpy())
+    rows = np.arange(grid.n_interior, grid.n_inside)
+    expected = local_values(cage, grid.node_positions(rows) + grid.centre, grid.spacing, device="cpu")
     np.testing.assert_allclose(field[rows, :, 0], expected, atol=2e-6)
+    # other data than the grid cut its nodes off for is warned of; bad data names are refused by voxelize
+    with pytest.warns(UserWarning, match=rf"cut {grid.n_cut_off} nodes off"):
+        ws.boundary_field(grid, cage, device="cpu", data="mvc")
+    with pytest.raises(ws.WarpStokesError, match="boundary must be 'mvc', 'local' or a LocalData, got 'MVC'"):
+        ws.voxelize(cage, 24, device="cpu", boundary="MVC")
 
 
 @pytest.mark.parametrize("resolution", [32, 48])

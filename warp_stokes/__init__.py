@@ -15,7 +15,7 @@ if not _os.path.isdir(_os.path.join(_here, "kernels")) and _os.path.isfile(
 ):
     __path__.append(_os.path.dirname(_here))  # noqa: F821 (the package's own __path__)
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 # The public names, imported on first use (PEP 562): `warp-stokes --help` and `--version` start without importing
 # Warp, numpy or trimesh; `import warp_stokes as ws; ws.bind(...)` works as if they were imported here.

@@ -138,7 +138,8 @@ def weight_slice(binding, handle: int, axis="z", fraction: float = 0.5, device=N
     """Handle ``handle``'s weight on the plane at ``fraction`` of the cage's bounding box along ``axis``.
 
     Grid methods (stokes, harmonic) solve the handle again on the binding's grid and show its nodes on the lattice
-    plane nearest the fraction, one pixel per node, interior nodes only; ``mvc`` evaluates mean value coordinates at
+    plane nearest the fraction, one pixel per node, nodes inside the cage only (cut-off nodes
+    too: they hold known data); ``mvc`` evaluates mean value coordinates at
     the centres of ``pixels`` pixels along the plane's longer side of the cage's bounding box, inside the cage only.
 
     Parameters
@@ -206,7 +207,7 @@ def _boundary_data(settings: dict):
 
 
 def _grid_slice(settings: dict, cage, handle: int, a: int, position: float, lo, hi, device, harmonic: bool):
-    """The handle solved on the binding's grid: (image of the interior nodes on the nearest lattice plane, extent,
+    """The handle solved on the binding's grid: (image of the nodes inside the cage on the nearest lattice plane, extent,
     the plane's position)."""
     data = _boundary_data(settings)
     grid = voxelize(cage, int(settings["resolution"]), device=device, boundary=data)
@@ -220,7 +221,7 @@ def _grid_slice(settings: dict, cage, handle: int, a: int, position: float, lo, 
     if not report.converged:
         warnings.warn(f"handle {handle}'s weights did not converge to tol {tol:g} (residual "
                       f"{report.residual:.2e}); the slice shows the last iterate")
-    values = field.numpy()[: grid.n_interior, 0, 0].astype(np.float64)
+    values = field.numpy()[: grid.n_inside, 0, 0].astype(np.float64)
     h = grid.spacing
     nodes = [grid.centre[x] + grid.origin[x] + h * np.arange(grid.shape[x]) for x in range(3)]
     k = int(np.clip(np.rint((position - nodes[a][0]) / h), 0, grid.shape[a] - 1))
@@ -228,7 +229,7 @@ def _grid_slice(settings: dict, cage, handle: int, a: int, position: float, lo, 
     # the nodes within a spacing of the cage's bounding box: every interior node, and a pixel of room around them
     kept = [np.flatnonzero((nodes[x] >= lo[x] - 1.001 * h) & (nodes[x] <= hi[x] + 1.001 * h)) for x in (b, c)]
     image = np.full((len(kept[1]), len(kept[0])), np.nan)
-    ijk = grid.active_ijk[: grid.n_interior]
+    ijk = grid.active_ijk[: grid.n_inside]
     on = ijk[:, a] == k
     image[ijk[on, c] - kept[1][0], ijk[on, b] - kept[0][0]] = values[on]
     extent = (nodes[b][kept[0][0]] - h / 2, nodes[b][kept[0][-1]] + h / 2,

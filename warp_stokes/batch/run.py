@@ -54,7 +54,20 @@ def _up_to_date(asset: Asset, outputs: list[str], manifest: str) -> bool:
         newest_input = max(_mtime(p) for p in inputs)
     except OSError:
         return False
-    return min(os.path.getmtime(o) for o in outputs) > newest_input
+    return min(os.path.getmtime(o) for o in outputs) > newest_input and _made_by_this_version(outputs[0])
+
+
+def _made_by_this_version(npz: str) -> bool:
+    """Whether the binding ``npz`` was made by this version of warp-stokes (another version may give other weights:
+    its outputs are redone)."""
+    import numpy as np
+
+    try:
+        with np.load(npz, allow_pickle=False) as data:
+            settings = json.loads(str(data["meta"]))["settings"]
+    except Exception:  # unreadable or not a binding: redo it
+        return False
+    return settings.get("warp_stokes_version") == __version__
 
 
 def _progress(stream, k: int, total: int, name: str, stage: str) -> None:
@@ -107,9 +120,6 @@ def run_batch(manifest, outdir, force: bool = False, device=None, progress=True,
 
             results = run_on_ray(assets, outdir, manifest, force, device, progress, workers, ray_address)
         else:
-            if progress:  # once the folder is ours (Ray workers compile in their own processes)
-                announce_compilation(device, harmonic=any(a.method == "harmonic" for a in assets), stream=progress,
-                                     modules=KERNEL_MODULES if any(a.poses for a in assets) else BIND_MODULES)
             results = _run_assets(assets, outdir, manifest, force, device, progress)
         _write_json(os.path.join(outdir, "summary.json"), {"warp_stokes_version": __version__,
                                                            "assets": [r.__dict__ for r in results]})
@@ -172,8 +182,13 @@ def bind_one(asset: Asset, outdir: str, device, progress=None, k: int = 0, total
 
 def _run_assets(assets, outdir, manifest, force, device, progress) -> list[Result]:
     results = []
+    up_to_date = [skipped(asset, outdir, manifest, force) for asset in assets]
+    todo = [asset for asset, done in zip(assets, up_to_date) if done is None]
+    if progress and todo:  # once the folder is ours (Ray workers compile in their own processes)
+        announce_compilation(device, harmonic=any(a.method == "harmonic" for a in todo), stream=progress,
+                             modules=KERNEL_MODULES if any(a.poses for a in todo) else BIND_MODULES)
     for k, asset in enumerate(assets):
-        result = skipped(asset, outdir, manifest, force)
+        result = up_to_date[k]
         if result is None:
             result = bind_one(asset, outdir, device, progress, k, len(assets))
             # what the bind warned of, in the summary and (once the command has run) on stderr

@@ -20,7 +20,7 @@ from ..geometry.boundary import boundary_field, mean_value_coordinates
 from ..geometry.cage import Cage, check_cage
 from ..geometry.grid import check_resolution, voxelize, wedge_resolution
 from ..geometry.inside import classify_points
-from ..geometry.local_boundary import LocalData, local_values
+from ..geometry.local_boundary import boundary_settings, local_values
 from ..io.scene import is_usd, load_scene
 from ..solver.budget import available_memory, chunk_columns, estimate_memory, plan_chunks
 from ..solver.multigrid import Multigrid, coarsen
@@ -227,8 +227,7 @@ def _check_arguments(tol, memory_budget, solver, boundary, sampling, method) -> 
         raise WarpStokesError(f"memory_budget must be a positive number of bytes, got {memory_budget!r}")
     if solver not in ("multigrid", "jacobi"):
         raise WarpStokesError(f"solver must be 'multigrid' or 'jacobi', got {solver!r}")
-    if not (boundary in ("mvc", "local") or isinstance(boundary, LocalData)):
-        raise WarpStokesError(f"boundary must be 'mvc', 'local' or a LocalData, got {boundary!r}")
+    boundary_settings(boundary)
     if sampling not in SAMPLINGS:
         raise WarpStokesError(f"sampling must be 'hermite' or 'trilinear', got {sampling!r}")
 
@@ -278,7 +277,8 @@ def _vertices_off_the_grid(surface, checked: Cage, grid, resolution: int, weight
     their neighbours within the band are interpolated from, so that a vertex's weights do not jump when a finer
     grid's band no longer reaches it (MVC there against the local data within the band changed a weight of the
     ogre by 0.12 from n = 256 to 384, H100). Vertices in features thinner than the grid resolves are counted; both
-    are warned of, and a resolution too coarse for the cage's folded edges (:func:`wedge_resolution`). Returns (notes, beyond, thin): the cage's notes and these warnings, and the two vertex masks."""
+    are warned of, and a resolution too coarse for the cage's folded edges (:func:`wedge_resolution`). Returns
+    (notes, beyond, thin): the cage's notes and these warnings, and the two vertex masks."""
     sampled = (corners >= 0).all(axis=1)
     beyond = ~sampled
     notes = list(checked.notes)  # what the user is warned of, kept in the stats
@@ -287,15 +287,15 @@ def _vertices_off_the_grid(surface, checked: Cage, grid, resolution: int, weight
         if boundary == "mvc":
             weights[beyond] = mean_value_coordinates(checked, points[beyond], device=device).astype(np.float32)
         else:
-            settings = LocalData() if boundary == "local" else boundary
-            weights[beyond] = local_values(checked, points[beyond], grid.spacing, settings, device).astype(np.float32)
+            weights[beyond] = local_values(checked, points[beyond], grid.spacing, boundary_settings(boundary),
+                                           device).astype(np.float32)
         notes.append(
             f"{surface.name}: {int(beyond.sum())} vertices lie outside {checked.name} beyond the grid's band "
             f"(up to {distance[beyond].max():.3g} from the cage, {distance[beyond].max() / checked.diagonal:.3g} of its "
             "diagonal); they get the boundary data at their position")
         warnings.warn(notes[-1], stacklevel=3)
-    # a vertex inside the cage whose cell has no interior node sits in a feature the grid does not resolve
-    thin = inside & sampled & ~((corners >= 0) & (corners < grid.n_interior)).any(axis=1)
+    # a vertex inside the cage whose cell has no node inside it sits in a feature the grid does not resolve
+    thin = inside & sampled & ~((corners >= 0) & (corners < grid.n_inside)).any(axis=1)
     if thin.any():
         suggestion = _suggest_resolution(resolution, grid.spacing, distance[thin])
         notes.append(
@@ -307,8 +307,9 @@ def _vertices_off_the_grid(surface, checked: Cage, grid, resolution: int, weight
     if below is not None and resolution < below:
         notes.append(
             f"{checked.name}: at resolution {resolution} the grid does not yet cut off the thin wedges of outside "
-            f"space at the cage's folded edges (it does from resolution {below} on); weights within a few cells of "
-            "those edges converge slowly below it")
+            f"space at the cage's folded edges (it does from resolution {below} on"
+            f"{', beyond the largest grid' if below > 2048 else ''}); weights within a few cells of those edges "
+            "converge slowly below it")
         warnings.warn(notes[-1], stacklevel=3)
     return notes, beyond, thin
 

@@ -38,7 +38,7 @@ def sample_weights(grid: Grid, field: wp.array, points: np.ndarray, device=None,
     -------
     weights : (V, handles) float32; rows of points that were not sampled are zero
     corners : (V, 8) int32, rows of each point's cell corners in the field (-1: not an active node); a point
-        is sampled when all are >= 0, and its cell touches the interior when one is < ``grid.n_interior``
+        is sampled when all are >= 0, and its cell has a node inside the cage when one is < ``grid.n_inside``
 
     Examples
     --------

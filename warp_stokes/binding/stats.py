@@ -8,6 +8,7 @@ import dataclasses
 import numpy as np
 import warp as wp
 
+from .. import __version__
 from ..device import device_name
 from ..geometry.cage import Cage
 from ..geometry.topology import bounding_diagonal
@@ -121,6 +122,7 @@ def settings_record(resolution, tol, max_iterations, solver, boundary, sampling,
                          f"{len(checked.source_index)} vertices merged into {checked.n_handles} handles, in order of "
                          "first appearance (map: cage_source_index)"),
         "warp_version": wp.config.version,
+        "warp_stokes_version": __version__,
     }
 
 

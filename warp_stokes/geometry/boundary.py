@@ -9,6 +9,8 @@ other exact choice; it imposes slightly different Neumann data. We keep the cent
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import warp as wp
 
@@ -16,7 +18,7 @@ from .cage import Cage
 from ..device import resolve_device
 from .grid import Grid
 from ..kernels import mvc, stencil
-from .local_boundary import LocalData, local_field
+from .local_boundary import boundary_settings, local_field
 
 __all__ = ["mean_value_coordinates", "boundary_field", "COMPLEMENT_COLUMNS"]
 
@@ -83,8 +85,8 @@ def mean_value_coordinates(cage: Cage, points: np.ndarray, device=None) -> np.nd
 
 
 def boundary_field(grid: Grid, cage: Cage, device=None, handles: slice = slice(None),
-                   complement: bool = False, data="mvc") -> wp.array:
-    """The packed (q, G) field of every handle at every active node, from mean value coordinates.
+                   complement: bool = False, data=None) -> wp.array:
+    """The packed (q, G) field of every handle at every active node: the boundary data at ring and band nodes.
 
     Parameters
     ----------
@@ -97,10 +99,12 @@ def boundary_field(grid: Grid, cage: Cage, device=None, handles: slice = slice(N
         handles outside ``handles`` of w_l. The chunk and this column sum to one like the whole cage does, so a
         chunked solve can check partition of unity (``solve_biharmonic(..., chunk=handles)``) at the cost of one
         column; linear precision is checked on the sampled weights once every chunk is solved.
-    data : "mvc" | "local" | LocalData
+    data : None | "mvc" | "local" | LocalData
         Ring and band data: mean value coordinates of the nodes, or the local data of
         :mod:`warp_stokes.geometry.local_boundary` (the hat functions at the closest cage point, Taylor-extended; "local"
-        is ``LocalData()``). Both reproduce constants and linear functions exactly.
+        is ``LocalData()``). Both reproduce constants and linear functions exactly. By default the data the grid was
+        voxelised for (``grid.boundary``; MVC for a grid from a mask); other data is warned of when the grid has
+        nodes cut off for its own (they would take data they were not chosen for).
 
     Returns
     -------
@@ -114,6 +118,7 @@ def boundary_field(grid: Grid, cage: Cage, device=None, handles: slice = slice(N
     33
     """
     device = resolve_device(device)
+    data = _data_for(grid, data)
     first, stop, _ = handles.indices(cage.n_handles)
     n_columns = stop - first + (COMPLEMENT_COLUMNS if complement else 0)
     positions = wp.array(grid.node_positions(), dtype=wp.vec3d, device=device)
@@ -133,6 +138,19 @@ def boundary_field(grid: Grid, cage: Cage, device=None, handles: slice = slice(N
     if data != "mvc":
         # ring and band rows take the local data; the interior keeps the MVC field as its starting guess (exact
         # too, and smooth: starting from the local data's Taylor extension took twice the iterations)
-        local_field(grid, cage, field, slice(grid.n_interior, grid.n_active), handles, complement,
-                    LocalData() if data == "local" else data, device)
+        local_field(grid, cage, field, slice(grid.n_interior, grid.n_active), handles, complement, data, device)
     return field
+
+
+def _data_for(grid: Grid, data):
+    """``data`` as "mvc" or a LocalData, the grid's own by default; a warning when the grid cut nodes off for other
+    data."""
+    grid_data = getattr(grid, "boundary", None)
+    if data is None:
+        return "mvc" if grid_data is None else grid_data
+    data = boundary_settings(data)
+    if grid_data is not None and data != grid_data and grid.n_cut_off:
+        warnings.warn(f"the grid was voxelised for the boundary data {grid_data} and cut {grid.n_cut_off} nodes off "
+                      f"for it; they take the data {data} here (voxelize with boundary={data!r} to match)",
+                      stacklevel=3)
+    return data

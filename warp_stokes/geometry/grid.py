@@ -58,10 +58,14 @@ class Grid:
     spacing : float, the node spacing h
     resolution : int, cells along the cage's longest axis
     labels : (nx, ny, nz) int8, OUTSIDE / INTERIOR / RING / BAND (see ``warp_stokes.kernels.labels``)
-    active_ijk : (N, 3) int32, node coordinates of the active nodes: interior, then ring, then band
+    active_ijk : (N, 3) int32, node coordinates of the active nodes: interior, then ring (its cut-off nodes first),
+        then band
     index : (nx, ny, nz) int32, row of each node in ``active_ijk`` or -1
     n_interior, n_ring, n_band : int
-    n_cut_off : int, interior nodes cut off by a thin wedge of outside space, counted in the ring (known data)
+    n_cut_off : int, nodes inside the cage cut off by a thin wedge of outside space: known data, counted in the ring
+        and numbered first in it (rows ``n_interior`` to ``n_inside``)
+    boundary : "mvc" | LocalData | None, the boundary data the grid was voxelised for (which nodes are cut off
+        depends on it); :func:`warp_stokes.boundary_field` uses it by default. None for :func:`grid_from_mask`.
     """
 
     centre: np.ndarray
@@ -75,6 +79,7 @@ class Grid:
     n_ring: int
     n_band: int
     n_cut_off: int = 0
+    boundary: object = None
     _device_arrays: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
@@ -84,6 +89,11 @@ class Grid:
     @property
     def n_active(self) -> int:
         return len(self.active_ijk)
+
+    @property
+    def n_inside(self) -> int:
+        """Active nodes inside the cage: the unknowns and the cut-off ring nodes, rows ``0`` to ``n_inside``."""
+        return self.n_interior + self.n_cut_off
 
     def node_positions(self, rows=None) -> np.ndarray:
         """Positions (relative to ``centre``) of active nodes ``rows`` (all when None), float64 (N, 3)."""
@@ -164,9 +174,9 @@ def voxelize(cage: Cage, resolution: int = 64, device=None, max_rows: int = MAX_
              boundary="local") -> Grid:
     """Voxelise the inside of a cage: label grid nodes and number the active ones.
 
-    Nodes whose generalised winding number exceeds 1/2 are interior (unknowns). Exterior nodes in the
-    19-point stencil of an interior node form the ring (known values and gradients); exterior nodes within
-    ``BAND_WIDTH`` nodes of the interior form the band (known values, read by sampling).
+    Nodes whose generalised winding number exceeds 1/2 are inside the cage and, unless cut off (below), interior
+    (unknowns). Other nodes in the 19-point stencil of an interior node form the ring (known values and gradients);
+    exterior nodes within ``BAND_WIDTH`` nodes of the interior form the band (known values, read by sampling).
 
     With the local boundary data, interior nodes that a wedge of outside space thinner than a cell cuts off from a
     stencil neighbour join the ring (``n_cut_off``): where the cage folds back on itself, the stencil would otherwise
@@ -209,7 +219,10 @@ def voxelize(cage: Cage, resolution: int = 64, device=None, max_rows: int = MAX_
     >>> grid.n_interior > 0  # doctest: +SKIP
     True
     """
+    from .local_boundary import boundary_settings  # the local data's module builds on this one
+
     resolution = check_resolution(resolution)
+    boundary = boundary_settings(boundary)
     device = resolve_device(device)
     lo, hi = cage.vertices.min(axis=0), cage.vertices.max(axis=0)
     centre = 0.5 * (lo + hi)
@@ -242,6 +255,7 @@ def voxelize(cage: Cage, resolution: int = 64, device=None, max_rows: int = MAX_
         )
         cut_off = None if boundary == "mvc" else _wedge_cut_off(cage, mesh, inside, origin, spacing, boundary)
     grid = _number_nodes(inside, centre, origin, spacing, resolution, device, max_rows, cage.name, cut_off)
+    grid.boundary = boundary
     if grid.n_interior == 0:
         raise ResolutionError(
             f"{cage.name}: no grid node lies inside the cage at resolution {resolution} "
@@ -311,12 +325,13 @@ def wedge_resolution(cage: Cage, boundary="local", device=None) -> int | None:
     True
     """
     from .cage_faults import folded_edges
-    from .local_boundary import LocalData, data_slopes  # the local data's module builds on this one
+    from .local_boundary import boundary_settings, data_slopes  # the local data's module builds on this one
 
+    boundary = boundary_settings(boundary)
     folds = folded_edges(cage)
     if boundary == "mvc" or not len(folds):
         return None
-    slopes = data_slopes(cage, LocalData() if boundary == "local" else boundary, device)
+    slopes = data_slopes(cage, boundary, device)
     at_fold = cage.faces[np.isin(cage.faces, np.unique(folds)).any(axis=1)]  # the faces around folded edges
     extent = float((cage.vertices.max(axis=0) - cage.vertices.min(axis=0)).max())
     # the kernel's test, 1.5 h slope <= CUT_OFF_MAX_CHANGE, with h = extent / resolution
@@ -326,9 +341,9 @@ def wedge_resolution(cage: Cage, boundary="local", device=None) -> int | None:
 def _wedge_cut_off(cage: Cage, mesh: wp.Mesh, inside: wp.array, origin, spacing: float, boundary):
     """The launch that moves interior nodes cut off by thin wedges to the ring (see :func:`voxelize`), as a function
     of the labels array that returns how many it moved; run after the ring and band are marked."""
-    from .local_boundary import LocalData, data_slopes  # the local data's module builds on this one
+    from .local_boundary import boundary_settings, data_slopes  # the local data's module builds on this one
 
-    settings = LocalData() if boundary == "local" else boundary
+    settings = boundary_settings(boundary)
     adjacent = np.eye(cage.n_handles, dtype=np.int8)
     edges = cage.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
     adjacent[edges[:, 0], edges[:, 1]] = 1
@@ -358,8 +373,12 @@ def _number_nodes(inside: wp.array, centre, origin, spacing, resolution, device,
         n_cut_off = 0 if cut_off is None else cut_off(labels)
         labels_np = labels.numpy()
     flat = labels_np.ravel()
-    rows = [np.flatnonzero(flat == lab) for lab in (node_labels.INTERIOR, node_labels.RING, node_labels.BAND)]
-    n_interior, n_ring, n_band = (len(r) for r in rows)
+    ring = flat == node_labels.RING
+    inside_ring = ring & (inside.numpy().ravel() != 0) if n_cut_off else np.zeros_like(ring)
+    # the cut-off nodes first in the ring, so that rows below n_inside are the nodes inside the cage
+    rows = [np.flatnonzero(flat == node_labels.INTERIOR), np.flatnonzero(inside_ring),
+            np.flatnonzero(ring & ~inside_ring), np.flatnonzero(flat == node_labels.BAND)]
+    n_interior, n_cut_off, n_ring, n_band = len(rows[0]), len(rows[1]), len(rows[1]) + len(rows[2]), len(rows[3])
     n_active = n_interior + n_ring + n_band
     if n_active > max_rows:
         # the band and ring grow with the square of the resolution, the interior with its cube: scaling by the

@@ -25,10 +25,11 @@ import warp as wp
 
 from .cage import FOLD_DEGREES, Cage, face_edges, folded_edges, unit_normals
 from ..device import resolve_device
+from ..errors import WarpStokesError
 from .grid import Grid
 from ..kernels import local_boundary
 
-__all__ = ["LocalData", "cage_graph_distances", "normal_derivatives", "data_slopes", "local_field", "local_values"]
+__all__ = ["LocalData", "boundary_settings", "cage_graph_distances", "normal_derivatives", "data_slopes", "local_field", "local_values"]
 
 #: a node blends the data of the faces whose distance is within this many grid spacings of the nearest face's, so
 #: that the data is continuous where the nearest face changes (and the same on every device: a float32 nearest-face
@@ -73,6 +74,28 @@ class LocalData:
         share = f", least-norm share {self.least_norm_share:g}" if self.least_norm_share else ""
         folds = f", least-norm within {self.fold_radius:g} of folds > {self.fold_degrees:g} deg" if self.fold_radius else ""
         return f"local({self.model}, radius {self.radius:g}, falloff {self.falloff:g}{share}{folds})"
+
+
+def boundary_settings(boundary) -> "str | LocalData":
+    """The boundary data named by ``boundary``: "mvc", or the local data's settings ("local" is ``LocalData()``).
+
+    Raises
+    ------
+    WarpStokesError
+        When ``boundary`` is none of "mvc", "local" or a LocalData.
+
+    Examples
+    --------
+    >>> boundary_settings("local") == LocalData()
+    True
+    >>> boundary_settings("mvc")
+    'mvc'
+    """
+    if isinstance(boundary, LocalData):
+        return boundary
+    if isinstance(boundary, str) and boundary in ("mvc", "local"):
+        return LocalData() if boundary == "local" else "mvc"
+    raise WarpStokesError(f"boundary must be 'mvc', 'local' or a LocalData, got {boundary!r}")
 
 
 def cage_graph_distances(cage: Cage) -> np.ndarray:
