@@ -4,6 +4,7 @@ the fine-level sweeps are from the copy bandwidth, throughput of mixed assets, a
     python benchmarks/bench_speed.py --device cuda:0                        # the ogre at 128 / 256 / 512, all tables
     python benchmarks/bench_speed.py --device cuda:0 --resolutions 128 --skip-fresh --assets 6
     python benchmarks/bench_speed.py --device cpu --pair arm --resolutions 24 --assets 3   # the CPU path
+    python benchmarks/bench_speed.py --device cuda:0 --resolutions 256 --kernels 256   # and each solver kernel alone
 
 Tables (markdown): (1) per resolution: median wall of ``ws.bind`` over ``--repeats`` warm binds, its phases
 (``stats["seconds"]``), the GPU's busy time in one bind (``wp.timing``: kernels, copies, memsets), the ten kernels that
@@ -98,6 +99,83 @@ def profile(mesh, cage, resolution, device, repeats, bandwidth):
     return row, top
 
 
+def _gpu_seconds(launch, device, repeats: int = 5) -> float:
+    """Median GPU time of ``launch()`` between two CUDA events (one warm-up run first)."""
+    launch()
+    times = []
+    for _ in range(repeats):
+        start, end = wp.Event(device, enable_timing=True), wp.Event(device, enable_timing=True)
+        wp.record_event(start)
+        launch()
+        wp.record_event(end)
+        wp.synchronize_event(end)
+        times.append(wp.get_event_elapsed_time(start, end) / 1e3)
+    return statistics.median(times)
+
+
+def kernel_limits(mesh, cage, resolution, device, bandwidth, columns):
+    """Each kernel of the solver's V-cycle and CG step timed alone on the pair's multigrid (the fine level and the
+    first two coarse ones, ``columns`` handles), beside the bytes it must move at least (each vector it reads or
+    writes once; coarse blocks and the nodes' coordinates once, not per handle) over the copy bandwidth: how far each
+    kernel is from its own limit. Rows: (kernel, level, nodes, ms, GB, limit ms, limit / time)."""
+    from warp_stokes.kernels import cg as cg_kernels
+    from warp_stokes.kernels import multigrid as mg_kernels
+    from warp_stokes.device import reduction_threads
+    from warp_stokes.solver.operator import apply_operator, chebyshev_step
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        checked = ws.check_cage(cage)
+        grid = ws.voxelize(checked, resolution, device=device)
+        mg = ws.Multigrid(grid, device=device)
+    rows = []
+    vec = 16 * columns  # bytes of one vector entry per node, all columns
+
+    def record(name, depth, n, launch, nbytes):
+        seconds = _gpu_seconds(launch, device)
+        limit = nbytes / bandwidth
+        rows.append((name, depth, f"{n:,}", f"{1e3 * seconds:.2f}", f"{nbytes / 1e9:.2f}", f"{1e3 * limit:.2f}",
+                     f"{limit / seconds:.0%}"))
+
+    with wp.ScopedDevice(device):
+        for depth in range(min(3, len(mg.levels) - 1)):
+            lev, coarse = mg.levels[depth], mg.levels[depth + 1]
+            n = lev.n
+            b, x, r, d, spare = (wp.ones((n, columns), dtype=wp.vec4f) for _ in range(5))
+            structure = 0 if depth == 0 else n * (27 * 64 + 64 + 12)  # blocks, inverse diagonal, coordinates
+            if depth == 0:
+                record("stencil A x", 0, n, lambda: apply_operator(grid, x, r, n_rows=n, device=device, precise=False),
+                       2 * n * vec)
+                record("residual b - A x", 0, n, lambda: mg._residual(0, b, x, r), 3 * n * vec)
+                record("Chebyshev step, one pass", 0, n,
+                       lambda: chebyshev_step(grid, x, b, d, 0.5, 0.5, spare, n_rows=n, device=device), 5 * n * vec)
+            else:
+                record("block stencil residual", depth, n, lambda: mg._residual(depth, b, x, r),
+                       3 * n * vec + structure)
+                record("block Chebyshev step, one pass", depth, n,
+                       lambda: mg._chebyshev_step(depth, b, x, d, 0.5, 0.5, spare), 5 * n * vec + structure)
+            record("Chebyshev step (pointwise)", depth, n,
+                   lambda: wp.launch(mg_kernels.chebyshev_step, dim=x.shape, inputs=[r, lev.inv_diag, 0.5, 0.5],
+                                     outputs=[x, d]), 5 * n * vec)
+            coarse_b = wp.zeros((coarse.n, columns), dtype=wp.vec4f)
+            record("restriction", depth, n,
+                   lambda: wp.launch(mg_kernels.restrict, dim=coarse_b.shape,
+                                     inputs=[mg.table, coarse.ijk_device, lev.index, lev.n, r], outputs=[coarse_b]),
+                   n * vec + coarse.n * vec)
+            record("prolongation (add)", depth, n,
+                   lambda: wp.launch(mg_kernels.prolong_add, dim=x.shape,
+                                     inputs=[mg.table, lev.ijk_device, coarse.index, coarse_b], outputs=[x]),
+                   2 * n * vec + coarse.n * vec)
+            if depth == 0:
+                out = wp.zeros(columns, dtype=wp.float64)
+                threads = reduction_threads(n, columns, device)
+                record("CG dot products", 0, n,
+                       lambda: wp.launch(cg_kernels.column_dots, dim=(threads, columns), inputs=[x, r, threads],
+                                         outputs=[out]), 2 * n * vec)
+            del b, x, r, d, spare
+    return rows
+
+
 def throughput(device, resolution, count):
     names = [n for n in ("arm", "smpl", "ogre") if Path(PAIRS[n][0]).exists()]
     t = time.perf_counter()
@@ -138,6 +216,8 @@ def main(argv=None) -> int:
     p.add_argument("--assets", type=int, default=12, help="binds in the throughput run (0: skip it)")
     p.add_argument("--skip-fresh", action="store_true", help="no fresh-process timings")
     p.add_argument("--cold", action="store_true", help="also time a fresh process with an empty kernel cache")
+    p.add_argument("--kernels", type=int, default=None, metavar="N",
+                   help="time each solver kernel alone at resolution N against its bandwidth limit (CUDA only)")
     args = p.parse_args(argv)
     resolved, name = select_device(args.device)
     device = resolved.alias
@@ -170,6 +250,13 @@ def main(argv=None) -> int:
         if top:
             print(f"\nGPU time by activity at n = {n} (one bind)\n")
             print(markdown_table(["activity", "s", "launches"], [(k, f"{v[0]:.4f}", v[1]) for k, v in top]))
+    if args.kernels and resolved.is_cuda:
+        row = next((r for r in rows if r["n"] == args.kernels), rows[-1])
+        columns = -(-row["handles"] // row["chunks"]) + (row["chunks"] > 1)  # one chunk's columns, as the bind solves
+        print(f"\nsolver kernels alone at n = {args.kernels}, {columns} columns (median of 5; limit: the bytes each "
+              "must move at least over the copy bandwidth)\n")
+        print(markdown_table(["kernel", "level", "nodes", "ms", "GB", "limit ms", "limit / time"],
+                             kernel_limits(mesh, cage, args.kernels, device, bandwidth, columns)))
     if args.assets:
         names, seconds, per_minute = throughput(device, args.resolutions[0], args.assets)
         print(f"\nthroughput: {args.assets} binds of {', '.join(names)} (round robin) at n = {args.resolutions[0]} in "

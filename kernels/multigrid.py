@@ -128,19 +128,23 @@ def stencil_blocks(
 
 
 @wp.kernel
-def coarse_coverage(
+def coarse_nodes(
     fine_index: wp.array3d(dtype=wp.int32),
     n_fine: int,
-    coarse_count: wp.array3d(dtype=wp.int32),
+    classes: wp.array3d(dtype=wp.int8),
 ):
-    """Number of fine unknown nodes among the 27 fine nodes f with |f - 2c| <= 1 around coarse node c."""
+    """Coarse node c is kept (class 0, else -1) when at least 27 / 8 of the 27 fine nodes f with |f - 2c| <= 1 around
+    it are fine unknowns (the fine level's share of its support)."""
     i, j, k = wp.tid()
     centre = wp.vec3i(2 * i, 2 * j, 2 * k)
     count = int(0)
     for s in range(27):
         if node_row(fine_index, n_fine, centre + neighbour_offset(s)) >= 0:
             count += 1
-    coarse_count[i, j, k] = count
+    kept = wp.int8(-1)
+    if count * 8 >= 27:
+        kept = wp.int8(0)
+    classes[i, j, k] = kept
 
 
 @wp.func
@@ -382,6 +386,28 @@ def stencil_residual(
     """out = b - A x in one pass (out may alias b, not x); launch (rows, handles)."""
     n, h = wp.tid()
     out[n, h] = b[n, h] - block_row(blocks, ijk, index, x, n, h)
+
+
+@wp.kernel
+def stencil_chebyshev_step(
+    blocks: wp.array2d(dtype=wp.mat44f),
+    ijk: wp.array(dtype=wp.vec3i),
+    index: wp.array3d(dtype=wp.int32),
+    b: wp.array2d(dtype=wp.vec4f),
+    x: wp.array2d(dtype=wp.vec4f),
+    inv_diag: wp.array(dtype=wp.mat44f),
+    ca: float,
+    cb: float,
+    d: wp.array2d(dtype=wp.vec4f),
+    x_next: wp.array2d(dtype=wp.vec4f),
+):
+    """A Chebyshev step from the residual of a 27-point block stencil, in one pass: d = ca d + cb D^-1 (b - A x),
+    x_next = x + d (the residual and ``chebyshev_step`` in turn, without writing the residual); x_next is not x."""
+    n, h = wp.tid()
+    r = b[n, h] - block_row(blocks, ijk, index, x, n, h)
+    v = ca * d[n, h] + cb * (diagonal_block(inv_diag, n) * r)
+    d[n, h] = v
+    x_next[n, h] = x[n, h] + v
 
 
 @wp.kernel

@@ -30,14 +30,22 @@ PATCH_I = 2
 PATCH_J = 2
 #: threads per block: four warps, i.e. four patches of the same 32 handles
 BLOCK_DIM = 128
+#: what a walk writes (see ``operator_kernel``): A x, b - A x, or a Chebyshev step from b - A x
+APPLY = wp.constant(0)
+RESIDUAL = wp.constant(1)
+STEP = wp.constant(2)
+#: the inverse of the scheme's diagonal block, diag(1/48, 1/4, 1/4, 1/4) (its centre coefficients, above); in float32
+#: as the multigrid's fine-level ``inv_diag``
+INVERSE_DIAGONAL = wp.constant(wp.vec4f(1.0 / 48.0, 0.25, 0.25, 0.25))
 
 
 # about 110 lines: one kernel factory whose body is one walk over a patch of columns (load a plane, reduce it to
 # the terms its nodes and the nodes above and below need, keep them in registers); split, the walk's state would
 # have to pass through memory, which is what it exists to avoid
-def operator_kernel(scalar, patch=(PATCH_I, PATCH_J), residual: bool = False):
+def operator_kernel(scalar, patch=(PATCH_I, PATCH_J), residual: bool = False, chebyshev: bool = False):
     """The batched operator with sums in `scalar` (wp.float32 or wp.float64), walking patches of `patch` columns;
-    with `residual`, the kernel that writes rhs - A x instead (one pass instead of two).
+    with `residual`, the kernel that writes rhs - A x instead (one pass instead of two); with `chebyshev`, the
+    kernel that takes a Chebyshev smoothing step from that residual (:data:`chebyshev_step_fast`).
 
     Residuals of a nearly converged float32 field cancel to ~1e-7 of their terms: a float32 sum would stall
     the solver there, so residuals use float64 sums. Krylov and smoothing applications only need float32.
@@ -105,9 +113,11 @@ def operator_kernel(scalar, patch=(PATCH_I, PATCH_J), residual: bool = False):
 
     @wp.func
     def walk(field: wp.array2d(dtype=wp.vec4f), index: wp.array3d(dtype=wp.int32), n_rows: int, patch: wp.vec4i,
-             h: int, rhs: wp.array2d(dtype=wp.vec4f), subtract: int, out: wp.array2d(dtype=wp.vec4f)):
-        # out = A field (subtract = 0) or rhs - A field (subtract = 1, the sums' precision kept through the
-        # difference) at the interior nodes of one patch, for handle h
+             h: int, rhs: wp.array2d(dtype=wp.vec4f), mode: int, d: wp.array2d(dtype=wp.vec4f), ca: wp.float32,
+             cb: wp.float32, out: wp.array2d(dtype=wp.vec4f)):
+        # at the interior nodes of one patch, for handle h: out = A field (mode APPLY), rhs - A field (RESIDUAL,
+        # the sums' precision kept through the difference), or the Chebyshev step from that residual r (STEP):
+        # d = ca d + cb D^-1 r and out = field + d
         i0 = patch[0]
         j0 = patch[1]
         k0 = patch[2]
@@ -133,13 +143,19 @@ def operator_kernel(scalar, patch=(PATCH_I, PATCH_J), residual: bool = False):
                         gz = gz_down + four * scalar(mid.gz[n]) + gz_up - three * (q_up - q_down)
                         gx = mid.gx[n]
                         gy = mid.gy[n]
-                        if subtract != 0:
+                        if mode != APPLY:
                             given = rhs[row, h]
                             value = scalar(given[0]) - value
                             gz = scalar(given[3]) - gz
                             gx = given[1] - gx
                             gy = given[2] - gy
-                        out[row, h] = wp.vec4f(wp.float32(value), gx, gy, wp.float32(gz))
+                        result = wp.vec4f(wp.float32(value), gx, gy, wp.float32(gz))
+                        if mode == STEP:
+                            # D^-1 of the scheme: its centre coefficients 48 (value) and 4 (gradients)
+                            step = ca * d[row, h] + cb * wp.cw_mul(result, INVERSE_DIAGONAL)
+                            d[row, h] = step
+                            result = field[row, h] + step
+                        out[row, h] = result
             below = mid
             mid = above
 
@@ -161,7 +177,7 @@ def operator_kernel(scalar, patch=(PATCH_I, PATCH_J), residual: bool = False):
         h = g * GROUP + lane
         if h >= out.shape[1]:
             return
-        walk(field, index, n_rows, patches[s], h, out, 0, out)
+        walk(field, index, n_rows, patches[s], h, out, APPLY, out, wp.float32(0.0), wp.float32(0.0), out)
 
     @wp.kernel(module="unique")
     def residual_operator(
@@ -178,8 +194,30 @@ def operator_kernel(scalar, patch=(PATCH_I, PATCH_J), residual: bool = False):
         h = g * GROUP + lane
         if h >= out.shape[1]:
             return
-        walk(field, index, n_rows, patches[s], h, rhs, 1, out)
+        walk(field, index, n_rows, patches[s], h, rhs, RESIDUAL, out, wp.float32(0.0), wp.float32(0.0), out)
 
+    @wp.kernel(module="unique")
+    def chebyshev_operator(
+        field: wp.array2d(dtype=wp.vec4f),
+        index: wp.array3d(dtype=wp.int32),
+        patches: wp.array(dtype=wp.vec4i),
+        n_rows: int,
+        rhs: wp.array2d(dtype=wp.vec4f),
+        ca: wp.float32,
+        cb: wp.float32,
+        d: wp.array2d(dtype=wp.vec4f),
+        out: wp.array2d(dtype=wp.vec4f),
+    ):
+        # d = ca d + cb D^-1 (rhs - A field), out = field + d at the interior nodes, as apply_operator launches;
+        # out must not be field (the walk reads field's neighbours after a node's step is written)
+        g, s, lane = wp.tid()
+        h = g * GROUP + lane
+        if h >= out.shape[1]:
+            return
+        walk(field, index, n_rows, patches[s], h, rhs, STEP, d, ca, cb, out)
+
+    if chebyshev:
+        return chebyshev_operator
     return residual_operator if residual else apply_operator
 
 
@@ -189,6 +227,9 @@ apply_operator = operator_kernel(wp.float64)
 apply_operator_fast = operator_kernel(wp.float32)
 #: b - A x in one pass, for the smoother's residuals (float32 sums, as its applications)
 residual_operator_fast = operator_kernel(wp.float32, residual=True)
+#: a Chebyshev smoothing step from b - A x in one pass (float32 sums), the same numbers as the residual kernel and
+#: ``multigrid.chebyshev_step`` in turn, without writing and reading back the residual
+chebyshev_step_fast = operator_kernel(wp.float32, chebyshev=True)
 
 
 @wp.kernel

@@ -196,3 +196,92 @@ def cut_off_nodes(
     if cut:
         labels[i, j, k] = wp.int8(RING)
         wp.atomic_add(count, 0, 1)
+
+
+# -- numbering: the active nodes in (class, lattice order), computed on the device one (i, j) column per thread --------
+
+#: classes of numbered nodes, in row order: interior, cut-off (ring nodes inside the cage), other ring, band
+LATTICE_CLASSES = wp.constant(4)
+
+
+@wp.func
+def node_class(label: wp.int8, inside: wp.int8):
+    """The row block a node is numbered in: 0 interior, 1 cut off (RING but inside the cage), 2 ring, 3 band, -1 none."""
+    lab = int(label)
+    if lab == INTERIOR:
+        return 0
+    if lab == RING:
+        if int(inside) != 0:
+            return 1
+        return 2
+    if lab == BAND:
+        return 3
+    return -1
+
+
+@wp.kernel
+def node_classes(labels: wp.array3d(dtype=wp.int8), inside: wp.array3d(dtype=wp.int8),
+                 classes: wp.array3d(dtype=wp.int8)):
+    i, j, k = wp.tid()
+    classes[i, j, k] = wp.int8(node_class(labels[i, j, k], inside[i, j, k]))
+
+
+@wp.kernel
+def count_classes(classes: wp.array3d(dtype=wp.int8), counts: wp.array(dtype=wp.int32)):
+    """Nodes of each class in column (i, j), at counts[class * columns + i * ny + j]: an exclusive scan of counts then
+    gives each column's first row in every class, in the numbering's order (class, then lattice order)."""
+    i, j = wp.tid()
+    ny = classes.shape[1]
+    columns = classes.shape[0] * ny
+    c0 = int(0)
+    c1 = int(0)
+    c2 = int(0)
+    c3 = int(0)
+    for k in range(classes.shape[2]):
+        c = int(classes[i, j, k])
+        if c == 0:
+            c0 += 1
+        elif c == 1:
+            c1 += 1
+        elif c == 2:
+            c2 += 1
+        elif c == 3:
+            c3 += 1
+    column = i * ny + j
+    counts[column] = c0
+    counts[columns + column] = c1
+    counts[2 * columns + column] = c2
+    counts[3 * columns + column] = c3
+
+
+@wp.kernel
+def number_classes(classes: wp.array3d(dtype=wp.int8), first_rows: wp.array(dtype=wp.int32),
+                   index: wp.array3d(dtype=wp.int32), ijk: wp.array(dtype=wp.vec3i)):
+    """Each node's row (-1 for class -1) from its column's first rows (``count_classes``, scanned), and each row's
+    node."""
+    i, j = wp.tid()
+    ny = classes.shape[1]
+    columns = classes.shape[0] * ny
+    column = i * ny + j
+    r0 = first_rows[column]
+    r1 = first_rows[columns + column]
+    r2 = first_rows[2 * columns + column]
+    r3 = first_rows[3 * columns + column]
+    for k in range(classes.shape[2]):
+        c = int(classes[i, j, k])
+        row = int(-1)
+        if c == 0:
+            row = r0
+            r0 += 1
+        elif c == 1:
+            row = r1
+            r1 += 1
+        elif c == 2:
+            row = r2
+            r2 += 1
+        elif c == 3:
+            row = r3
+            r3 += 1
+        index[i, j, k] = row
+        if row >= 0:
+            ijk[row] = wp.vec3i(i, j, k)

@@ -87,9 +87,9 @@ def test_a_first_run_says_it_compiles_the_kernels(tmp_path, monkeypatch, capsys)
     empty.mkdir()
     monkeypatch.setattr(wp.config, "kernel_cache_dir", str(empty))
     assert not device.kernels_compiled("cpu")  # nothing compiled in this cache
-    for module in device.KERNEL_MODULES:  # a cache with every module's CPU object file
-        (empty / f"wp_warp_stokes.kernels.{module}_abc1234").mkdir()
-        (empty / f"wp_warp_stokes.kernels.{module}_abc1234" / f"wp_warp_stokes.kernels.{module}.cpu1.o").write_text("")
+    for module, _ in device._warp_modules(device.KERNEL_MODULES):  # a cache with every module's CPU object file
+        (empty / f"wp_{module.name}_abc1234").mkdir()
+        (empty / f"wp_{module.name}_abc1234" / f"wp_{module.name}.cpu1.o").write_text("")
     assert device.kernels_compiled("cpu")
     # harmonic coordinates also need the Laplace kernels, compiled only by a harmonic bind
     assert not device.kernels_compiled("cpu", device.KERNEL_MODULES + ("laplace",))
@@ -101,6 +101,34 @@ def test_a_first_run_says_it_compiles_the_kernels(tmp_path, monkeypatch, capsys)
     assert not device.kernels_compiled("cpu") and device.kernels_compiled("cpu", device.BIND_MODULES)
     device.announce_compilation("cpu")
     assert "compiling" not in capsys.readouterr().err
+
+
+def test_kernels_compiled_at_once_are_the_ones_the_launches_use(tmp_path, monkeypatch):
+    """compile_kernels fills an empty cache with a module's kernels, its stencil walks (compiled alone, launched in
+    blocks of their own size) included: the launches after it compile nothing more."""
+    import warp as wp
+
+    import warp_stokes.device as device
+    from warp_stokes.solver.operator import apply_operator
+
+    mask = np.zeros((12, 12, 12), bool)
+    mask[5:7, 5:7, 5:7] = True
+    grid = ws.grid_from_mask(mask, device="cpu")  # with the suite's cache (the voxel kernels)
+    monkeypatch.setattr(wp.config, "kernel_cache_dir", str(tmp_path))
+    walks = [m for m, block_dim in device._warp_modules(("stencil",)) if block_dim is not None]
+    assert len(walks) >= 3 and not device.kernels_compiled("cpu", ("cg", "stencil"))
+    for module, _ in device._warp_modules(("cg", "stencil")):  # loaded by earlier tests: as in a fresh process
+        module.unload()
+    device.compile_kernels("cpu", ("cg", "stencil"), workers=2)
+    assert device.kernels_compiled("cpu", ("cg", "stencil"))
+    compiled = sorted(p.name for p in tmp_path.iterdir())
+    field = wp.zeros((grid.n_active, 2), dtype=wp.vec4f, device="cpu")
+    out = wp.empty((grid.n_interior, 2), dtype=wp.vec4f, device="cpu")
+    for walk in walks:  # unload the walks: the next launches load them from the cache, or compile them afresh
+        walk.unload()
+    apply_operator(grid, field, out, device="cpu", precise=False)
+    apply_operator(grid, field, out, device="cpu", rhs=wp.zeros_like(out))
+    assert sorted(p.name for p in tmp_path.iterdir()) == compiled
 
 
 def test_the_command_says_so_before_it_compiles(tmp_path, monkeypatch, capsys):

@@ -112,3 +112,20 @@ def test_interior_patches_reject_empty_shapes(arm_cage, device):
     grid = ws.voxelize(arm_cage, 16, device=device)
     with pytest.raises(ValueError, match="must be positive"):
         grid.interior_patches((0, 2))
+
+
+def test_lattice_numbering_orders_rows_by_class_then_lattice_order(device):
+    """The device numbering against numpy's: rows by class (0 to 3), then in C order of the lattice; -1 not numbered."""
+    import warp as wp
+    from warp_stokes.geometry.grid import lattice_counts, lattice_rows
+
+    classes = np.random.default_rng(5).integers(-1, 4, size=(7, 5, 9)).astype(np.int8)
+    on_device = wp.array(classes, dtype=wp.int8, device=device)
+    counts, per_class = lattice_counts(on_device)
+    assert per_class.tolist() == [int((classes == c).sum()) for c in range(4)]
+    index, ijk = lattice_rows(on_device, counts, int(per_class.sum()))
+    order = np.concatenate([np.flatnonzero(classes.ravel() == c) for c in range(4)])
+    expected = np.full(classes.size, -1)
+    expected[order] = np.arange(len(order))
+    np.testing.assert_array_equal(index.numpy().ravel(), expected)
+    np.testing.assert_array_equal(ijk.numpy(), np.stack(np.unravel_index(order, classes.shape), axis=1))

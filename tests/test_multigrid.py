@@ -89,6 +89,32 @@ def test_residuals_in_one_pass_match_the_operator_against_scipy(arm_hierarchy, d
             assert np.abs(r.numpy()[:, h].ravel() - expected).max() < 1e-5 * scale
 
 
+def test_chebyshev_steps_in_one_pass_match_the_residual_and_the_step_against_scipy(arm_hierarchy, device):
+    # the smoother's step d = ca d + cb D^-1 (b - A x), x_next = x + d in one kernel (fine scheme, coarse blocks):
+    # against the same formed in float64 from the scipy matrices and the level's diagonal blocks; and refusing to
+    # write the iterate it reads
+    grid, mg = arm_hierarchy
+    rng = np.random.default_rng(6)
+    ca, cb = 0.3, 0.7
+    for depth in (0, 1):
+        lev, n = mg.levels[depth], mg.level_sizes[depth]
+        x_np, b_np, d_np = (rng.standard_normal((n, 3, 4)).astype(np.float32) for _ in range(3))
+        x, b, d = (wp.array(a, dtype=wp.vec4f, device=device) for a in (x_np, b_np, d_np))
+        x_next = wp.empty_like(x)
+        assert mg._chebyshev_step(depth, b, x, d, ca, cb, x_next)  # one pass into x_next
+        A = to_scipy(mg.operator_triplets(depth), n, n)
+        inv = lev.inv_diag.numpy().astype(np.float64)
+        inv = np.broadcast_to(inv, (n, 4, 4)) if len(inv) == 1 else inv
+        for h in range(3):
+            r = (b_np[:, h].ravel().astype(np.float64) - A @ x_np[:, h].ravel().astype(np.float64)).reshape(n, 4)
+            step = ca * d_np[:, h] + cb * np.einsum("nij,nj->ni", inv, r)
+            scale = np.abs(step).max()
+            assert np.abs(d.numpy()[:, h] - step).max() < 1e-5 * scale
+            assert np.abs(x_next.numpy()[:, h] - (x_np[:, h] + step)).max() < 1e-5 * scale
+    with pytest.raises(ValueError, match="out must not be field"):
+        ws.solver.operator.chebyshev_step(grid, x, b, d, ca, cb, x, n_rows=n, device=device)
+
+
 def test_hermite_prolongation_is_exact_for_cubics_along_axes(device):
     v, f = box_cage(lo=(-1, -1, -1), hi=(1, 1, 1))
     grid = ws.voxelize(ws.check_cage((v, f)), resolution=24, device=device)

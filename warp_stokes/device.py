@@ -124,9 +124,28 @@ KERNEL_MODULES = ("cg", "checks", "deform", "intersect", "labels", "local_bounda
 BIND_MODULES = tuple(m for m in KERNEL_MODULES if m != "deform")
 
 
+def _warp_modules(modules) -> list[tuple]:
+    """The Warp modules behind the package's kernel modules ``modules``, with the block size their kernels launch
+    with (None: Warp's default): each Python module's own, and the modules of its kernels compiled alone
+    (``module="unique"``, e.g. the stencil's walks, launched in blocks of ``BLOCK_DIM``)."""
+    import importlib
+
+    found = []
+    for name in modules:
+        if name == "labels":  # constants only: nothing to compile
+            continue
+        python_module = importlib.import_module(f"{__package__}.kernels.{name}")
+        own = wp.get_module(python_module.__name__)
+        found.append((own, None))
+        block_dim = getattr(python_module, "BLOCK_DIM", None)
+        found += [(k.module, block_dim) for k in vars(python_module).values()
+                  if isinstance(k, wp.Kernel) and k.module is not own]
+    return found
+
+
 def kernels_compiled(device=None, modules=KERNEL_MODULES) -> bool:
     """Whether Warp's kernel cache on this machine holds the package's kernels for the device's kind (CPU object
-    files, or CUDA binaries). A first run compiles them, 20-40 s; commands say so before they start.
+    files, or CUDA binaries). A first run compiles them; commands say so before they start.
 
     Examples
     --------
@@ -139,24 +158,41 @@ def kernels_compiled(device=None, modules=KERNEL_MODULES) -> bool:
         return False
     suffixes = (".o",) if d.is_cpu else (".cubin", ".ptx")
     entries = os.listdir(cache)
-    for module in modules:
-        if module == "labels":  # constants only: nothing to compile
-            continue
-        prefix = f"wp_warp_stokes.kernels.{module}_"
+    for module, _ in _warp_modules(modules):
+        prefix = f"wp_{module.name}_"
         folders = [os.path.join(cache, e) for e in entries if e.startswith(prefix)]
         if not any(f.endswith(suffixes) for folder in folders if os.path.isdir(folder) for f in os.listdir(folder)):
             return False
     return True
 
 
+def compile_kernels(device=None, modules=KERNEL_MODULES, workers: int | None = None) -> None:
+    """Compile the package's kernels ``modules`` for ``device`` (or load them from Warp's cache) now, on ``workers``
+    threads at once (default: one per CPU core), instead of one module after another at their first launches.
+
+    Examples
+    --------
+    >>> compile_kernels("cpu", modules=("cg",))
+    """
+    d = resolve_device(device)
+    by_block = {}
+    for module, block_dim in _warp_modules(modules):
+        by_block.setdefault(block_dim, []).append(module)
+    workers = workers or os.cpu_count() or 1
+    for block_dim, group in by_block.items():
+        wp.force_load(d, modules=group, block_dim=block_dim, max_workers=workers)
+
+
 def announce_compilation(device=None, harmonic: bool = False, stream=None, modules=BIND_MODULES) -> None:
-    """One line on ``stream`` (default stderr) before a first run's kernel compilation (20-40 s), so that a silent
-    wait is not taken for a hang: when the cache lacks one of ``modules`` (a bind's, by default; ``harmonic``: the
-    Laplace kernels count too)."""
+    """Before a first run's kernel compilation: one line on ``stream`` (default stderr), so that a wait is not taken
+    for a hang, then the compilation itself, all modules at once (:func:`compile_kernels`). Nothing when the cache
+    holds all of ``modules`` (a bind's, by default; ``harmonic``: the Laplace kernels count too)."""
     resolved = resolve_device(device)
-    if not kernels_compiled(resolved, tuple(modules) + (("laplace",) if harmonic else ())):
-        print(f"warp-stokes: compiling the kernels for {resolved.alias} (first run on this machine, 20-40 s; "
+    modules = tuple(modules) + (("laplace",) if harmonic else ())
+    if not kernels_compiled(resolved, modules):
+        print(f"warp-stokes: compiling the kernels for {resolved.alias} (first run on this machine, 10-40 s; "
               "later runs load them from Warp's cache)", file=stream or sys.stderr, flush=True)
+        compile_kernels(resolved, modules)
 
 
 #: CU_MEMPOOL_ATTR_USED_MEM_HIGH of the CUDA driver API (cuda.h)

@@ -27,11 +27,11 @@ BAND_WIDTH = 3
 MARGIN = BAND_WIDTH + 1
 #: active nodes are numbered with 32-bit rows (index arrays, kernel row arguments): a grid with more is refused
 MAX_ROWS = 2**31 - 1
-#: bytes per lattice node while voxelising: winding and ring labels on the device (1 + 1), the labels' host copy
-#: and its masks (4), the row index on the host (4) and, once the grid is used, on the device (4)
+#: bytes per lattice node while voxelising: winding labels, labels and row classes on the device (1 + 1 + 1), the row
+#: index there (4), the labels' host copy (1) and the index's, made when a caller reads it (4): 11, with a margin
 VOXELIZE_NODE_BYTES = 14
 #: bytes per lattice node that a grid keeps during the solve, on its device (the row index) and on the host
-#: (labels and row index); the memory plan (warp_stokes.solver.budget) counts these
+#: (labels, and the row index once read); the memory plan (warp_stokes.solver.budget) counts these
 DEVICE_NODE_BYTES, HOST_NODE_BYTES = 4, 5
 #: the stencil kernel walks patches of columns along z in pieces of at most this many planes, so that short
 #: and long runs balance across threads (64 was the most even of 32, 64 and 128 on an H100, benchmarks/RESULTS.md)
@@ -60,7 +60,8 @@ class Grid:
     labels : (nx, ny, nz) int8, OUTSIDE / INTERIOR / RING / BAND (see ``warp_stokes.kernels.labels``)
     active_ijk : (N, 3) int32, node coordinates of the active nodes: interior, then ring (its cut-off nodes first),
         then band
-    index : (nx, ny, nz) int32, row of each node in ``active_ijk`` or -1
+    index : (nx, ny, nz) int32, row of each node in ``active_ijk`` or -1 (a property: copied to the host when first
+        read)
     n_interior, n_ring, n_band : int
     n_cut_off : int, nodes inside the cage cut off by a thin wedge of outside space: known data, counted in the ring
         and numbered first in it (rows ``n_interior`` to ``n_inside``)
@@ -74,13 +75,22 @@ class Grid:
     resolution: int
     labels: np.ndarray
     active_ijk: np.ndarray
-    index: np.ndarray
     n_interior: int
     n_ring: int
     n_band: int
     n_cut_off: int = 0
     boundary: object = None
+    #: the row index on the host, copied from the device where the grid was numbered when first read
+    _index: np.ndarray | None = field(default=None, repr=False, compare=False)
     _device_arrays: dict = field(default_factory=dict, repr=False, compare=False)
+
+    @property
+    def index(self) -> np.ndarray:
+        """(nx, ny, nz) int32, row of each node in ``active_ijk`` or -1."""
+        if self._index is None:
+            numbered = next(a for a in self._device_arrays.values() if "index" in a)
+            self._index = numbered["index"].numpy()
+        return self._index
 
     @property
     def shape(self) -> tuple:
@@ -146,13 +156,13 @@ class Grid:
     def device_arrays(self, device) -> dict:
         """``index``, ``active_ijk`` and the stencil's ``patches`` on ``device`` (uploaded once per device)."""
         d = resolve_device(device)
-        if d.alias not in self._device_arrays:
-            self._device_arrays[d.alias] = {
-                "index": wp.array(self.index, dtype=wp.int32, device=d),
-                "active_ijk": wp.array(self.active_ijk, dtype=wp.vec3i, device=d),
-                "patches": wp.array(self.interior_patches(), dtype=wp.vec4i, device=d),
-            }
-        return self._device_arrays[d.alias]
+        arrays = self._device_arrays.setdefault(d.alias, {})
+        if "index" not in arrays:
+            arrays["index"] = wp.array(self.index, dtype=wp.int32, device=d)
+            arrays["active_ijk"] = wp.array(self.active_ijk, dtype=wp.vec3i, device=d)
+        if "patches" not in arrays:
+            arrays["patches"] = wp.array(self.interior_patches(), dtype=wp.vec4i, device=d)
+        return arrays
 
 
 def check_resolution(resolution) -> int:
@@ -363,45 +373,66 @@ def _wedge_cut_off(cage: Cage, mesh: wp.Mesh, inside: wp.array, origin, spacing:
     return cut_off
 
 
+def lattice_counts(classes: wp.array) -> tuple[wp.array, np.ndarray]:
+    """Nodes of each class (``kernels.voxel.node_class``: 0 to 3, -1 not numbered) in every (i, j) column of a lattice,
+    on its device, and their totals per class (int64, on the host)."""
+    nx, ny, _ = classes.shape
+    counts = wp.empty(voxel.LATTICE_CLASSES * nx * ny, dtype=wp.int32, device=classes.device)
+    wp.launch(voxel.count_classes, dim=(nx, ny), inputs=[classes], outputs=[counts], device=classes.device)
+    return counts, counts.numpy().reshape(voxel.LATTICE_CLASSES, -1).sum(axis=1, dtype=np.int64)
+
+
+def lattice_rows(classes: wp.array, counts: wp.array, n_rows: int) -> tuple[wp.array, wp.array]:
+    """The rows of a lattice's nodes, numbered on its device by class, then in lattice order (i, j, k; k fastest):
+    (index, the (nx, ny, nz) row of each node or -1; ijk, the (n_rows,) node of each row). ``counts`` and ``n_rows``
+    come from :func:`lattice_counts` (checked there to fit 32-bit rows)."""
+    device = classes.device
+    first_rows = wp.empty_like(counts)
+    wp.utils.array_scan(counts, first_rows, inclusive=False)
+    index = wp.empty(classes.shape, dtype=wp.int32, device=device)
+    ijk = wp.empty(max(int(n_rows), 1), dtype=wp.vec3i, device=device)[: int(n_rows)]
+    wp.launch(voxel.number_classes, dim=classes.shape[:2], inputs=[classes, first_rows], outputs=[index, ijk],
+              device=device)
+    return index, ijk
+
+
 def _number_nodes(inside: wp.array, centre, origin, spacing, resolution, device, max_rows, name, cut_off=None) -> Grid:
     """Mark the ring and band around the interior nodes of `inside` (and those that ``cut_off`` moves to the ring),
-    and number the active nodes."""
+    and number the active nodes: interior, cut off, other ring, band (on the device; the host only reads counts)."""
     shape = inside.shape
     with wp.ScopedDevice(device):
         labels = wp.empty(shape, dtype=wp.int8)
         wp.launch(voxel.mark_ring_and_band, dim=shape, inputs=[inside, BAND_WIDTH], outputs=[labels])
-        n_cut_off = 0 if cut_off is None else cut_off(labels)
+        if cut_off is not None:
+            cut_off(labels)
+        classes = wp.empty(shape, dtype=wp.int8)
+        wp.launch(voxel.node_classes, dim=shape, inputs=[labels, inside], outputs=[classes])
+        counts, per_class = lattice_counts(classes)
+        n_interior, n_cut_off, n_ring, n_band = (int(c) for c in per_class)
+        n_active = n_interior + n_cut_off + n_ring + n_band
+        if n_active > max_rows:
+            # the band and ring grow with the square of the resolution, the interior with its cube: scaling by the
+            # square root of the excess is safe for both
+            fits = int(resolution * (max_rows / n_active) ** 0.5)
+            raise ResolutionError(
+                f"{name}: resolution {resolution} gives {n_active:,} active grid nodes, more than the {max_rows:,} "
+                f"that 32-bit rows can number; resolution {fits} or less would fit"
+            )
+        index, active_ijk = lattice_rows(classes, counts, n_active)
+        del classes, counts
         labels_np = labels.numpy()
-    flat = labels_np.ravel()
-    ring = flat == node_labels.RING
-    inside_ring = ring & (inside.numpy().ravel() != 0) if n_cut_off else np.zeros_like(ring)
-    # the cut-off nodes first in the ring, so that rows below n_inside are the nodes inside the cage
-    rows = [np.flatnonzero(flat == node_labels.INTERIOR), np.flatnonzero(inside_ring),
-            np.flatnonzero(ring & ~inside_ring), np.flatnonzero(flat == node_labels.BAND)]
-    n_interior, n_cut_off, n_ring, n_band = len(rows[0]), len(rows[1]), len(rows[1]) + len(rows[2]), len(rows[3])
-    n_active = n_interior + n_ring + n_band
-    if n_active > max_rows:
-        # the band and ring grow with the square of the resolution, the interior with its cube: scaling by the
-        # square root of the excess is safe for both
-        fits = int(resolution * (max_rows / n_active) ** 0.5)
-        raise ResolutionError(
-            f"{name}: resolution {resolution} gives {n_active:,} active grid nodes, more than the {max_rows:,} "
-            f"that 32-bit rows can number; resolution {fits} or less would fit"
+        grid = Grid(
+            centre=np.asarray(centre, dtype=np.float64),
+            origin=np.asarray(origin, dtype=np.float64),
+            spacing=float(spacing),
+            resolution=int(resolution),
+            labels=labels_np,
+            active_ijk=active_ijk.numpy(),
+            n_interior=n_interior,
+            n_ring=n_cut_off + n_ring,
+            n_band=n_band,
+            n_cut_off=n_cut_off,
         )
-    order = np.concatenate(rows)
-    active_ijk = np.stack(np.unravel_index(order, shape), axis=1).astype(np.int32)
-    index = np.full(flat.shape, -1, dtype=np.int32)
-    index[order] = np.arange(len(order), dtype=np.int32)
-    return Grid(
-        centre=np.asarray(centre, dtype=np.float64),
-        origin=np.asarray(origin, dtype=np.float64),
-        spacing=float(spacing),
-        resolution=int(resolution),
-        labels=labels_np,
-        active_ijk=active_ijk,
-        index=index.reshape(shape),
-        n_interior=n_interior,
-        n_ring=n_ring,
-        n_band=n_band,
-        n_cut_off=n_cut_off,
-    )
+    # the device's numbering is the grid's (the host copy of the index is made when first read)
+    grid._device_arrays[device.alias] = {"index": index, "active_ijk": active_ijk}
+    return grid

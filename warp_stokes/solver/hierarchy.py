@@ -9,7 +9,7 @@ import numpy as np
 import warp as wp
 
 from ..device import resolve_device
-from ..geometry.grid import Grid
+from ..geometry.grid import Grid, lattice_counts, lattice_rows
 from ..kernels import multigrid as mg_kernels
 
 __all__ = ["Level", "coarsen", "hierarchy_bytes", "COARSEST_NODES", "COARSE_NODE_BYTES"]
@@ -62,17 +62,15 @@ def coarsen(grid: Grid, device=None, coarsest_nodes: int = COARSEST_NODES) -> li
         while levels[-1].n > coarsest_nodes:
             lev = levels[-1]
             coarse_shape = tuple(int(s) for s in shape // 2 + 1)
-            counts = wp.empty(coarse_shape, dtype=wp.int32)
-            wp.launch(mg_kernels.coarse_coverage, dim=coarse_shape, inputs=[lev.index, lev.n], outputs=[counts])
-            order = np.flatnonzero(counts.numpy().ravel() * 8 >= 27)
-            del counts
-            if len(order) == 0 or len(order) >= lev.n:
+            kept = wp.empty(coarse_shape, dtype=wp.int8)
+            wp.launch(mg_kernels.coarse_nodes, dim=coarse_shape, inputs=[lev.index, lev.n], outputs=[kept])
+            counts, per_class = lattice_counts(kept)
+            n = int(per_class[0])
+            if n == 0 or n >= lev.n:
                 break
-            ijk = np.stack(np.unravel_index(order, coarse_shape), axis=1).astype(np.int32)
-            index = np.full(int(np.prod(coarse_shape)), -1, dtype=np.int32)
-            index[order] = np.arange(len(order), dtype=np.int32)
-            levels.append(Level(n=len(order), ijk=ijk, index=wp.array(index.reshape(coarse_shape), dtype=wp.int32),
-                                ijk_device=wp.array(ijk, dtype=wp.vec3i)))
+            index, ijk = lattice_rows(kept, counts, n)
+            del kept, counts
+            levels.append(Level(n=n, ijk=ijk.numpy(), index=index, ijk_device=ijk))
             shape = np.array(coarse_shape)
     return levels
 

@@ -37,7 +37,7 @@ from ..geometry.grid import Grid
 from ..kernels import cg
 from ..kernels import multigrid as mg_kernels
 from .hierarchy import COARSE_NODE_BYTES, COARSEST_NODES, Level, coarsen, hierarchy_bytes
-from .operator import apply_operator, check_equation
+from .operator import apply_operator, chebyshev_step, check_equation
 
 # the levels' sizes are planned before the hierarchy is formed (solver.hierarchy); offered here too
 __all__ = ["Multigrid", "coarsen", "hierarchy_bytes", "Level", "SMOOTHER_DEGREES", "DEEP_SMOOTHER_DEGREES",
@@ -244,14 +244,33 @@ class Multigrid:
             self._residual(depth, b, x, r)
             wp.launch(mg_kernels.chebyshev_start, dim=shape, inputs=[r, lev.inv_diag, 1.0 / theta], outputs=[x, d])
         degrees = DEEP_SMOOTHER_DEGREES if len(self.levels) >= DEEP_LEVELS else SMOOTHER_DEGREES
+        # the steps take the residual where they form it (one pass each), writing the next iterate to the other
+        # of x and r (r is free: the residual is never stored), so the iterate alternates between them
+        current, spare = x, r
         for _ in range(degrees[min(depth, len(degrees) - 1)] - 1):
-            self._residual(depth, b, x, r)
             rho_next = 1.0 / (2.0 * sigma - rho)
-            wp.launch(mg_kernels.chebyshev_step, dim=shape, inputs=[r, lev.inv_diag, rho_next * rho, 2.0 * rho_next / delta],
-                      outputs=[x, d])
+            if self._chebyshev_step(depth, b, current, d, rho_next * rho, 2.0 * rho_next / delta, spare):
+                current, spare = spare, current
             rho = rho_next
+        if current is not x:
+            wp.copy(x, current)
         if residual:
             self._residual(depth, b, x, r)
+
+    def _chebyshev_step(self, depth, b, x, d, ca, cb, spare) -> bool:
+        """d = ca d + cb D^-1 (b - A x) and x + d, in one pass into ``spare`` (True), or, for the fine Laplace
+        level, through a stored residual (in ``spare``) with x updated in place (False)."""
+        lev = self.levels[depth]
+        if depth > 0:
+            wp.launch(mg_kernels.stencil_chebyshev_step, dim=x.shape,
+                      inputs=[lev.blocks, lev.ijk_device, lev.index, b, x, lev.inv_diag, ca, cb, d], outputs=[spare])
+            return True
+        if self.equation == "biharmonic":
+            chebyshev_step(self.grid, x, b, d, ca, cb, spare, n_rows=lev.n, device=self.device)
+            return True
+        self._residual(depth, b, x, spare)
+        wp.launch(mg_kernels.chebyshev_step, dim=x.shape, inputs=[spare, lev.inv_diag, ca, cb], outputs=[x, d])
+        return False
 
     def _residual(self, depth, b, x, r):
         """r = b - A x, in one pass (the fused kernels: a separate subtraction was 13% of a bind's GPU time)."""

@@ -15,7 +15,7 @@ from ..geometry.grid import Grid
 from ..errors import WarpStokesError
 from ..kernels import cg, laplace, stencil
 
-__all__ = ["apply_operator", "EQUATIONS", "check_equation"]
+__all__ = ["apply_operator", "chebyshev_step", "EQUATIONS", "check_equation"]
 
 #: the equations the weights may solve: Stokes coordinates (biharmonic) or harmonic coordinates (Laplace)
 EQUATIONS = ("biharmonic", "laplace")
@@ -68,3 +68,36 @@ def apply_operator(grid: Grid, field: wp.array, out: wp.array, n_rows: int | Non
                   device=device, block_dim=stencil.BLOCK_DIM)
     if rhs is not None and not fused:
         wp.launch(cg.residual, dim=out.shape, inputs=[rhs, out], outputs=[out], device=device)
+
+
+def chebyshev_step(grid: Grid, field: wp.array, rhs: wp.array, d: wp.array, ca: float, cb: float, out: wp.array,
+                   n_rows: int, device=None) -> None:
+    """One Chebyshev smoothing step of the compact biharmonic scheme at the interior rows, in one pass (float32 sums):
+    ``d = ca d + cb D^-1 (rhs - A field)`` and ``out = field + d``, D the scheme's diagonal block. The numbers of the
+    one-pass residual (:func:`apply_operator` with ``rhs``) followed by the multigrid's pointwise step, without
+    writing the residual and reading it back.
+
+    Parameters
+    ----------
+    grid : Grid
+    field : wp.array2d(vec4f), (rows, handles), the iterate; rows at or beyond ``n_rows`` read as zero
+    rhs, d : wp.array2d(vec4f), (grid.n_interior, handles); ``d`` is updated in place
+    ca, cb : float, the step's coefficients
+    out : wp.array2d(vec4f), (grid.n_interior, handles), the next iterate; not ``field`` (its neighbours are read
+        after a node's step is written)
+    n_rows : int
+    device : None | str
+
+    Examples
+    --------
+    >>> chebyshev_step(grid, x, b, d, 0.0, 0.5, x_next, grid.n_interior, device="cpu")  # doctest: +SKIP
+    """
+    if out.ptr == field.ptr:
+        raise ValueError("chebyshev_step: out must not be field")
+    device = resolve_device(device)
+    arrays = grid.device_arrays(device)
+    patches = arrays["patches"]
+    groups = -(-field.shape[1] // stencil.GROUP)
+    wp.launch(stencil.chebyshev_step_fast, dim=(groups, patches.shape[0], stencil.GROUP),
+              inputs=[field, arrays["index"], patches, int(n_rows), rhs, float(ca), float(cb), d], outputs=[out],
+              device=device, block_dim=stencil.BLOCK_DIM)
