@@ -13,7 +13,8 @@ from .errors import WarpStokesError
 # Warp prints a banner on initialisation; a library should stay quiet unless asked.
 wp.config.log_level = wp.LOG_WARNING
 
-__all__ = ["resolve_device", "init_warp", "device_name", "available_memory", "reduction_threads"]
+__all__ = ["resolve_device", "init_warp", "device_name", "available_memory", "reduction_threads", "require_ray",
+           "compile_kernels", "kernels_compiled", "announce_compilation"]
 
 
 def resolve_device(device=None) -> wp.context.Device:
@@ -108,6 +109,15 @@ def reduction_threads(n_rows: int, n_cols: int, device) -> int:
     if resolve_device(device).is_cuda:
         return int(max(1, min(n_rows, -(-(1 << 17) // n_cols))))
     return int(max(1, min(n_rows, 16)))
+
+
+def require_ray(what: str = "--workers and --ray-address need"):
+    """The ``ray`` module, or a WarpStokesError saying how to install it (``what`` names what needs it)."""
+    try:
+        import ray
+    except ImportError:
+        raise WarpStokesError(f'{what} Ray, an optional extra: pip install "warp-stokes[ray]"') from None
+    return ray
 
 
 def cuda_device_count() -> int:

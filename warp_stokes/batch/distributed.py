@@ -23,7 +23,7 @@ import os
 import signal
 import warnings
 
-from ..errors import WarpStokesError
+from ..device import require_ray
 from .run import Result, bind_one, outputs_of, skipped
 
 __all__ = ["run_on_ray", "require_ray", "TASK_RETRIES", "KILL_ONCE_VARIABLE"]
@@ -33,16 +33,6 @@ TASK_RETRIES = 2
 #: for fault-tolerance tests: a path in this environment variable makes the first task that finds the file there
 #: remove it and kill its own worker process (SIGKILL), as a crash would
 KILL_ONCE_VARIABLE = "WARP_STOKES_KILL_WORKER_ONCE"
-
-
-def require_ray():
-    """The ``ray`` module, or a WarpStokesError saying how to install it."""
-    try:
-        import ray
-    except ImportError:
-        raise WarpStokesError('--workers and --ray-address need Ray, an optional extra: '
-                              'pip install "warp-stokes[ray]"') from None
-    return ray
 
 
 def _bind_task(asset, outdir: str, device) -> Result:

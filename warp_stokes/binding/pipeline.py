@@ -12,20 +12,18 @@ import time
 import warnings
 
 import numpy as np
-import warp as wp
 
 from ..device import resolve_device
 from ..errors import CageError, MeshError, WarpStokesError
-from ..geometry.boundary import boundary_field, mean_value_coordinates
+from ..geometry.boundary import mean_value_coordinates
 from ..geometry.cage import Cage, check_cage
-from ..geometry.grid import check_resolution, voxelize, wedge_resolution
+from ..geometry.grid import check_resolution, wedge_resolution
 from ..geometry.inside import classify_points
 from ..geometry.local_boundary import boundary_settings, local_values
 from ..io.scene import is_usd, load_scene
-from ..solver.budget import available_memory, chunk_columns, estimate_memory, plan_chunks
-from ..solver.multigrid import Multigrid, coarsen
-from ..solver.solve import solve_biharmonic
-from .sample import SAMPLINGS, sample_weights
+from .columns import grid_columns
+from .sample import SAMPLINGS
+from .spread import driver_device, spread_devices
 from .stats import (asset_record, grid_stats, identity_errors, mvc_stats, parts_record, settings_record,
                     solver_stats)
 from .store import Binding
@@ -66,8 +64,10 @@ def bind(mesh, cage=None, resolution: int = 64, device=None, tol: float = 1e-6, 
         ``cage_prim`` names the cage in the mesh's USD stage.
     resolution : int
         Grid cells along the cage's longest axis.
-    device : None | str
-        ``"cpu"``, ``"cuda"`` or ``"cuda:N"``; default CUDA when present, else CPU.
+    device : None | str | list of str
+        ``"cpu"``, ``"cuda"`` or ``"cuda:N"``; default CUDA when present, else CPU. Several devices (a list,
+        ``"cuda:0,cuda:1"``, or ``"cuda:all"`` for every GPU of the Ray cluster) spread the handles' solves over
+        them as Ray tasks (:mod:`warp_stokes.binding.spread`; the ``ray`` extra).
     tol : float
         Relative (preconditioned) residual per handle, and deviation from partition of unity and linear
         precision at the nodes, at which the solver stops.
@@ -113,7 +113,8 @@ def bind(mesh, cage=None, resolution: int = 64, device=None, tol: float = 1e-6, 
     """
     _check_arguments(tol, memory_budget, solver, boundary, sampling, method)
     resolution = check_resolution(resolution)  # arguments first: before the inputs are loaded and checked
-    device = resolve_device(device)
+    devices = spread_devices(device)  # several: the handles' solves spread over them (Ray tasks)
+    device = resolve_device(device if devices is None else driver_device(devices))
     seconds = {}
     t = time.perf_counter()
     cage_argument = cage
@@ -142,24 +143,16 @@ def bind(mesh, cage=None, resolution: int = 64, device=None, tol: float = 1e-6, 
                        asset=asset_record(scene))
     equation = METHODS[method]
 
-    t = time.perf_counter()
-    grid = voxelize(checked, resolution, device=device, memory_budget=memory_budget, boundary=boundary)
-    # the levels' sizes first (cheap), so that the plan counts the hierarchy before it is formed
-    levels = coarsen(grid, device) if solver == "multigrid" else None
-    estimate = estimate_memory(grid, len(points), preconditioner=solver, levels=levels, device=device,
-                               n_handles=checked.n_handles)
-    budget = available_memory(device) if memory_budget is None else int(memory_budget)
-    chunks = plan_chunks(estimate, checked.n_handles, budget, resolution, name=checked.name)
-    seconds["voxelize"] = time.perf_counter() - t
+    options = dict(solver=solver, tol=tol, max_iterations=max_iterations, boundary=boundary, sampling=sampling,
+                   memory_budget=memory_budget, equation=equation)
+    if devices is None:
+        part = grid_columns(checked, points, resolution, device, **options)
+    else:
+        from .spread import spread_columns
 
-    t = time.perf_counter()
-    preconditioner = (Multigrid(grid, device=device, levels=levels, equation=equation) if solver == "multigrid"
-                      else "jacobi")
-    wp.synchronize_device(device)
-    seconds["setup"] = time.perf_counter() - t
-
-    weights, corners, reports = _solve_and_sample(grid, checked, points, chunks, preconditioner, tol, max_iterations,
-                                                  boundary, sampling, device, seconds, equation)
+        part = spread_columns(checked, points, resolution, devices, **options)
+    seconds.update(part.seconds)
+    grid, weights, corners = part.grid, part.weights, part.corners
     t = time.perf_counter()
     notes, beyond, thin = _vertices_off_the_grid(surface, checked, grid, resolution, weights, corners, inside,
                                                  distance, device, boundary)
@@ -171,11 +164,12 @@ def bind(mesh, cage=None, resolution: int = 64, device=None, tol: float = 1e-6, 
         **grid_stats(grid, checked, surface, inside, beyond, thin, device),
         "method": method,
         "solver": solver,
-        "levels": preconditioner.level_sizes if solver == "multigrid" else [grid.n_interior],
-        "multigrid_seconds": preconditioner.seconds if solver == "multigrid" else {},
-        "chunks": len(chunks),
-        "memory_estimate_bytes": estimate.total(chunk_columns(chunks)),
-        **solver_stats(reports),
+        "levels": part.levels,
+        "multigrid_seconds": part.multigrid_seconds,
+        "chunks": part.chunks,
+        "memory_estimate_bytes": part.memory_estimate,
+        **({} if devices is None else {"devices": part.devices}),
+        **solver_stats(part.reports),
         "partition_of_unity_error": pu_error,
         "linear_precision_error": lp_error,
         "seconds": seconds,
@@ -241,34 +235,6 @@ def _refuse_mesh_outside(surface, checked: Cage, inside: np.ndarray, distance: n
             f"{surface.name}: {outside} of {len(inside)} vertices ({100 * outside / len(inside):.0f}%) lie outside "
             f"{checked.name}, up to {distance[~inside].max() / checked.diagonal:.3g} cage diagonals away; is the mesh "
             "in the cage's units and place?")
-
-
-def _solve_and_sample(grid, checked: Cage, points, chunks, preconditioner, tol, max_iterations, boundary, sampling,
-                      device, seconds: dict, equation: str = "biharmonic"):
-    """Boundary data, solve and sampling, one chunk of handles at a time: the weights (V, L), the sampling cells'
-    corner rows of the last chunk (the same for every chunk) and the solve reports; adds to ``seconds``."""
-    seconds["boundary"] = seconds["solve"] = seconds["sample"] = 0.0
-    weights = np.empty((len(points), checked.n_handles), dtype=np.float32)
-    reports = []
-    chunked = len(chunks) > 1
-    for chunk in chunks:
-        t = time.perf_counter()
-        # a chunk carries the rest of the cage in one more column, so that its solve checks partition of unity
-        field = boundary_field(grid, checked, device=device, handles=chunk, complement=chunked, data=boundary)
-        wp.synchronize_device(device)
-        seconds["boundary"] += time.perf_counter() - t
-        report = solve_biharmonic(
-            grid, field, tol=tol, max_iterations=max_iterations, handles=checked.vertices,
-            chunk=chunk if chunked else None, preconditioner=preconditioner, device=device, equation=equation,
-        )
-        reports.append(report)
-        seconds["solve"] += report.seconds
-        t = time.perf_counter()
-        sampled_columns, corners = sample_weights(grid, field, points, device=device, method=sampling)
-        weights[:, chunk] = sampled_columns[:, : chunk.stop - chunk.start]
-        seconds["sample"] += time.perf_counter() - t
-        del field
-    return weights, corners, reports
 
 
 def _vertices_off_the_grid(surface, checked: Cage, grid, resolution: int, weights: np.ndarray, corners: np.ndarray,

@@ -116,7 +116,9 @@ def _add_bind(sub) -> None:
                    help="USD time code of the rest pose (default: the cage prim's first time sample)")
     p.add_argument("-o", "--output", required=True, help="binding file to write (.npz)")
     p.add_argument("--resolution", type=_number(int, 1), default=64, help="grid cells along the cage's longest axis (64)")
-    p.add_argument("--device", default=None, help="cpu, cuda or cuda:N (default: CUDA when present, else CPU)")
+    p.add_argument("--device", default=None,
+                   help="cpu, cuda or cuda:N (default: CUDA when present, else CPU); several (cuda:0,cuda:1, or cuda:all "
+                        "for every GPU) solve shares of the handles at once, as Ray tasks (the ray extra)")
     p.add_argument("--tol", type=_number(float, 0.0, 0.1, low_open=True), default=1e-6, help="solver tolerance (1e-6)")
     p.add_argument("--max-iterations", type=_number(int, 1), default=None, help="solver iteration limit")
     p.add_argument("--solver", choices=["multigrid", "jacobi"], default="multigrid",

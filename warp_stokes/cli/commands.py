@@ -85,7 +85,10 @@ def bind_command(args) -> int:
     import warp_stokes as ws
 
     check_output(args.output, (args.mesh, args.cage))
-    announce_compilation(args.device, harmonic=args.method == "harmonic")
+    from warp_stokes.binding.spread import spread_devices
+
+    if spread_devices(args.device) is None:  # spread: the Ray workers compile, on their devices
+        announce_compilation(args.device, harmonic=args.method == "harmonic")
     budget = None if args.memory_gb is None else args.memory_gb * 2**30
     binding = ws.bind(args.mesh, args.cage, resolution=args.resolution, device=args.device, tol=args.tol,
                       max_iterations=args.max_iterations, solver=args.solver, memory_budget=budget,

@@ -1,0 +1,89 @@
+"""One bind spread over several devices (Ray tasks, each a share of the handles): on the CPU here, two worker
+processes standing for two GPUs. The weights against a bind on one device, the command as a user runs it, and the
+one-line errors. Few: each run starts Ray (a few seconds on 2 cores)."""
+
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import warp_stokes as ws
+from conftest import EXAMPLE
+from warp_stokes.binding.spread import spread_devices
+
+ARM, ARM_CAGE = EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj"
+
+
+def bind_command(*args, env=None):
+    return subprocess.run([sys.executable, "-m", "warp_stokes.cli", "bind", str(ARM), str(ARM_CAGE), *map(str, args)],
+                          capture_output=True, text=True, env={**os.environ, **(env or {})}, timeout=600)
+
+
+def test_device_lists_name_a_spread_bind():
+    assert spread_devices("cuda:0,cuda:1") == ["cuda:0", "cuda:1"]
+    assert spread_devices(["cpu", "cpu"]) == ["cpu", "cpu"] and spread_devices("cuda:all") == ["cuda:all"]
+    assert spread_devices("cpu") is None and spread_devices(None) is None and spread_devices(["cuda:1"]) is None
+    for bad in ("cpu,cuda:0", "cuda:0,", "gpu,gpu", "cuda:all,cuda:0"):
+        with pytest.raises(ws.WarpStokesError, match="name several devices of one kind"):
+            spread_devices(bad)
+
+
+def test_a_bind_spread_over_two_workers_gives_the_weights_of_one_device():
+    pytest.importorskip("ray")
+    from warp_stokes.binding.columns import grid_columns
+
+    one = ws.bind(ARM, ARM_CAGE, resolution=20, device="cpu")
+    two = ws.bind(ARM, ARM_CAGE, resolution=20, device=["cpu", "cpu"])
+    shares = two.stats["devices"]
+    assert [s["handles"] for s in shares] == [[0, 29], [29, 58]] and shares[0]["pid"] != shares[1]["pid"]
+    assert two.stats["chunks"] == 2 and two.stats["converged"] and two.stats["grid_shape"] == one.stats["grid_shape"]
+    assert two.stats["partition_of_unity_error"] < 1e-5 and two.stats["linear_precision_error"] < 1e-5
+    # the same numbers as the shares solved in this process, one after another; within the solver's tolerance of
+    # the bind that solves all handles at once
+    cage = ws.check_cage(ARM_CAGE)
+    here = [grid_columns(cage, one.mesh_vertices, 20, ws.resolve_device("cpu"), handles=slice(a, b)).weights
+            for a, b in ([0, 29], [29, 58])]
+    np.testing.assert_array_equal(two.weights, np.concatenate(here, axis=1))
+    assert np.abs(two.weights - one.weights).max() < 1e-5
+
+
+def test_the_command_spreads_a_bind_and_says_what_it_cannot(tmp_path):
+    pytest.importorskip("ray")
+    out = tmp_path / "arm.npz"
+    done = bind_command("-o", out, "--resolution", "16", "--device", "cpu,cpu")
+    assert done.returncode == 0, done.stderr[-2000:]
+    binding = ws.load_binding(out, device="cpu")
+    assert len(binding.stats["devices"]) == 2 and binding.stats["partition_of_unity_error"] < 1e-5
+    alone = ws.bind(ARM, ARM_CAGE, resolution=16, device="cpu")
+    assert np.abs(binding.weights - alone.weights).max() < 1e-5
+    # every GPU of a cluster that has none; a mixed list: one line each, exit 2, no file
+    for device, message in (("cuda:all", "the Ray cluster has no GPU"), ("cpu,cuda:0", "of one kind")):
+        failed = bind_command("-o", tmp_path / "no.npz", "--resolution", "16", "--device", device)
+        assert failed.returncode == 2 and message in failed.stderr, failed.stderr[-2000:]
+        assert failed.stderr.strip().count("\n") == 0 and not (tmp_path / "no.npz").exists()
+
+
+def test_without_ray_a_spread_bind_is_one_line_and_exit_2(tmp_path):
+    fake = tmp_path / "fake"
+    (fake / "ray").mkdir(parents=True)
+    (fake / "ray" / "__init__.py").write_text("raise ImportError('no ray here')\n")
+    failed = bind_command("-o", tmp_path / "a.npz", "--resolution", "16", "--device", "cpu,cpu",
+                          env={"PYTHONPATH": str(fake)})
+    assert failed.returncode == 2 and 'needs Ray, an optional extra: pip install "warp-stokes[ray]"' in failed.stderr
+    assert failed.stderr.strip().count("\n") == 0 and not (tmp_path / "a.npz").exists()
+
+
+def test_bench_spread_tabulates_a_spread_bind_against_one_device():
+    # the harness that measures issue 15's target on a host with several GPUs, here on the CPU with two shares
+    pytest.importorskip("ray")
+    from pathlib import Path
+
+    repo = Path(__file__).resolve().parents[1]
+    proc = subprocess.run([sys.executable, str(repo / "benchmarks" / "bench_spread.py"), "--device", "cpu", "--pair",
+                           "arm", "--resolutions", "16", "--shares", "2"], capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    row = next(line for line in proc.stdout.splitlines() if line.startswith("| 16 | 58 |"))
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    assert cells[4] == "2" and float(cells[-1]) < 1e-5

@@ -1,0 +1,143 @@
+"""The grid part of a bind, for a range of the cage's handles on one device: voxelise, plan the chunks that fit the
+memory, form the multigrid, and for each chunk the boundary data, the solve and the sampling at the vertices.
+
+:func:`warp_stokes.bind` runs it for all handles on its device; a bind spread over several devices
+(:mod:`warp_stokes.binding.spread`) runs it for a share of the handles on each.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import numpy as np
+import warp as wp
+
+from ..geometry.boundary import COMPLEMENT_COLUMNS, boundary_field
+from ..geometry.cage import Cage
+from ..geometry.grid import voxelize
+from ..solver.budget import available_memory, chunk_columns, estimate_memory, plan_chunks
+from ..solver.multigrid import Multigrid, coarsen
+from ..solver.solve import solve_biharmonic
+from .sample import sample_weights
+
+__all__ = ["GridColumns", "GridSummary", "grid_columns"]
+
+
+class GridSummary(NamedTuple):
+    """What a binding's stats and warnings need of its grid (a Grid's arrays stay on the process that made it)."""
+
+    shape: tuple
+    spacing: float
+    resolution: int
+    n_interior: int
+    n_ring: int
+    n_band: int
+    n_cut_off: int
+    n_inside: int
+
+
+@dataclass
+class GridColumns:
+    """The weights of a range of handles at the mesh's vertices, and how they were computed.
+
+    Attributes
+    ----------
+    weights : (V, handles in the range) float32; rows of vertices beyond the grid's band are zero
+    corners : (V, 8) int32, the rows of each vertex's sampling cell (see :func:`warp_stokes.sample_weights`)
+    reports : list of SolveReport, one per chunk
+    grid : GridSummary
+    levels : list of int, the multigrid's level sizes (the interior alone with the Jacobi preconditioner)
+    multigrid_seconds : dict, the multigrid's setup time by phase
+    chunks : int, chunks the range was solved in
+    memory_estimate : int, bytes the plan counted for the largest chunk
+    seconds : dict, time by phase: voxelize, setup, boundary, solve, sample
+    devices : list of dict, where the range was solved when a bind spreads over several devices (empty otherwise)
+    """
+
+    weights: np.ndarray
+    corners: np.ndarray
+    reports: list
+    grid: GridSummary
+    levels: list
+    multigrid_seconds: dict
+    chunks: int
+    memory_estimate: int
+    seconds: dict = field(default_factory=dict)
+    devices: list = field(default_factory=list)
+
+
+def grid_columns(checked: Cage, points: np.ndarray, resolution: int, device, handles: slice = slice(None),
+                 solver: str = "multigrid", tol: float = 1e-6, max_iterations: int | None = None, boundary="local",
+                 sampling: str = "hermite", memory_budget: int | None = None,
+                 equation: str = "biharmonic") -> GridColumns:
+    """Solve the handles ``handles`` of a checked cage on a grid at ``resolution`` on ``device`` and sample them at
+    ``points`` (arguments as in :func:`warp_stokes.bind`, the device resolved).
+
+    A range short of the whole cage is solved with the rest of the cage as one more column (as the chunks of a bind
+    too large for memory are), so that every solve checks partition of unity.
+
+    Returns
+    -------
+    GridColumns
+
+    Examples
+    --------
+    >>> part = grid_columns(cage, mesh_vertices, 32, device, handles=slice(0, 20))  # doctest: +SKIP
+    >>> part.weights.shape  # doctest: +SKIP
+    (2089, 20)
+    """
+    first, stop, _ = handles.indices(checked.n_handles)
+    n_range = stop - first
+    partial = n_range < checked.n_handles
+    seconds = {}
+    t = time.perf_counter()
+    grid = voxelize(checked, resolution, device=device, memory_budget=memory_budget, boundary=boundary)
+    # the levels' sizes first (cheap), so that the plan counts the hierarchy before it is formed
+    levels = coarsen(grid, device) if solver == "multigrid" else None
+    estimate = estimate_memory(grid, len(points), preconditioner=solver, levels=levels, device=device,
+                               n_handles=n_range)
+    budget = available_memory(device) if memory_budget is None else int(memory_budget)
+    # a partial range always carries the rest-of-the-cage column: plan room for it
+    planned = plan_chunks(estimate, n_range + (COMPLEMENT_COLUMNS if partial else 0), budget, resolution,
+                          name=checked.name)
+    chunks = [slice(first + c.start, first + min(c.stop, n_range)) for c in planned if c.start < n_range]
+    seconds["voxelize"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    preconditioner = (Multigrid(grid, device=device, levels=levels, equation=equation) if solver == "multigrid"
+                      else "jacobi")
+    wp.synchronize_device(device)
+    seconds["setup"] = time.perf_counter() - t
+
+    seconds["boundary"] = seconds["solve"] = seconds["sample"] = 0.0
+    weights = np.empty((len(points), n_range), dtype=np.float32)
+    reports = []
+    complement = partial or len(chunks) > 1
+    for chunk in chunks:
+        t = time.perf_counter()
+        # a chunk carries the rest of the cage in one more column, so that its solve checks partition of unity
+        field_ = boundary_field(grid, checked, device=device, handles=chunk, complement=complement, data=boundary)
+        wp.synchronize_device(device)
+        seconds["boundary"] += time.perf_counter() - t
+        report = solve_biharmonic(
+            grid, field_, tol=tol, max_iterations=max_iterations, handles=checked.vertices,
+            chunk=chunk if complement else None, preconditioner=preconditioner, device=device, equation=equation,
+        )
+        reports.append(report)
+        seconds["solve"] += report.seconds
+        t = time.perf_counter()
+        sampled_columns, corners = sample_weights(grid, field_, points, device=device, method=sampling)
+        weights[:, chunk.start - first: chunk.stop - first] = sampled_columns[:, : chunk.stop - chunk.start]
+        seconds["sample"] += time.perf_counter() - t
+        del field_
+    summary = GridSummary(grid.shape, grid.spacing, grid.resolution, grid.n_interior, grid.n_ring, grid.n_band,
+                          grid.n_cut_off, grid.n_inside)
+    return GridColumns(
+        weights=weights, corners=corners, reports=reports, grid=summary,
+        levels=preconditioner.level_sizes if solver == "multigrid" else [grid.n_interior],
+        multigrid_seconds=preconditioner.seconds if solver == "multigrid" else {}, chunks=len(chunks),
+        memory_estimate=estimate.total(chunk_columns(chunks) + (COMPLEMENT_COLUMNS if partial and len(chunks) == 1
+                                                                 else 0)),
+        seconds=seconds)
