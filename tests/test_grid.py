@@ -129,3 +129,20 @@ def test_lattice_numbering_orders_rows_by_class_then_lattice_order(device):
     expected[order] = np.arange(len(order))
     np.testing.assert_array_equal(index.numpy().ravel(), expected)
     np.testing.assert_array_equal(ijk.numpy(), np.stack(np.unravel_index(order, classes.shape), axis=1))
+
+
+def test_a_grid_travels_with_its_host_arrays(arm_cage, device):
+    """Pickled (Ray, multiprocessing) or copied, a grid keeps its row index and rebuilds its device arrays where it is
+    used; a Grid made by hand without an index says so."""
+    import copy
+    import pickle
+
+    grid = ws.voxelize(arm_cage, 16, device=device)
+    for twin in (pickle.loads(pickle.dumps(grid)), copy.deepcopy(grid)):
+        np.testing.assert_array_equal(twin.index, grid.index)
+        np.testing.assert_array_equal(twin.device_arrays(device)["index"].numpy(), grid.index)
+        assert twin.n_inside == grid.n_inside and twin.boundary == grid.boundary
+    bare = ws.Grid(centre=grid.centre, origin=grid.origin, spacing=grid.spacing, resolution=16, labels=grid.labels,
+                   active_ijk=grid.active_ijk, n_interior=grid.n_interior, n_ring=grid.n_ring, n_band=grid.n_band)
+    with pytest.raises(ws.ResolutionError, match="no row index"):
+        bare.index

@@ -31,11 +31,21 @@ def test_device_lists_name_a_spread_bind():
 
 
 def test_a_bind_spread_over_two_workers_gives_the_weights_of_one_device():
-    pytest.importorskip("ray")
+    ray = pytest.importorskip("ray")
     from warp_stokes.binding.columns import grid_columns
 
     one = ws.bind(ARM, ARM_CAGE, resolution=20, device="cpu")
-    two = ws.bind(ARM, ARM_CAGE, resolution=20, device=["cpu", "cpu"])
+    assert ws.bind(ARM, ARM_CAGE, resolution=12, device=["cpu"]).stats["device"] == "cpu"  # a list of one device
+    ray.init(num_cpus=2, include_dashboard=False)  # a running cluster: the binds use it and leave it running
+    try:
+        two = ws.bind(ARM, ARM_CAGE, resolution=20, device=["cpu", "cpu"])
+        # what a share warns of in its worker is warned of by the bind
+        with pytest.warns(UserWarning, match="iteration limit reached") as caught:
+            ws.bind(ARM, ARM_CAGE, resolution=20, device="cpu,cpu", max_iterations=1)
+        assert sum("the solver stopped after 1 iterations" in str(w.message) for w in caught) == 2  # one per share
+        assert ray.is_initialized()
+    finally:
+        ray.shutdown()
     shares = two.stats["devices"]
     assert [s["handles"] for s in shares] == [[0, 29], [29, 58]] and shares[0]["pid"] != shares[1]["pid"]
     assert two.stats["chunks"] == 2 and two.stats["converged"] and two.stats["grid_shape"] == one.stats["grid_shape"]

@@ -54,6 +54,7 @@ class GridColumns:
     memory_estimate : int, bytes the plan counted for the largest chunk
     seconds : dict, time by phase: voxelize, setup, boundary, solve, sample
     devices : list of dict, where the range was solved when a bind spreads over several devices (empty otherwise)
+    warnings : list of str, what the range's solve warned of, where it ran in another process (a spread bind)
     """
 
     weights: np.ndarray
@@ -66,6 +67,7 @@ class GridColumns:
     memory_estimate: int
     seconds: dict = field(default_factory=dict)
     devices: list = field(default_factory=list)
+    warnings: list = field(default_factory=list)
 
 
 def grid_columns(checked: Cage, points: np.ndarray, resolution: int, device, handles: slice = slice(None),

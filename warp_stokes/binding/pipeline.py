@@ -114,6 +114,8 @@ def bind(mesh, cage=None, resolution: int = 64, device=None, tol: float = 1e-6, 
     _check_arguments(tol, memory_budget, solver, boundary, sampling, method)
     resolution = check_resolution(resolution)  # arguments first: before the inputs are loaded and checked
     devices = spread_devices(device)  # several: the handles' solves spread over them (Ray tasks)
+    if devices is None and isinstance(device, (list, tuple)):
+        device = device[0]  # a list of one device
     device = resolve_device(device if devices is None else driver_device(devices))
     seconds = {}
     t = time.perf_counter()

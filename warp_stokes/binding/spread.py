@@ -20,6 +20,7 @@ import logging
 import os
 import socket
 import time
+import warnings
 
 import numpy as np
 
@@ -93,7 +94,8 @@ def spread_columns(checked, points: np.ndarray, resolution: int, devices: list[s
 
     Returns
     -------
-    GridColumns, with ``devices``: per share, the device, host, process, handle range and seconds
+    GridColumns, with ``devices``: per share, the device, the GPUs Ray gave it, host, process, handle range and
+    seconds. What a share warned of (a solve that did not converge, say) is warned of here, once.
 
     Examples
     --------
@@ -122,20 +124,36 @@ def spread_columns(checked, points: np.ndarray, resolution: int, devices: list[s
             parts = ray.get(refs)
         except ray.exceptions.RayTaskError as exc:  # the task's own error, not Ray's wrapping of it
             cause = getattr(exc, "cause", None)
-            raise (cause if isinstance(cause, Exception) else WarpStokesError(str(exc).splitlines()[0])) from None
+            raise (cause if isinstance(cause, Exception) else WarpStokesError(_first_line(exc))) from None
+        except ray.exceptions.RayError as exc:  # a worker that died (killed, out of memory), a lost node
+            raise WarpStokesError(f"a share's Ray task failed: {type(exc).__name__}: {_first_line(exc)}") from None
         wall = time.perf_counter() - start
     finally:
         if started:
             ray.shutdown()
+    for message in dict.fromkeys(m for part in parts for m in part.warnings):  # the shares' warnings, once each
+        warnings.warn(message, stacklevel=3)
     return _gathered(parts, wall)
 
 
+def _first_line(exc) -> str:
+    return (str(exc).strip().splitlines() or [""])[0]
+
+
 def _solve_share(checked, points, resolution: int, handles: slice, device: str, options: dict) -> GridColumns:
-    """One share of the handles, in a Ray worker process."""
+    """One share of the handles, in a Ray worker process; what it warned of travels back with it."""
+    import ray
+
     resolved = resolve_device(device)
-    part = grid_columns(checked, points, resolution, resolved, handles=handles, **options)
-    part.devices = [{"device": device_name(resolved), "host": socket.gethostname(), "pid": os.getpid(),
-                     "handles": [handles.start, handles.stop], "seconds": round(sum(part.seconds.values()), 4)}]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        part = grid_columns(checked, points, resolution, resolved, handles=handles, **options)
+    part.warnings = list(dict.fromkeys(str(w.message) for w in caught))
+    # the GPUs Ray gave the task: its "cuda:0" is the first of them (CUDA_VISIBLE_DEVICES)
+    gpus = [str(g) for g in ray.get_gpu_ids()] if resolved.is_cuda else []
+    part.devices = [{"device": device_name(resolved), "gpus": gpus, "host": socket.gethostname(),
+                     "pid": os.getpid(), "handles": [handles.start, handles.stop],
+                     "seconds": round(sum(part.seconds.values()), 4)}]
     return part
 
 

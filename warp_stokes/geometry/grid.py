@@ -88,9 +88,18 @@ class Grid:
     def index(self) -> np.ndarray:
         """(nx, ny, nz) int32, row of each node in ``active_ijk`` or -1."""
         if self._index is None:
-            numbered = next(a for a in self._device_arrays.values() if "index" in a)
-            self._index = numbered["index"].numpy()
+            numbered = [a["index"] for a in self._device_arrays.values() if "index" in a]
+            if not numbered:
+                raise ResolutionError("this grid has no row index: make grids with voxelize or grid_from_mask")
+            self._index = numbered[0].numpy()
         return self._index
+
+    def __getstate__(self) -> dict:
+        # pickled (Ray, multiprocessing) or copied with its host arrays only: device arrays stay where they are
+        state = dict(self.__dict__)
+        state["_index"] = self.index
+        state["_device_arrays"] = {}
+        return state
 
     @property
     def shape(self) -> tuple:
@@ -244,7 +253,7 @@ def voxelize(cage: Cage, resolution: int = 64, device=None, max_rows: int = MAX_
     origin = -0.5 * spacing * (counts - 1).astype(np.float64)
 
     shape = tuple(int(c) for c in counts)
-    # the dense node arrays (winding labels, labels, row index on the device and the host): fail before allocating
+    # the dense node arrays (VOXELIZE_NODE_BYTES: labels, classes and the row index): fail before allocating
     dense = VOXELIZE_NODE_BYTES * int(np.prod(counts))
     room = available_memory(device) if memory_budget is None else int(memory_budget)
     if dense > room:
@@ -385,7 +394,7 @@ def lattice_counts(classes: wp.array) -> tuple[wp.array, np.ndarray]:
 def lattice_rows(classes: wp.array, counts: wp.array, n_rows: int) -> tuple[wp.array, wp.array]:
     """The rows of a lattice's nodes, numbered on its device by class, then in lattice order (i, j, k; k fastest):
     (index, the (nx, ny, nz) row of each node or -1; ijk, the (n_rows,) node of each row). ``counts`` and ``n_rows``
-    come from :func:`lattice_counts` (checked there to fit 32-bit rows)."""
+    come from :func:`lattice_counts`; ``n_rows`` must fit 32-bit rows (the caller checks)."""
     device = classes.device
     first_rows = wp.empty_like(counts)
     wp.utils.array_scan(counts, first_rows, inclusive=False)

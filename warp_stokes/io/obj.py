@@ -45,6 +45,9 @@ def _read_obj_triangles(text: str):
             faces = np.loadtxt(triangles, dtype=np.int64, ndmin=2)
     except (ValueError, UserWarning):  # ragged rows (polygons of other sizes), v/vt/vn corners, unreadable numbers
         return None
+    # loadtxt skips empty and comment-only records ("v # ..."): every record must have given one row
+    if len(verts) != len(vertices) or len(faces) != len(triangles):
+        return None
     if verts.shape[1] < 3 or faces.shape[1] != 3 or faces.min() < 1:
         return None
     return np.ascontiguousarray(verts[:, :3]), faces - 1, None, None
