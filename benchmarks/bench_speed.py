@@ -142,7 +142,7 @@ def kernel_limits(mesh, cage, resolution, device, bandwidth, columns):
             lev, coarse = mg.levels[depth], mg.levels[depth + 1]
             n = lev.n
             b, x, r, d, spare = (wp.ones((n, columns), dtype=wp.vec4f) for _ in range(5))
-            structure = 0 if depth == 0 else n * (27 * 64 + 64 + 12)  # blocks, inverse diagonal, coordinates
+            structure = 0 if depth == 0 else n * (27 * 64 + 27 * 4 + 64)  # blocks, neighbour rows, inverse diagonal
             if depth == 0:
                 record("stencil A x", 0, n, lambda: apply_operator(grid, x, r, n_rows=n, device=device, precise=False),
                        2 * n * vec)
@@ -160,11 +160,11 @@ def kernel_limits(mesh, cage, resolution, device, bandwidth, columns):
             coarse_b = wp.zeros((coarse.n, columns), dtype=wp.vec4f)
             record("restriction", depth, n,
                    lambda: wp.launch(mg_kernels.restrict, dim=coarse_b.shape,
-                                     inputs=[mg.table, coarse.ijk_device, lev.index, lev.n, r], outputs=[coarse_b]),
+                                     inputs=[mg.table32, coarse.ijk_device, lev.index, lev.n, r], outputs=[coarse_b]),
                    n * vec + coarse.n * vec)
             record("prolongation (add)", depth, n,
                    lambda: wp.launch(mg_kernels.prolong_add, dim=x.shape,
-                                     inputs=[mg.table, lev.ijk_device, coarse.index, coarse_b], outputs=[x]),
+                                     inputs=[mg.table32, lev.ijk_device, coarse.index, coarse_b], outputs=[x]),
                    2 * n * vec + coarse.n * vec)
             if depth == 0:
                 out = wp.zeros(columns, dtype=wp.float64)

@@ -348,14 +348,22 @@ def galerkin_blocks(
 # batched (node, handle) operations
 
 
+@wp.kernel
+def neighbour_rows(ijk: wp.array(dtype=wp.vec3i), index: wp.array3d(dtype=wp.int32), n_rows: int,
+                   rows: wp.array2d(dtype=wp.int32)):
+    """The row of each node's 27 neighbours on a coarse level (-1: none): looked up once at setup, so that the block
+    stencils read one int per block instead of forming the neighbour's lattice point and its index each time."""
+    n, o = wp.tid()
+    rows[n, o] = node_row(index, n_rows, ijk[n] + neighbour_offset(o))
+
+
 @wp.func
-def block_row(blocks: wp.array2d(dtype=wp.mat44f), ijk: wp.array(dtype=wp.vec3i), index: wp.array3d(dtype=wp.int32),
-              x: wp.array2d(dtype=wp.vec4f), n: int, h: int):
-    """(A x)[n] for a 27-point block stencil A, column h."""
-    c = ijk[n]
+def block_row(blocks: wp.array2d(dtype=wp.mat44f), rows: wp.array2d(dtype=wp.int32), x: wp.array2d(dtype=wp.vec4f),
+              n: int, h: int):
+    """(A x)[n] for a 27-point block stencil A with neighbour rows ``rows``, column h."""
     acc = wp.vec4f(0.0)
     for o in range(27):
-        col = node_row(index, x.shape[0], c + neighbour_offset(o))
+        col = rows[n, o]
         if col >= 0:
             acc += blocks[n, o] * x[col, h]
     return acc
@@ -364,35 +372,32 @@ def block_row(blocks: wp.array2d(dtype=wp.mat44f), ijk: wp.array(dtype=wp.vec3i)
 @wp.kernel
 def stencil_apply(
     blocks: wp.array2d(dtype=wp.mat44f),
-    ijk: wp.array(dtype=wp.vec3i),
-    index: wp.array3d(dtype=wp.int32),
+    rows: wp.array2d(dtype=wp.int32),
     x: wp.array2d(dtype=wp.vec4f),
     out: wp.array2d(dtype=wp.vec4f),
 ):
     """out = A x for a 27-point block stencil A, every handle a column; launch (rows, handles)."""
     n, h = wp.tid()
-    out[n, h] = block_row(blocks, ijk, index, x, n, h)
+    out[n, h] = block_row(blocks, rows, x, n, h)
 
 
 @wp.kernel
 def stencil_residual(
     blocks: wp.array2d(dtype=wp.mat44f),
-    ijk: wp.array(dtype=wp.vec3i),
-    index: wp.array3d(dtype=wp.int32),
+    rows: wp.array2d(dtype=wp.int32),
     b: wp.array2d(dtype=wp.vec4f),
     x: wp.array2d(dtype=wp.vec4f),
     out: wp.array2d(dtype=wp.vec4f),
 ):
     """out = b - A x in one pass (out may alias b, not x); launch (rows, handles)."""
     n, h = wp.tid()
-    out[n, h] = b[n, h] - block_row(blocks, ijk, index, x, n, h)
+    out[n, h] = b[n, h] - block_row(blocks, rows, x, n, h)
 
 
 @wp.kernel
 def stencil_chebyshev_step(
     blocks: wp.array2d(dtype=wp.mat44f),
-    ijk: wp.array(dtype=wp.vec3i),
-    index: wp.array3d(dtype=wp.int32),
+    rows: wp.array2d(dtype=wp.int32),
     b: wp.array2d(dtype=wp.vec4f),
     x: wp.array2d(dtype=wp.vec4f),
     inv_diag: wp.array(dtype=wp.mat44f),
@@ -404,7 +409,7 @@ def stencil_chebyshev_step(
     """A Chebyshev step from the residual of a 27-point block stencil, in one pass: d = ca d + cb D^-1 (b - A x),
     x_next = x + d (the residual and ``chebyshev_step`` in turn, without writing the residual); x_next is not x."""
     n, h = wp.tid()
-    r = b[n, h] - block_row(blocks, ijk, index, x, n, h)
+    r = b[n, h] - block_row(blocks, rows, x, n, h)
     v = ca * d[n, h] + cb * (diagonal_block(inv_diag, n) * r)
     d[n, h] = v
     x_next[n, h] = x[n, h] + v
@@ -412,14 +417,15 @@ def stencil_chebyshev_step(
 
 @wp.kernel
 def restrict(
-    table: wp.array(dtype=wp.mat44d),
+    table: wp.array(dtype=wp.mat44f),
     coarse_ijk: wp.array(dtype=wp.vec3i),
     fine_index: wp.array3d(dtype=wp.int32),
     n_fine: int,
     r: wp.array2d(dtype=wp.vec4f),
     b: wp.array2d(dtype=wp.vec4f),
 ):
-    """b = P^T r: each coarse node gathers from the fine unknowns around it; launch (coarse rows, handles)."""
+    """b = P^T r: each coarse node gathers from the fine unknowns around it; launch (coarse rows, handles). The table in
+    float32 (its entries are halves, quarters and eighths: exact)."""
     m, h = wp.tid()
     c = coarse_ijk[m]
     acc = wp.vec4f(0.0)
@@ -427,13 +433,13 @@ def restrict(
         d = neighbour_offset(s)
         row = node_row(fine_index, n_fine, 2 * c + d)
         if row >= 0:
-            acc += wp.transpose(wp.mat44f(table[parent_entry(d)])) * r[row, h]
+            acc += wp.transpose(table[parent_entry(d)]) * r[row, h]
     b[m, h] = acc
 
 
 @wp.kernel
 def prolong_add(
-    table: wp.array(dtype=wp.mat44d),
+    table: wp.array(dtype=wp.mat44f),
     fine_ijk: wp.array(dtype=wp.vec3i),
     coarse_index: wp.array3d(dtype=wp.int32),
     xc: wp.array2d(dtype=wp.vec4f),
@@ -449,7 +455,7 @@ def prolong_add(
             d = wp.vec3i(parent[0], parent[1], parent[2])
             col = node_row(coarse_index, xc.shape[0], (f - d) / 2)
             if col >= 0:
-                acc += wp.mat44f(table[parent_entry(d)]) * xc[col, h]
+                acc += table[parent_entry(d)] * xc[col, h]
     x[n, h] = x[n, h] + acc
 
 

@@ -17,8 +17,9 @@ __all__ = ["Level", "coarsen", "hierarchy_bytes", "COARSEST_NODES", "COARSE_NODE
 #: coarsen until a level has at most this many nodes; it is then inverted densely (1600 x 1600 floats at most:
 #: 10 MiB). A lower limit adds a level below and costs CG iterations (one at n = 80 on a bulky cage, measured)
 COARSEST_NODES = 400
-#: device bytes per node of a coarse level: 27 blocks of the operator, the diagonal's inverse, its coordinates
-COARSE_NODE_BYTES = 27 * 64 + 64 + 12
+#: device bytes per node of a coarse level: 27 blocks of the operator and its neighbours' rows, the diagonal's
+#: inverse, its coordinates
+COARSE_NODE_BYTES = 27 * 64 + 27 * 4 + 64 + 12
 
 
 @dataclass
@@ -28,6 +29,7 @@ class Level:
     index: wp.array  # lattice -> row (rows >= n are not unknowns of this level), or -1
     ijk_device: wp.array | None = None  # ijk on the device
     blocks: wp.array | None = None  # (n, 27) mat44f operator blocks; None on the fine level (the 19-point stencil)
+    rows: wp.array | None = None  # (n, 27) int32 rows of each node's neighbours (-1: none); coarse levels
     inv_diag: wp.array | None = None  # (n,) mat44 inverses of the diagonal blocks ((1,) on the fine level)
     lmax: float = 0.0
     work: dict = field(default_factory=dict)
@@ -78,7 +80,7 @@ def coarsen(grid: Grid, device=None, coarsest_nodes: int = COARSEST_NODES) -> li
 def hierarchy_bytes(levels: list[Level]) -> int:
     """Device bytes of the operators a :class:`Multigrid` forms on ``levels`` (coarse blocks, diagonals, node
     coordinates, lattice indices, the coarsest level's dense inverse), shared by all handles."""
-    total = 64 * 128 + 64  # the prolongation's table (64 float64 blocks), the fine level's diagonal block
+    total = 64 * (128 + 64) + 64  # the prolongation's table (64 blocks, float64 and float32), the fine diagonal block
     for lev in levels[1:]:
         total += COARSE_NODE_BYTES * lev.n + 4 * lev.index.size
     coarsest = 4 * levels[-1].n
