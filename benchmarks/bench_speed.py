@@ -189,6 +189,11 @@ def throughput(device, resolution, count):
 def fresh(args, device, cold: bool):
     mesh, cage = PAIRS[args.pair]
     env = dict(os.environ)
+    # as installed: Python's bytecode of warp and the package compiled once (pip does it), not every start (an
+    # environment that sets PYTHONDONTWRITEBYTECODE, as the lent GPU machines do, added 1.1 s to each fresh bind)
+    env.pop("PYTHONDONTWRITEBYTECODE", None)
+    subprocess.run([sys.executable, "-m", "compileall", "-q", os.path.dirname(wp.__file__),
+                    os.path.dirname(ws.__file__)], capture_output=True, env=env)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         if cold:
