@@ -163,7 +163,8 @@ class Grid:
                         axis=1).astype(np.int32)
 
     def device_arrays(self, device) -> dict:
-        """``index``, ``active_ijk`` and the stencil's ``patches`` on ``device`` (uploaded once per device)."""
+        """``index``, ``active_ijk``, the stencil's ``patches`` and the smoother step's ``step_patches`` on ``device``
+        (uploaded once per device)."""
         d = resolve_device(device)
         arrays = self._device_arrays.setdefault(d.alias, {})
         if "index" not in arrays:
@@ -171,6 +172,7 @@ class Grid:
             arrays["active_ijk"] = wp.array(self.active_ijk, dtype=wp.vec3i, device=d)
         if "patches" not in arrays:
             arrays["patches"] = wp.array(self.interior_patches(), dtype=wp.vec4i, device=d)
+            arrays["step_patches"] = wp.array(self.interior_patches(stencil.STEP_PATCH), dtype=wp.vec4i, device=d)
         return arrays
 
 

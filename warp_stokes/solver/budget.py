@@ -117,7 +117,8 @@ def estimate_memory(grid: Grid, n_vertices: int = 0, preconditioner: str = "mult
         # the coarsest level's dense inverse (float32) does not shrink with the resolution: at most this
         dense = 4 * (4 * COARSEST_NODES) ** 2
     work = (2 * VEC4 * n_int + 4 * VEC4 * coarse) if multigrid else 0.0
-    patches = 16 * n_int / 16  # an item per 2 x 2 columns and up to 64 planes: fewer than one per 16 nodes
+    # an item per 2 x 2 columns and up to 64 planes: fewer than one per 16 nodes; the smoother step's 1 x 2: one per 8
+    patches = 16 * n_int / 16 + 16 * n_int / 8
     base = DEVICE_NODE_BYTES * nodes + 12 * n_act + patches + hierarchy
     on_cpu = resolve_device(device).is_cpu
     if on_cpu:

@@ -96,7 +96,7 @@ def chebyshev_step(grid: Grid, field: wp.array, rhs: wp.array, d: wp.array, ca: 
         raise ValueError("chebyshev_step: out must not be field")
     device = resolve_device(device)
     arrays = grid.device_arrays(device)
-    patches = arrays["patches"]
+    patches = arrays["step_patches"]
     groups = -(-field.shape[1] // stencil.GROUP)
     wp.launch(stencil.chebyshev_step_fast, dim=(groups, patches.shape[0], stencil.GROUP),
               inputs=[field, arrays["index"], patches, int(n_rows), rhs, float(ca), float(cb), d], outputs=[out],
