@@ -34,7 +34,7 @@ import warp as wp
 import warp_stokes as ws
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import PAIRS, DevicePeak, markdown_table, select_device, warm_up  # noqa: E402
+from common import PAIRS, DevicePeak, markdown_table, select_device, time_kernel, warm_up  # noqa: E402
 
 #: kernels of the fine-level stencil: one application of the compact operator (or the Laplace one) per launch, and
 #: the smoother's one-pass residual (which also reads the right-hand side: three streams instead of two)
@@ -99,20 +99,6 @@ def profile(mesh, cage, resolution, device, repeats, bandwidth):
     return row, top
 
 
-def _gpu_seconds(launch, device, repeats: int = 5) -> float:
-    """Median GPU time of ``launch()`` between two CUDA events (one warm-up run first)."""
-    launch()
-    times = []
-    for _ in range(repeats):
-        start, end = wp.Event(device, enable_timing=True), wp.Event(device, enable_timing=True)
-        wp.record_event(start)
-        launch()
-        wp.record_event(end)
-        wp.synchronize_event(end)
-        times.append(wp.get_event_elapsed_time(start, end) / 1e3)
-    return statistics.median(times)
-
-
 def kernel_limits(mesh, cage, resolution, device, bandwidth, columns):
     """Each kernel of the solver's V-cycle and CG step timed alone on the pair's multigrid (the fine level and the
     first two coarse ones, ``columns`` handles), beside the bytes it must move at least (each vector it reads or
@@ -132,7 +118,7 @@ def kernel_limits(mesh, cage, resolution, device, bandwidth, columns):
     vec = 16 * columns  # bytes of one vector entry per node, all columns
 
     def record(name, depth, n, launch, nbytes):
-        seconds = _gpu_seconds(launch, device)
+        seconds = time_kernel(device, launch, repeats=5)
         limit = nbytes / bandwidth
         rows.append((name, depth, f"{n:,}", f"{1e3 * seconds:.2f}", f"{nbytes / 1e9:.2f}", f"{1e3 * limit:.2f}",
                      f"{limit / seconds:.0%}"))

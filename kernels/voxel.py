@@ -154,7 +154,6 @@ def cut_off_nodes(
     facing: float,
     max_change: float,
     labels: wp.array3d(dtype=wp.int8),
-    count: wp.array(dtype=wp.int32),
 ):
     """RING (known data) for interior nodes that a thin wedge of outside space cuts off from a stencil neighbour:
     an interior neighbour on the wedge's other side (the link enters and leaves through two walls that face each
@@ -202,7 +201,6 @@ def cut_off_nodes(
                         cut = facing_walls and near_along_the_cage(faces, adjacent, wall, closest.face)
     if cut:
         labels[i, j, k] = wp.int8(RING)
-        wp.atomic_add(count, 0, 1)
 
 
 # -- numbering: the active nodes in (class, lattice order), computed on the device one (i, j) column per thread --------

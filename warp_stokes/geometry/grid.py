@@ -361,7 +361,7 @@ def wedge_resolution(cage: Cage, boundary="local", device=None) -> int | None:
 
 def _wedge_cut_off(cage: Cage, mesh: wp.Mesh, inside: wp.array, origin, spacing: float, boundary):
     """The launch that moves interior nodes cut off by thin wedges to the ring (see :func:`voxelize`), as a function
-    of the labels array that returns how many it moved; run after the ring and band are marked."""
+    of the labels array; run after the ring and band are marked (the numbering counts the nodes it moved)."""
     from .local_boundary import boundary_settings, data_slopes  # the local data's module builds on this one
 
     settings = boundary_settings(boundary)
@@ -375,11 +375,8 @@ def _wedge_cut_off(cage: Cage, mesh: wp.Mesh, inside: wp.array, origin, spacing:
               wp.array(data_slopes(cage, settings, device).astype(np.float32), dtype=float, device=device), inside,
               wp.vec3(*np.asarray(origin, dtype=np.float32)), float(spacing), WEDGE_FACING, CUT_OFF_MAX_CHANGE]
 
-    def cut_off(labels: wp.array) -> int:
-        count = wp.zeros(1, dtype=wp.int32, device=device)
-        wp.launch(voxel.cut_off_nodes, dim=labels.shape, inputs=[mesh.id, *inputs], outputs=[labels, count],
-                  device=device)
-        return int(count.numpy()[0])
+    def cut_off(labels: wp.array) -> None:
+        wp.launch(voxel.cut_off_nodes, dim=labels.shape, inputs=[mesh.id, *inputs], outputs=[labels], device=device)
 
     return cut_off
 

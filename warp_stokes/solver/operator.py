@@ -59,13 +59,9 @@ def apply_operator(grid: Grid, field: wp.array, out: wp.array, n_rows: int | Non
         wp.launch(laplace.apply_laplacian if precise else laplace.apply_laplacian_fast, dim=out.shape,
                   inputs=[field, arrays["index"], arrays["active_ijk"], int(n_rows)], outputs=[out], device=device)
     else:
-        patches = arrays["patches"]
-        groups = -(-field.shape[1] // stencil.GROUP)
         kernel = stencil.residual_operator_fast if fused else (
             stencil.apply_operator if precise else stencil.apply_operator_fast)
-        wp.launch(kernel, dim=(groups, patches.shape[0], stencil.GROUP),
-                  inputs=[field, arrays["index"], patches, int(n_rows), *([rhs] if fused else [])], outputs=[out],
-                  device=device, block_dim=stencil.BLOCK_DIM)
+        _walk(kernel, arrays, arrays["patches"], field, n_rows, [rhs] if fused else [], out, device)
     if rhs is not None and not fused:
         wp.launch(cg.residual, dim=out.shape, inputs=[rhs, out], outputs=[out], device=device)
 
@@ -96,8 +92,15 @@ def chebyshev_step(grid: Grid, field: wp.array, rhs: wp.array, d: wp.array, ca: 
         raise ValueError("chebyshev_step: out must not be field")
     device = resolve_device(device)
     arrays = grid.device_arrays(device)
-    patches = arrays["step_patches"]
+    _walk(stencil.chebyshev_step_fast, arrays, arrays["step_patches"], field, n_rows, [rhs, float(ca), float(cb), d],
+          out, device)
+
+
+def _walk(kernel, arrays: dict, patches: wp.array, field: wp.array, n_rows: int, extra: list, out: wp.array,
+          device) -> None:
+    """Launch one of the stencil's patch walks (``stencil.operator_kernel``) over ``patches``: (handle groups,
+    patches, GROUP) in blocks of BLOCK_DIM, with ``extra`` inputs after the walk's own."""
     groups = -(-field.shape[1] // stencil.GROUP)
-    wp.launch(stencil.chebyshev_step_fast, dim=(groups, patches.shape[0], stencil.GROUP),
-              inputs=[field, arrays["index"], patches, int(n_rows), rhs, float(ca), float(cb), d], outputs=[out],
-              device=device, block_dim=stencil.BLOCK_DIM)
+    wp.launch(kernel, dim=(groups, patches.shape[0], stencil.GROUP),
+              inputs=[field, arrays["index"], patches, int(n_rows), *extra], outputs=[out], device=device,
+              block_dim=stencil.BLOCK_DIM)
