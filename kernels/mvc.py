@@ -139,3 +139,16 @@ def complement_column(n_handles: int, weights: wp.array2d(dtype=wp.float64)):
     for c in range(n_handles):
         total += weights[n, c]
     weights[n, n_handles] = wp.float64(1.0) - total
+
+
+@wp.kernel
+def node_positions(
+    ijk: wp.array(dtype=wp.vec3i),
+    origin: wp.vec3d,
+    spacing: wp.float64,
+    positions: wp.array(dtype=wp.vec3d),
+):
+    """positions[n] = origin + spacing ijk[n]: the nodes' positions where the MVC kernel reads them."""
+    n = wp.tid()
+    c = ijk[n]
+    positions[n] = origin + spacing * wp.vec3d(wp.float64(c[0]), wp.float64(c[1]), wp.float64(c[2]))

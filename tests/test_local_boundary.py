@@ -35,6 +35,23 @@ def test_normal_derivatives_reproduce_zero_and_the_normal(arm_cage, settings, de
     assert np.abs(g @ arm_cage.vertices - unit_normals(arm_cage)).max() < 1e-10
 
 
+def test_normal_derivatives_are_computed_once_per_cage_and_settings(arm_cage, device, monkeypatch):
+    from warp_stokes.geometry import local_boundary
+
+    calls = []
+    compute = local_boundary._normal_derivatives
+    monkeypatch.setattr(local_boundary, "_normal_derivatives", lambda *a: calls.append(a) or compute(*a))
+    monkeypatch.setattr(local_boundary, "_NORMAL_DERIVATIVES", type(local_boundary._NORMAL_DERIVATIVES)())
+    first = normal_derivatives(arm_cage, ws.LocalData(), device=device)
+    first[:] = 0.0  # the caller's copy: the kept one is not changed
+    again = normal_derivatives(arm_cage, ws.LocalData(), device=device)
+    assert len(calls) == 1 and np.abs(again.sum(axis=1)).max() < 1e-12 and np.abs(again).max() > 0
+    other = normal_derivatives(arm_cage, ws.LocalData(model="least-norm"), device=device)
+    moved = ws.geometry.cage.Cage(arm_cage.vertices + 1.0, arm_cage.faces, "moved")
+    normal_derivatives(moved, ws.LocalData(), device=device)
+    assert len(calls) == 3 and not np.allclose(other, again)
+
+
 def test_normal_derivatives_stay_on_handles_near_the_face_along_the_cage(device):
     cage = u_cage()
     g = normal_derivatives(cage, ws.LocalData(), device=device)

@@ -51,6 +51,17 @@ def test_levels_shrink_and_coarse_operators_are_galerkin_products(arm_hierarchy)
         assert np.bincount(rows).max() <= 27
 
 
+def test_the_coarsest_inverse_computed_beside_the_setup_inverts_the_coarsest_operator(arm_hierarchy):
+    grid, mg = arm_hierarchy
+    depth = len(mg.levels) - 1
+    n = mg.level_sizes[depth]
+    dense = to_scipy(mg.operator_triplets(depth), n, n).toarray()
+    inverse = mg.coarse_inverse.numpy().astype(np.float64)  # waits for the host thread the first time
+    assert inverse.shape == (4 * n, 4 * n) and mg.coarse_inverse is mg.coarse_inverse
+    assert np.abs(inverse @ dense - np.eye(4 * n)).max() < 1e-3
+    assert mg.seconds["coarsest"] > 0
+
+
 def test_hierarchy_memory_is_known_before_it_is_formed(arm_hierarchy, device):
     grid, mg = arm_hierarchy
     levels = ws.coarsen(grid, device, coarsest_nodes=60)

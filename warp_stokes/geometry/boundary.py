@@ -121,7 +121,11 @@ def boundary_field(grid: Grid, cage: Cage, device=None, handles: slice = slice(N
     data = _data_for(grid, data)
     first, stop, _ = handles.indices(cage.n_handles)
     n_columns = stop - first + (COMPLEMENT_COLUMNS if complement else 0)
-    positions = wp.array(grid.node_positions(), dtype=wp.vec3d, device=device)
+    # formed on the device from the nodes' coordinates there (at n = 512, 0.2 s on the host and a 120 MB copy)
+    positions = wp.empty(grid.n_active, dtype=wp.vec3d, device=device)
+    wp.launch(mvc.node_positions, dim=grid.n_active, inputs=[grid.device_arrays(device)["active_ijk"],
+                                                                wp.vec3d(*grid.origin), wp.float64(grid.spacing)],
+              outputs=[positions], device=device)
     values = wp.empty((grid.n_active, n_columns), dtype=wp.float64, device=device)
     _mvc_on_device(cage, grid.centre, positions, handles, device, out=values[:, 0 : stop - first])
     if complement:

@@ -15,7 +15,8 @@ One V-cycle for all handles at once (every handle a column of the level arrays):
   pair at n = 512 took 27 CG iterations with degree 3 everywhere, 19 with this, in 21% less time, H100), lmax 1.2
   times the estimate of 40 power iterations (12 underestimated it by 20% at n = 512, and higher degrees then
   diverged); it is a fixed polynomial, so the V-cycle is a symmetric preconditioner;
-- coarsest level: a dense inverse computed once in float64.
+- coarsest level: a dense inverse computed once in float64, on a host thread while the device estimates the
+  smoother's eigenvalues and the bind forms its boundary data (it is first needed by the first V-cycle).
 
 Harmonic coordinates (``equation="laplace"``, the 7-point operator of ``warp_stokes.kernels.laplace``) use the same
 cycle with a trilinear prolongation of each of (q, G): their gradient rows are identity rows, decoupled.
@@ -28,6 +29,7 @@ No general sparse matrix is involved: warp.sparse addresses block values with 32
 from __future__ import annotations
 
 import time
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import warp as wp
@@ -56,6 +58,19 @@ SMOOTHING_RANGE = 30.0
 POWER_ITERATIONS = 40
 #: the power iteration's estimate approaches lmax from below: the smoother's upper end is this much above it
 LMAX_SAFETY = 1.2
+
+#: inverts the coarsest operators on the host (LAPACK releases the GIL), beside the device's work
+_HOST = ThreadPoolExecutor(max_workers=1, thread_name_prefix="warp-stokes-coarsest")
+
+
+def _dense_inverse(dense: np.ndarray) -> tuple[np.ndarray, float]:
+    """(float32 inverse of ``dense``, seconds it took); the pseudo-inverse of a singular matrix."""
+    start = time.perf_counter()
+    try:
+        inverse = np.linalg.inv(dense)
+    except np.linalg.LinAlgError:
+        inverse = np.linalg.pinv(dense)
+    return inverse.astype(np.float32), time.perf_counter() - start
 
 
 class Multigrid:
@@ -125,14 +140,18 @@ class Multigrid:
             wp.launch(mg_kernels.diagonal_inverse, dim=coarse.n, inputs=[coarse.blocks], outputs=[coarse.inv_diag])
             wp.synchronize_device()
             self.seconds["galerkin"].append(time.perf_counter() - start)
-        start = time.perf_counter()
-        dense = self._dense(len(self.levels) - 1)
-        try:
-            inverse = np.linalg.inv(dense)
-        except np.linalg.LinAlgError:
-            inverse = np.linalg.pinv(dense)
-        self.coarse_inverse = wp.array(inverse.astype(np.float32), dtype=wp.float32)
-        self.seconds["coarsest"] = time.perf_counter() - start
+        self._coarse_inverse = None
+        self._coarse_future = _HOST.submit(_dense_inverse, self._dense(len(self.levels) - 1))
+
+    @property
+    def coarse_inverse(self) -> wp.array:
+        """The coarsest operator's inverse, (4 n, 4 n) float32 on the device; waits for the host thread that
+        computes it (its time is ``seconds["coarsest"]``)."""
+        if self._coarse_inverse is None:
+            inverse, self.seconds["coarsest"] = self._coarse_future.result()
+            self._coarse_inverse = wp.array(inverse, dtype=wp.float32, device=self.device)
+            self._coarse_future = None
+        return self._coarse_inverse
 
     def _dense(self, depth: int) -> np.ndarray:
         rows, cols, blocks = self.operator_triplets(depth)
@@ -145,6 +164,7 @@ class Multigrid:
         """lmax of D^-1 A per level (all but the coarsest) by power iteration on one random column, on the
         device: v <- D^-1 A v / |v|, and lmax = |D^-1 A v| for the last unit v."""
         start = time.perf_counter()
+        norms = []
         for depth, lev in enumerate(self.levels[:-1]):
             v = wp.empty((lev.n, 1), dtype=wp.vec4f)
             wp.launch(mg_kernels.random_column, dim=lev.n, inputs=[depth], outputs=[v])
@@ -157,11 +177,12 @@ class Multigrid:
                 wp.launch(cg.column_dots, dim=(threads, 1), inputs=[v, v, threads], outputs=[squared])
                 wp.launch(mg_kernels.divide_column, dim=lev.n, inputs=[v, squared])
                 self._apply_A(depth, v, av)
-                z.zero_()
-                wp.launch(mg_kernels.chebyshev_start, dim=(lev.n, 1), inputs=[av, lev.inv_diag, 1.0], outputs=[z, av])
+                wp.launch(mg_kernels.chebyshev_first, dim=(lev.n, 1), inputs=[av, lev.inv_diag, 1.0], outputs=[z, av])
                 v, z = z, v
             squared.zero_()
             wp.launch(cg.column_dots, dim=(threads, 1), inputs=[v, v, threads], outputs=[squared])
+            norms.append(squared)
+        for lev, squared in zip(self.levels, norms):  # read once all levels are launched: one wait, not one each
             lev.lmax = LMAX_SAFETY * float(np.sqrt(squared.numpy()[0]))
         self.seconds["eigenvalues"] = time.perf_counter() - start
 
