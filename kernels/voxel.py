@@ -290,3 +290,62 @@ def number_classes(classes: wp.array3d(dtype=wp.int8), first_rows: wp.array(dtyp
         index[i, j, k] = row
         if row >= 0:
             ijk[row] = wp.vec3i(i, j, k)
+
+
+# -- the stencil's work items: runs along z of patches of columns that hold interior nodes, one patch column per thread
+
+@wp.func
+def patch_holds_interior(labels: wp.array3d(dtype=wp.int8), i0: int, j0: int, pi: int, pj: int, k: int):
+    """Whether one of the pi x pj columns from (i0, j0) has an interior node in plane k."""
+    for di in range(pi):
+        for dj in range(pj):
+            i = i0 + di
+            j = j0 + dj
+            if i < labels.shape[0] and j < labels.shape[1]:
+                if int(labels[i, j, k]) == INTERIOR:
+                    return True
+    return False
+
+
+@wp.kernel
+def count_patch_items(labels: wp.array3d(dtype=wp.int8), pi: int, pj: int, max_length: int,
+                      counts: wp.array(dtype=wp.int32)):
+    """Work items of patch column (a, b): each run of planes where the patch holds an interior node, in pieces of at
+    most ``max_length``; at counts[a * patch columns along y + b] (scanned, each column's first item)."""
+    a, b = wp.tid()
+    columns_y = (labels.shape[1] + pj - 1) // pj
+    items = int(0)
+    run = int(0)
+    for k in range(labels.shape[2]):
+        if patch_holds_interior(labels, a * pi, b * pj, pi, pj, k):
+            run += 1
+        else:
+            items += (run + max_length - 1) // max_length
+            run = 0
+    items += (run + max_length - 1) // max_length
+    counts[a * columns_y + b] = items
+
+
+@wp.kernel
+def write_patch_items(labels: wp.array3d(dtype=wp.int8), pi: int, pj: int, max_length: int,
+                      first: wp.array(dtype=wp.int32), items: wp.array(dtype=wp.vec4i)):
+    """The items counted by ``count_patch_items`` from each patch column's first: (i0, j0, k0, planes), in k order."""
+    a, b = wp.tid()
+    columns_y = (labels.shape[1] + pj - 1) // pj
+    out = first[a * columns_y + b]
+    nz = labels.shape[2]
+    start = int(-1)
+    for k in range(nz + 1):
+        holds = bool(False)
+        if k < nz:
+            holds = patch_holds_interior(labels, a * pi, b * pj, pi, pj, k)
+        if holds:
+            if start < 0:
+                start = k
+        elif start >= 0:
+            s = start
+            while s < k:
+                items[out] = wp.vec4i(a * pi, b * pj, s, wp.min(max_length, k - s))
+                out += 1
+                s += max_length
+            start = -1

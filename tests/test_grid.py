@@ -1,10 +1,11 @@
 import numpy as np
 import pytest
 import trimesh
+import warp as wp
 from scipy import ndimage
 
 import warp_stokes as ws
-from conftest import PAIRS, box_cage, pair
+from conftest import PAIRS, box_cage, pair, slit_cage
 from warp_stokes.kernels import labels as L
 
 
@@ -106,6 +107,24 @@ def test_interior_patches_cover_each_interior_node_once(arm_cage, patch, max_len
     if max_length == 64:
         whole = grid.interior_patches(patch, 10**6)
         assert whole[:, 3].sum() == length.sum() and len(items) == np.sum(-(-whole[:, 3] // max_length))
+
+
+@pytest.mark.parametrize("cage_name", ["arm", "slit"])
+def test_patches_made_on_the_device_are_the_hosts(arm_cage, cage_name, device):
+    from warp_stokes.geometry.grid import device_patches
+    from warp_stokes.kernels import stencil
+
+    cage = arm_cage if cage_name == "arm" else slit_cage()[0]  # with nodes cut off (RING inside the cage)
+    grid = ws.voxelize(cage, 24, device=device)
+    made = grid._device_arrays[ws.resolve_device(device).alias]  # what voxelize left for the stencil
+    assert np.array_equal(made["patches"].numpy(), grid.interior_patches((stencil.PATCH_I, stencil.PATCH_J)))
+    assert np.array_equal(made["step_patches"].numpy(), grid.interior_patches(stencil.STEP_PATCH))
+    labels = wp.array(grid.labels, dtype=wp.int8, device=device)
+    for patch, max_length in (((1, 1), 1), ((3, 2), 7), ((2, 5), 10**6)):
+        assert np.array_equal(device_patches(labels, patch, max_length).numpy(),
+                              grid.interior_patches(patch, max_length)), (patch, max_length)
+    empty = wp.zeros((6, 6, 6), dtype=wp.int8, device=device)
+    assert device_patches(empty, (2, 2)).shape == (0,)
 
 
 def test_interior_patches_reject_empty_shapes(arm_cage, device):

@@ -164,7 +164,7 @@ class Grid:
 
     def device_arrays(self, device) -> dict:
         """``index``, ``active_ijk``, the stencil's ``patches`` and the smoother step's ``step_patches`` on ``device``
-        (uploaded once per device)."""
+        (made there by ``voxelize``; uploaded once per other device)."""
         d = resolve_device(device)
         arrays = self._device_arrays.setdefault(d.alias, {})
         if "index" not in arrays:
@@ -428,6 +428,9 @@ def _number_nodes(inside: wp.array, centre, origin, spacing, resolution, device,
             )
         index, active_ijk = lattice_rows(classes, counts, n_active)
         del classes, counts
+        # the stencil's work items from the labels where they are (on the host: 0.4-0.6 s each at n = 512)
+        patches = device_patches(labels, (stencil.PATCH_I, stencil.PATCH_J))
+        step_patches = device_patches(labels, stencil.STEP_PATCH)
         labels_np = labels.numpy()
         grid = Grid(
             centre=np.asarray(centre, dtype=np.float64),
@@ -442,5 +445,35 @@ def _number_nodes(inside: wp.array, centre, origin, spacing, resolution, device,
             n_cut_off=n_cut_off,
         )
     # the device's numbering is the grid's (the host copy of the index is made when first read)
-    grid._device_arrays[device.alias] = {"index": index, "active_ijk": active_ijk}
+    grid._device_arrays[device.alias] = {"index": index, "active_ijk": active_ijk, "patches": patches,
+                                         "step_patches": step_patches}
     return grid
+
+
+def device_patches(labels: wp.array, patch: tuple, max_length: int = PATCH_LENGTH) -> wp.array:
+    """:meth:`Grid.interior_patches` (the same items in the same order) from a grid's labels on their device: a
+    count per patch column, a scan, a walk; the host reads the total only.
+
+    Parameters
+    ----------
+    labels : wp.array3d of int8, the grid's labels
+    patch : (int, int), columns per patch along x and y
+    max_length : int
+
+    Returns
+    -------
+    wp.array of vec4i (i0, j0, k0, planes), on the labels' device
+    """
+    pi, pj = (int(p) for p in patch)
+    device = labels.device
+    columns = (-(-labels.shape[0] // pi), -(-labels.shape[1] // pj))
+    counts = wp.empty(columns[0] * columns[1], dtype=wp.int32, device=device)
+    wp.launch(voxel.count_patch_items, dim=columns, inputs=[labels, pi, pj, int(max_length)], outputs=[counts],
+              device=device)
+    first = wp.empty_like(counts)
+    wp.utils.array_scan(counts, first, inclusive=False)
+    total = int(first[-1:].numpy()[0] + counts[-1:].numpy()[0])
+    items = wp.empty(max(total, 1), dtype=wp.vec4i, device=device)[:total]
+    wp.launch(voxel.write_patch_items, dim=columns, inputs=[labels, pi, pj, int(max_length), first],
+              outputs=[items], device=device)
+    return items
