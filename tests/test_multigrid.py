@@ -81,6 +81,28 @@ def test_a_grid_beyond_the_row_limit_is_refused_naming_a_resolution_that_fits(ar
     assert ws.voxelize(arm_cage, suggested, device=device, max_rows=limit).n_active <= limit
 
 
+def test_a_recorded_operator_launch_replays_the_product_against_scipy(arm_hierarchy, device):
+    # the power iteration replays recorded launches: the replay computes A x like a launch, and follows the arrays'
+    # contents (not their values when recorded)
+    grid, mg = arm_hierarchy
+    rng = np.random.default_rng(7)
+    for depth in (0, 1):
+        n = mg.level_sizes[depth]
+        A = to_scipy(mg.operator_triplets(depth), n, n)
+        x = wp.zeros((n, 2), dtype=wp.vec4f, device=device)
+        out = wp.empty_like(x)
+        launch = mg._apply_A(depth, x, out, record_cmd=True)
+        assert isinstance(launch, wp.Launch)
+        for _ in range(2):
+            x_np = rng.standard_normal((n, 2, 4)).astype(np.float32)
+            x.assign(x_np)
+            launch.launch()
+            expected = (A @ x_np.transpose(0, 2, 1).reshape(4 * n, 2)).reshape(n, 4, 2).transpose(0, 2, 1)
+            assert np.abs(out.numpy() - expected).max() <= 1e-4 * np.abs(expected).max()
+    with pytest.raises(ValueError, match="two passes"):
+        ws.solver.operator.apply_operator(grid, x, out, device=device, rhs=wp.empty_like(out), record_cmd=True)
+
+
 def test_residuals_in_one_pass_match_the_operator_against_scipy(arm_hierarchy, device):
     # the smoother's r = b - A x in one kernel, on the fine level (the compact scheme, float32 sums) and on a coarse
     # level (the Galerkin blocks), against b - A x with the scipy matrices of operator_triplets (float64)

@@ -28,7 +28,8 @@ def check_equation(equation: str) -> str:
 
 
 def apply_operator(grid: Grid, field: wp.array, out: wp.array, n_rows: int | None = None, device=None,
-                   precise: bool = True, equation: str = "biharmonic", rhs: wp.array | None = None) -> None:
+                   precise: bool = True, equation: str = "biharmonic", rhs: wp.array | None = None,
+                   record_cmd: bool = False) -> "wp.Launch | None":
     """``out = A field`` (or ``rhs - A field``) at the interior rows, for every handle (one launch).
 
     Parameters
@@ -43,6 +44,12 @@ def apply_operator(grid: Grid, field: wp.array, out: wp.array, n_rows: int | Non
     rhs : wp.array2d(vec4f), optional, (grid.n_interior, handles): write ``rhs - A field`` instead; one pass for the
         biharmonic scheme with float32 sums (the smoother's residuals), where ``out`` may be ``rhs``; otherwise two
         passes, and ``out`` must not be ``rhs``
+    record_cmd : bool, return the launch as a ``wp.Launch`` to replay (``.launch()``) instead of launching it (one
+        pass only)
+
+    Returns
+    -------
+    wp.Launch with ``record_cmd``, else None
 
     Examples
     --------
@@ -55,15 +62,20 @@ def apply_operator(grid: Grid, field: wp.array, out: wp.array, n_rows: int | Non
     fused = rhs is not None and equation == "biharmonic" and not precise
     if rhs is not None and not fused and rhs.ptr == out.ptr:
         raise ValueError("apply_operator: out may be rhs only for the biharmonic scheme with precise=False")
+    if rhs is not None and not fused and record_cmd:
+        raise ValueError("apply_operator: a residual in two passes cannot be recorded as one launch")
     if equation == "laplace":
-        wp.launch(laplace.apply_laplacian if precise else laplace.apply_laplacian_fast, dim=out.shape,
-                  inputs=[field, arrays["index"], arrays["active_ijk"], int(n_rows)], outputs=[out], device=device)
+        launch = wp.launch(laplace.apply_laplacian if precise else laplace.apply_laplacian_fast, dim=out.shape,
+                           inputs=[field, arrays["index"], arrays["active_ijk"], int(n_rows)], outputs=[out],
+                           device=device, record_cmd=record_cmd)
     else:
         kernel = stencil.residual_operator_fast if fused else (
             stencil.apply_operator if precise else stencil.apply_operator_fast)
-        _walk(kernel, arrays, arrays["patches"], field, n_rows, [rhs] if fused else [], out, device)
+        launch = _walk(kernel, arrays, arrays["patches"], field, n_rows, [rhs] if fused else [], out, device,
+                       record_cmd)
     if rhs is not None and not fused:
         wp.launch(cg.residual, dim=out.shape, inputs=[rhs, out], outputs=[out], device=device)
+    return launch
 
 
 def chebyshev_step(grid: Grid, field: wp.array, rhs: wp.array, d: wp.array, ca: float, cb: float, out: wp.array,
@@ -97,10 +109,10 @@ def chebyshev_step(grid: Grid, field: wp.array, rhs: wp.array, d: wp.array, ca: 
 
 
 def _walk(kernel, arrays: dict, patches: wp.array, field: wp.array, n_rows: int, extra: list, out: wp.array,
-          device) -> None:
+          device, record_cmd: bool = False) -> "wp.Launch | None":
     """Launch one of the stencil's patch walks (``stencil.operator_kernel``) over ``patches``: (handle groups,
-    patches, GROUP) in blocks of BLOCK_DIM, with ``extra`` inputs after the walk's own."""
+    patches, GROUP) in blocks of BLOCK_DIM, with ``extra`` inputs after the walk's own (or return it recorded)."""
     groups = -(-field.shape[1] // stencil.GROUP)
-    wp.launch(kernel, dim=(groups, patches.shape[0], stencil.GROUP),
-              inputs=[field, arrays["index"], patches, int(n_rows), *extra], outputs=[out], device=device,
-              block_dim=stencil.BLOCK_DIM)
+    return wp.launch(kernel, dim=(groups, patches.shape[0], stencil.GROUP),
+                     inputs=[field, arrays["index"], patches, int(n_rows), *extra], outputs=[out], device=device,
+                     block_dim=stencil.BLOCK_DIM, record_cmd=record_cmd)
