@@ -62,6 +62,17 @@ def test_the_coarsest_inverse_computed_beside_the_setup_inverts_the_coarsest_ope
     assert mg.seconds["coarsest"] > 0
 
 
+def test_the_coarsest_inverse_on_a_host_thread_is_the_one_computed_in_turn(arm_hierarchy, device, monkeypatch):
+    # GPUs invert on a host thread (the CPU in turn): the same matrix, bit for bit, once the thread is done
+    from warp_stokes.solver import multigrid
+
+    grid, in_turn = arm_hierarchy
+    monkeypatch.setattr(multigrid, "_inverts_beside", lambda device: True)
+    beside = ws.Multigrid(grid, device=device, coarsest_nodes=60)
+    assert np.array_equal(beside.coarse_inverse.numpy(), in_turn.coarse_inverse.numpy())
+    assert beside.seconds["coarsest"] > 0
+
+
 def test_hierarchy_memory_is_known_before_it_is_formed(arm_hierarchy, device):
     grid, mg = arm_hierarchy
     levels = ws.coarsen(grid, device, coarsest_nodes=60)

@@ -15,8 +15,8 @@ One V-cycle for all handles at once (every handle a column of the level arrays):
   pair at n = 512 took 27 CG iterations with degree 3 everywhere, 19 with this, in 21% less time, H100), lmax 1.2
   times the estimate of 40 power iterations (12 underestimated it by 20% at n = 512, and higher degrees then
   diverged); it is a fixed polynomial, so the V-cycle is a symmetric preconditioner;
-- coarsest level: a dense inverse computed once in float64, on a host thread while the device estimates the
-  smoother's eigenvalues and the bind forms its boundary data (it is first needed by the first V-cycle).
+- coarsest level: a dense inverse computed once in float64; for a GPU, on a host thread while the device estimates
+  the smoother's eigenvalues and the bind forms its boundary data (it is first needed by the first V-cycle).
 
 Harmonic coordinates (``equation="laplace"``, the 7-point operator of ``warp_stokes.kernels.laplace``) use the same
 cycle with a trilinear prolongation of each of (q, G): their gradient rows are identity rows, decoupled.
@@ -29,7 +29,7 @@ No general sparse matrix is involved: warp.sparse addresses block values with 32
 from __future__ import annotations
 
 import time
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 
 import numpy as np
 import warp as wp
@@ -61,6 +61,12 @@ LMAX_SAFETY = 1.2
 
 #: inverts the coarsest operators on the host (LAPACK releases the GIL), beside the device's work
 _HOST = ThreadPoolExecutor(max_workers=1, thread_name_prefix="warp-stokes-coarsest")
+
+
+def _inverts_beside(device) -> bool:
+    """Whether the coarsest inverse is computed on a host thread beside the device's work: for a GPU. On the CPU its
+    kernels run on the cores LAPACK would use, and the memory plan counts host memory: there it is computed in turn."""
+    return device.is_cuda
 
 
 def _dense_inverse(dense: np.ndarray) -> tuple[np.ndarray, float]:
@@ -141,7 +147,12 @@ class Multigrid:
             wp.synchronize_device()
             self.seconds["galerkin"].append(time.perf_counter() - start)
         self._coarse_inverse = None
-        self._coarse_future = _HOST.submit(_dense_inverse, self._dense(len(self.levels) - 1))
+        dense = self._dense(len(self.levels) - 1)
+        if _inverts_beside(self.device):
+            self._coarse_future = _HOST.submit(_dense_inverse, dense)
+        else:
+            self._coarse_future = Future()
+            self._coarse_future.set_result(_dense_inverse(dense))
 
     @property
     def coarse_inverse(self) -> wp.array:
