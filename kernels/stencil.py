@@ -62,7 +62,7 @@ def operator_kernel(scalar, patch=(PATCH_I, PATCH_J), residual: bool = False, ch
     (their edge terms): six values per column and plane, three planes in registers. Against one thread per
     column keeping three whole planes (the form before, bound by L2 bandwidth) this more than halves the rows
     loaded per interior node (4.4-4.9 against 9.3-10.1 on the real cages, runs included), and the loads that
-    miss L1 are what limited it (benchmarks/RESULTS.md: 60-65% of the copy bandwidth at n = 256 on an H100,
+    miss L1 are what limited it (benchmarks/HISTORY.md: 60-65% of the copy bandwidth at n = 256 on an H100,
     against 54-55%)."""
     PI, PJ = patch
     W = PJ + 2

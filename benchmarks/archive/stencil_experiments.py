@@ -1,4 +1,4 @@
-"""Experiments on the stencil kernel's form, measured on an H100 (benchmarks/RESULTS.md, "What limits the stencil").
+"""Experiments on the stencil kernel's form, measured on an H100 (benchmarks/HISTORY.md, "What limits the stencil").
 
 None of these kernels is used by the package; they record what was tried and measured against its kernel
 (``warp_stokes.kernels.stencil``, float32 sums unless named f64): until the fourth session the line walk now
@@ -681,7 +681,7 @@ def main_layout():
 # ------------------------------------------------------------------------------------------------------------
 # patches: one thread walks a BI x BJ patch of columns along z, each plane loaded once ((BI + 2)(BJ + 2) rows for
 # BI * BJ nodes) and reduced to per-column terms: the package kernel (kernels/stencil.py) for any patch shape.
-# Its first form kept all four equations' plane terms in the sum type; RESULTS.md's shape table is from that form.
+# Its first form kept all four equations' plane terms in the sum type; HISTORY.md's shape table is from that form.
 
 
 def main_patches():

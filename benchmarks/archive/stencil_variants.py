@@ -52,7 +52,7 @@ def line_kernel(scalar):
     for one handle, keeping the planes below, at and above the current node in registers: each step loads
     one new plane (9 neighbours) instead of the 18 neighbours of the node: neighbours are shared through
     registers rather than re-read from cache, which is what limited the one-thread-per-node form (31-35% of
-    the copy bandwidth on an H100 against 44-57% for this one with float32 sums, benchmarks/RESULTS.md)."""
+    the copy bandwidth on an H100 against 44-57% for this one with float32 sums, benchmarks/HISTORY.md)."""
     vec4 = wp.types.vector(length=4, dtype=scalar)
 
     @wp.func
