@@ -1,6 +1,6 @@
 """Variants of the batched 19-point stencil, timed against a device-to-device copy on the same GPU.
 
-    python benchmarks/bench_stencil.py --device cuda:0 --pair ogre --resolutions 128 256
+    python benchmarks/archive/bench_stencil.py --device cuda:0 --pair ogre --resolutions 128 256
 
 Bytes counted: 32 per (interior node, handle): the packed (q, G) read once and the result written once.
 Variants (all read and write the package's (node row, handle) vec4 layout, handles innermost):
@@ -39,7 +39,7 @@ import warp_stokes as ws
 from warp_stokes.kernels import stencil
 
 HERE = Path(__file__).resolve().parent
-sys.path[:0] = [str(HERE), str(HERE / "archive")]  # the earlier forms (lines, lean, pairs) are in archive/
+sys.path[:0] = [str(HERE), str(HERE.parent)]  # the earlier forms (lines, lean, pairs) beside it, common.py above
 from common import copy_bandwidth, pair, select_device, table_head, table_row, time_kernel  # noqa: E402
 import stencil_variants as sv  # noqa: E402
 

@@ -1,6 +1,6 @@
 """Repeated whole binds of one pair: the median wall time of `ws.bind` (load to weights) after a warm-up.
 
-    python benchmarks/bench_repeat.py --pair ogre --resolutions 128 256 --repeats 5 --device cuda:0
+    python benchmarks/archive/bench_repeat.py --pair ogre --resolutions 128 256 --repeats 5 --device cuda:0
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from pathlib import Path
 
 import warp_stokes as ws
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from common import pair, select_device, warm_up  # noqa: E402
 
 
