@@ -74,10 +74,11 @@ def run(manifest: Path, outdir: Path, extra: list[str]) -> dict:
     done = [a for a in assets if a["status"] == "ok"]
     devices = sorted({a.get("device", "") for a in done})
     pids = sorted({a.get("pid") for a in done})
-    # the steady state: each binding is renamed into place when its asset is complete, so the files' times say when
-    # the assets finished; from the first to the last, starting Python, Ray and the workers is left out
-    finished = sorted(os.path.getmtime(o) for a in done for o in a["outputs"] if o.endswith(".npz"))
-    steady = 60.0 * (len(finished) - 1) / (finished[-1] - finished[0]) if len(finished) > 2 else float("nan")
+    # the steady state: when each asset finished, by the time its last output was written (a binding, then its
+    # animation), from the first asset to the last: starting Python, Ray and the workers is left out
+    finished = sorted(max(os.path.getmtime(o) for o in a["outputs"]) for a in done if a["outputs"])
+    span = finished[-1] - finished[0] if len(finished) > 1 else 0.0
+    steady = 60.0 * (len(finished) - 1) / span if span > 0 else float("nan")
     return {"wall_s": wall, "ok": len(done), "failed": sum(a["status"] == "failed" for a in assets),
             "bind_s": sum(a["seconds"] for a in done), "devices": devices, "processes": len(pids),
             "steady": steady, "errors": [a["error"] for a in assets if a["status"] == "failed"][:3]}

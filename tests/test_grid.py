@@ -125,6 +125,9 @@ def test_patches_made_on_the_device_are_the_hosts(arm_cage, cage_name, device):
                               grid.interior_patches(patch, max_length)), (patch, max_length)
     empty = wp.zeros((6, 6, 6), dtype=wp.int8, device=device)
     assert device_patches(empty, (2, 2)).shape == (0,)
+    for patch, max_length in (((0, 2), 4), ((2, 2), 0)):
+        with pytest.raises(ValueError, match="must be positive"):
+            device_patches(labels, patch, max_length)
 
 
 def test_interior_patches_reject_empty_shapes(arm_cage, device):

@@ -41,15 +41,23 @@ def test_normal_derivatives_are_computed_once_per_cage_and_settings(arm_cage, de
     calls = []
     compute = local_boundary._normal_derivatives
     monkeypatch.setattr(local_boundary, "_normal_derivatives", lambda *a: calls.append(a) or compute(*a))
-    monkeypatch.setattr(local_boundary, "_NORMAL_DERIVATIVES", type(local_boundary._NORMAL_DERIVATIVES)())
+    monkeypatch.setattr(local_boundary, "_KEPT_DERIVATIVES", type(local_boundary._KEPT_DERIVATIVES)())
     first = normal_derivatives(arm_cage, ws.LocalData(), device=device)
     first[:] = 0.0  # the caller's copy: the kept one is not changed
     again = normal_derivatives(arm_cage, ws.LocalData(), device=device)
     assert len(calls) == 1 and np.abs(again.sum(axis=1)).max() < 1e-12 and np.abs(again).max() > 0
     other = normal_derivatives(arm_cage, ws.LocalData(model="least-norm"), device=device)
-    moved = ws.geometry.cage.Cage(arm_cage.vertices + 1.0, arm_cage.faces, "moved")
-    normal_derivatives(moved, ws.LocalData(), device=device)
-    assert len(calls) == 3 and not np.allclose(other, again)
+    assert len(calls) == 2 and not np.allclose(other, again)
+    # a float32 copy of the cage is computed from float64 arrays: the same numbers, the same key
+    single = ws.geometry.cage.Cage(arm_cage.vertices.astype(np.float32).astype(np.float64), arm_cage.faces, "single")
+    as_float32 = ws.geometry.cage.Cage(arm_cage.vertices.astype(np.float32), arm_cage.faces, "float32")
+    assert np.array_equal(normal_derivatives(as_float32, device=device), normal_derivatives(single, device=device))
+    assert len(calls) == 3
+    # the last KEPT_CAGES cages are kept: later ones evict the oldest (the arm's two)
+    for shift in range(1, local_boundary.KEPT_CAGES):
+        normal_derivatives(ws.geometry.cage.Cage(arm_cage.vertices + shift, arm_cage.faces, "moved"), device=device)
+    normal_derivatives(arm_cage, ws.LocalData(), device=device)
+    assert len(calls) == 3 + (local_boundary.KEPT_CAGES - 1) + 1
 
 
 def test_normal_derivatives_stay_on_handles_near_the_face_along_the_cage(device):

@@ -51,7 +51,7 @@ def test_levels_shrink_and_coarse_operators_are_galerkin_products(arm_hierarchy)
         assert np.bincount(rows).max() <= 27
 
 
-def test_the_coarsest_inverse_computed_beside_the_setup_inverts_the_coarsest_operator(arm_hierarchy):
+def test_the_coarsest_inverse_inverts_the_coarsest_operator(arm_hierarchy):
     grid, mg = arm_hierarchy
     depth = len(mg.levels) - 1
     n = mg.level_sizes[depth]
@@ -64,13 +64,40 @@ def test_the_coarsest_inverse_computed_beside_the_setup_inverts_the_coarsest_ope
 
 def test_the_coarsest_inverse_on_a_host_thread_is_the_one_computed_in_turn(arm_hierarchy, device, monkeypatch):
     # GPUs invert on a host thread (the CPU in turn): the same matrix, bit for bit, once the thread is done
+    import threading
+
     from warp_stokes.solver import multigrid
 
     grid, in_turn = arm_hierarchy
+    threads = []
+    invert = multigrid._dense_inverse
+    monkeypatch.setattr(multigrid, "_dense_inverse", lambda dense: threads.append(threading.current_thread().name)
+                        or invert(dense))
     monkeypatch.setattr(multigrid, "_inverts_beside", lambda device: True)
     beside = ws.Multigrid(grid, device=device, coarsest_nodes=60)
     assert np.array_equal(beside.coarse_inverse.numpy(), in_turn.coarse_inverse.numpy())
-    assert beside.seconds["coarsest"] > 0
+    assert len(threads) == 1 and threads[0].startswith("warp-stokes-coarsest")
+    assert beside.seconds["coarsest"] > 0 and beside.seconds["coarsest_wait"] >= 0
+
+
+def test_the_smoothers_largest_eigenvalues_are_estimated_from_below_against_scipy(arm_hierarchy):
+    # lmax of D^-1 A per level, from the replayed power iteration, against scipy's (D the 4 x 4 diagonal blocks):
+    # the estimate approaches it from below (|D^-1 A v| for a unit v may pass it slightly: D^-1 A is not symmetric),
+    # and the smoother's end is LMAX_SAFETY above the estimate
+    import scipy.sparse.linalg as spla
+
+    from warp_stokes.solver.multigrid import LMAX_SAFETY
+
+    grid, mg = arm_hierarchy
+    for depth in (0, 1):
+        n = mg.level_sizes[depth]
+        A = to_scipy(mg.operator_triplets(depth), n, n)
+        inv_diag = mg.levels[depth].inv_diag.numpy().astype(np.float64)
+        blocks = np.broadcast_to(inv_diag, (n, 4, 4)) if len(inv_diag) == 1 else inv_diag
+        D_inv = sp.block_diag(list(blocks), format="csr")
+        exact = abs(spla.eigs(D_inv @ A, k=1, which="LM", return_eigenvectors=False)[0])
+        estimate = mg.levels[depth].lmax / LMAX_SAFETY
+        assert 0.9 * exact <= estimate <= 1.01 * exact, (depth, estimate, exact)
 
 
 def test_hierarchy_memory_is_known_before_it_is_formed(arm_hierarchy, device):

@@ -465,6 +465,8 @@ def device_patches(labels: wp.array, patch: tuple, max_length: int = PATCH_LENGT
     wp.array of vec4i (i0, j0, k0, planes), on the labels' device
     """
     pi, pj = (int(p) for p in patch)
+    if pi < 1 or pj < 1 or not 1 <= max_length < 2**30:
+        raise ValueError(f"patch {patch} and max_length {max_length} must be positive (max_length below 2^30)")
     device = labels.device
     columns = (-(-labels.shape[0] // pi), -(-labels.shape[1] // pj))
     counts = wp.empty(columns[0] * columns[1], dtype=wp.int32, device=device)

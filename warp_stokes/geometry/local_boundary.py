@@ -19,7 +19,9 @@ cage has no gaps and removes the coupling across them.
 from __future__ import annotations
 
 import collections
+import dataclasses
 import hashlib
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -132,11 +134,20 @@ def cage_graph_distances(cage: Cage) -> np.ndarray:
     return d
 
 
+#: normal derivatives of the last KEPT_CAGES cages, by cage arrays, settings and device (a cage of 400 handles:
+#: 800 x 400 float64, 2.6 MB each)
+KEPT_CAGES = 4
+_KEPT_DERIVATIVES: collections.OrderedDict = collections.OrderedDict()
+_KEPT_LOCK = threading.Lock()
+#: faces per batch of the 4 x 4 systems: the batch's (faces, handles, 4) float64 arrays stay near 8 MB
+FACES_PER_BATCH_HANDLES = 1 << 18
+
+
 def normal_derivatives(cage: Cage, settings: LocalData = LocalData(), device=None) -> np.ndarray:
     """Per-face normal derivatives g of the handles' data, with sum_l g_l = 0 and sum_l g_l c_l = n_f.
 
-    A bind needs them three times (the folded-edge cut-off, its resolution check and the ring data): the last few
-    cages' are kept (:data:`_NORMAL_DERIVATIVES`), keyed by the cage's arrays, the settings and the device.
+    A bind needs them three times (the folded-edge cut-off, its resolution check and the ring data): those of the
+    last :data:`KEPT_CAGES` cages are kept, keyed by the cage's arrays, the settings and the device.
 
     Parameters
     ----------
@@ -155,21 +166,23 @@ def normal_derivatives(cage: Cage, settings: LocalData = LocalData(), device=Non
     (True, True)
     """
     device = resolve_device(device)
-    key = (hashlib.sha1(np.ascontiguousarray(cage.vertices, dtype=np.float64).tobytes()
-                        + np.ascontiguousarray(cage.faces, dtype=np.int64).tobytes()).hexdigest(),
-           settings, str(device) if settings.model == "mvc-cut" else None)
-    if key in _NORMAL_DERIVATIVES:
-        _NORMAL_DERIVATIVES.move_to_end(key)
-    else:
-        _NORMAL_DERIVATIVES[key] = _normal_derivatives(cage, settings, device)
-        while len(_NORMAL_DERIVATIVES) > _KEPT:
-            _NORMAL_DERIVATIVES.popitem(last=False)
-    return _NORMAL_DERIVATIVES[key].copy()
-
-
-#: normal derivatives of the last few cages (a cage of 400 handles: 800 x 400 float64, 2.6 MB)
-_NORMAL_DERIVATIVES: collections.OrderedDict = collections.OrderedDict()
-_KEPT = 4
+    vertices = np.ascontiguousarray(cage.vertices, dtype=np.float64)
+    faces = np.ascontiguousarray(cage.faces, dtype=np.int64)
+    if vertices is not cage.vertices or faces is not cage.faces:  # computed from the arrays the key is made of
+        cage = dataclasses.replace(cage, vertices=vertices, faces=faces)
+    key = (vertices.shape, faces.shape, hashlib.sha1(vertices.tobytes() + faces.tobytes()).hexdigest(), settings,
+           str(device) if settings.model == "mvc-cut" else None)
+    with _KEPT_LOCK:
+        kept = _KEPT_DERIVATIVES.get(key)
+        if kept is not None:
+            _KEPT_DERIVATIVES.move_to_end(key)
+    if kept is None:
+        kept = _normal_derivatives(cage, settings, device)
+        with _KEPT_LOCK:
+            _KEPT_DERIVATIVES[key] = kept
+            while len(_KEPT_DERIVATIVES) > KEPT_CAGES:
+                _KEPT_DERIVATIVES.popitem(last=False)
+    return kept.copy()
 
 
 def _normal_derivatives(cage: Cage, settings: LocalData, device) -> np.ndarray:
@@ -185,14 +198,20 @@ def _normal_derivatives(cage: Cage, settings: LocalData, device) -> np.ndarray:
     if settings.model == "mvc-cut":
         start = _mvc_normal_derivatives(cage, mean_edge, device) * (distance <= settings.radius * mean_edge)
     # per face, the least weighted change to `start` that meets the constraints, on (1, c - centroid) for
-    # conditioning: all faces at once, a (4, 4) system each
-    a = np.concatenate([np.ones((len(f), len(v), 1)), v[None] - v[f].mean(axis=1)[:, None]], axis=2)  # (F, L, 4)
-    aw = a * inverse_weight[:, :, None]
-    solve = np.linalg.inv(np.einsum("fla,flb->fab", aw, a))
+    # conditioning: a (4, 4) system each, solved for batches of faces at once
     target = np.concatenate([np.zeros((len(f), 1)), normals], axis=1)  # (F, 4)
-    change = np.einsum("fab,fb->fa", solve, target - np.einsum("fla,fl->fa", a, start))
-    out = start + np.einsum("fla,fa->fl", aw, change)
-    least = np.einsum("fla,fa->fl", aw, np.einsum("fab,fb->fa", solve, target))
+    out = np.empty_like(start)
+    least = np.empty_like(start)
+    per_batch = max(1, FACES_PER_BATCH_HANDLES // max(len(v), 1))
+    for first in range(0, len(f), per_batch):
+        batch = slice(first, first + per_batch)
+        a = np.concatenate([np.ones((len(f[batch]), len(v), 1)), v[None] - v[f[batch]].mean(axis=1)[:, None]],
+                           axis=2)  # (faces, L, 4)
+        aw = a * inverse_weight[batch, :, None]
+        solve = np.linalg.inv(np.einsum("fla,flb->fab", aw, a))
+        change = np.einsum("fab,fb->fa", solve, target[batch] - np.einsum("fla,fl->fa", a, start[batch]))
+        out[batch] = start[batch] + np.einsum("fla,fa->fl", aw, change)
+        least[batch] = np.einsum("fla,fa->fl", aw, np.einsum("fab,fb->fa", solve, target[batch]))
     share = np.full((len(f), 1), settings.least_norm_share if settings.model == "mvc-cut" else 1.0)
     if settings.model == "mvc-cut" and settings.fold_radius > 0:
         ends = np.unique(folded_edges(cage, settings.fold_degrees))

@@ -59,7 +59,9 @@ POWER_ITERATIONS = 40
 #: the power iteration's estimate approaches lmax from below: the smoother's upper end is this much above it
 LMAX_SAFETY = 1.2
 
-#: inverts the coarsest operators on the host (LAPACK releases the GIL), beside the device's work
+#: inverts the coarsest operators on the host (LAPACK releases the GIL), beside the device's work. One worker:
+#: hierarchies formed faster than they are inverted wait in turn (each holds its dense matrix, at most 20 MB, until
+#: then); a process forked from one that used it must not use it (CUDA forbids forking anyway)
 _HOST = ThreadPoolExecutor(max_workers=1, thread_name_prefix="warp-stokes-coarsest")
 
 
@@ -156,10 +158,13 @@ class Multigrid:
 
     @property
     def coarse_inverse(self) -> wp.array:
-        """The coarsest operator's inverse, (4 n, 4 n) float32 on the device; waits for the host thread that
-        computes it (its time is ``seconds["coarsest"]``)."""
+        """The coarsest operator's inverse, (4 n, 4 n) float32 on the device. For a GPU it is computed on a host
+        thread: the first read waits for it. ``seconds["coarsest"]`` is the inversion's time (0 until read),
+        ``seconds["coarsest_wait"]`` how long that first read waited (part of the first solve's time)."""
         if self._coarse_inverse is None:
+            start = time.perf_counter()
             inverse, self.seconds["coarsest"] = self._coarse_future.result()
+            self.seconds["coarsest_wait"] = time.perf_counter() - start
             self._coarse_inverse = wp.array(inverse, dtype=wp.float32, device=self.device)
             self._coarse_future = None
         return self._coarse_inverse
@@ -175,7 +180,8 @@ class Multigrid:
         """lmax of D^-1 A per level (all but the coarsest) by power iteration on one random column, on the
         device: v <- D^-1 A v / |v|, and lmax = |D^-1 A v| for the last unit v."""
         start = time.perf_counter()
-        norms = []
+        # each level's |D^-1 A v|^2 in one array, read once all levels are launched: one wait and one copy
+        norms = wp.zeros(max(len(self.levels) - 1, 1), dtype=wp.float64)
         for depth, lev in enumerate(self.levels[:-1]):
             v = wp.empty((lev.n, 1), dtype=wp.vec4f)
             wp.launch(mg_kernels.random_column, dim=lev.n, inputs=[depth], outputs=[v])
@@ -189,14 +195,13 @@ class Multigrid:
             for k in range(POWER_ITERATIONS):
                 squared.zero_()
                 for launch in iterations[k % 2]:
-                    launch.launch()
+                    if launch is not None:  # wp.launch records nothing for an empty launch
+                        launch.launch()
             if POWER_ITERATIONS % 2:
                 v = z
-            squared.zero_()
-            wp.launch(cg.column_dots, dim=(threads, 1), inputs=[v, v, threads], outputs=[squared])
-            norms.append(squared)
-        for lev, squared in zip(self.levels, norms):  # read once all levels are launched: one wait, not one each
-            lev.lmax = LMAX_SAFETY * float(np.sqrt(squared.numpy()[0]))
+            wp.launch(cg.column_dots, dim=(threads, 1), inputs=[v, v, threads], outputs=[norms[depth : depth + 1]])
+        for lev, squared in zip(self.levels[:-1], norms.numpy()):
+            lev.lmax = LMAX_SAFETY * float(np.sqrt(squared))
         self.seconds["eigenvalues"] = time.perf_counter() - start
 
     # -- inspection -----------------------------------------------------------------------------------------------
@@ -365,7 +370,8 @@ class Multigrid:
         """Device bytes held by the hierarchy, counted from its arrays (coarse operators, diagonals, node
         coordinates, lattice indices, the coarsest inverse); the fine level's index and coordinates are the
         grid's, and its diagonal is one block."""
-        total = (self.coarse_inverse.capacity + self.table.capacity + self.table32.capacity
+        # the coarsest inverse counted from its size: reading it would wait for the thread that computes it
+        total = (4 * (4 * self.levels[-1].n) ** 2 + self.table.capacity + self.table32.capacity
                  + self.levels[0].inv_diag.capacity)
         for lev in self.levels[1:]:
             total += (lev.blocks.capacity + lev.rows.capacity + lev.inv_diag.capacity + lev.ijk_device.capacity

@@ -49,7 +49,7 @@ def apply_operator(grid: Grid, field: wp.array, out: wp.array, n_rows: int | Non
 
     Returns
     -------
-    wp.Launch with ``record_cmd``, else None
+    wp.Launch with ``record_cmd`` (None when there is nothing to launch: no interior row or no column), else None
 
     Examples
     --------
