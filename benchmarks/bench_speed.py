@@ -146,11 +146,13 @@ def kernel_limits(mesh, cage, resolution, device, bandwidth, columns):
             coarse_b = wp.zeros((coarse.n, columns), dtype=wp.vec4f)
             record("restriction", depth, n,
                    lambda: wp.launch(mg_kernels.restrict, dim=coarse_b.shape,
-                                     inputs=[mg.table32, coarse.ijk_device, lev.index, lev.n, r], outputs=[coarse_b]),
+                                     inputs=[mg.table32, coarse.ijk_device, lev.index, lev.n,
+                                             wp.vec3i(*coarse.shift), r], outputs=[coarse_b]),
                    n * vec + coarse.n * vec)
             record("prolongation (add)", depth, n,
                    lambda: wp.launch(mg_kernels.prolong_add, dim=x.shape,
-                                     inputs=[mg.table32, lev.ijk_device, coarse.index, coarse_b], outputs=[x]),
+                                     inputs=[mg.table32, lev.ijk_device, coarse.index, wp.vec3i(*coarse.shift),
+                                             coarse_b], outputs=[x]),
                    2 * n * vec + coarse.n * vec)
             if depth == 0:
                 out = wp.zeros(columns, dtype=wp.float64)

@@ -43,6 +43,14 @@ def add_columns(a: wp.array2d(dtype=wp.vec4f), b: wp.array2d(dtype=wp.vec4f), ou
 
 
 @wp.kernel
+def clear_columns(x: wp.array2d(dtype=wp.vec4f), cleared: wp.array(dtype=wp.int32)):
+    """x[:, h] = 0 for every handle h with cleared[h] != 0."""
+    n, h = wp.tid()
+    if cleared[h] != 0:
+        x[n, h] = wp.vec4f(0.0)
+
+
+@wp.kernel
 def column_dots(
     a: wp.array2d(dtype=wp.vec4f),
     b: wp.array2d(dtype=wp.vec4f),

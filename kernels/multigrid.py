@@ -128,21 +128,33 @@ def stencil_blocks(
 
 
 @wp.kernel
+def parity_counts(fine_ijk: wp.array(dtype=wp.vec3i), counts: wp.array(dtype=wp.int32)):
+    """counts[px + 2 py + 4 pz] += 1 for each fine unknown of parities (px, py, pz): how many coarse nodes each
+    lattice shift would keep under :func:`coarse_nodes`; launch (fine rows,) on zeroed counts."""
+    f = fine_ijk[wp.tid()]
+    wp.atomic_add(counts, (f[0] % 2) + 2 * (f[1] % 2) + 4 * (f[2] % 2), 1)
+
+
+@wp.kernel
 def coarse_nodes(
     fine_index: wp.array3d(dtype=wp.int32),
     n_fine: int,
+    shift: wp.vec3i,
     classes: wp.array3d(dtype=wp.int8),
 ):
-    """Coarse node c is kept (class 0, else -1) when at least 27 / 8 of the 27 fine nodes f with |f - 2c| <= 1 around
-    it are fine unknowns (the fine level's share of its support)."""
+    """Coarse node c is kept (class 0, else -1) when the fine node 2c + shift under it is a fine unknown.
+
+    Why: a fine node at 2c + shift has one parent, and the prolongation's block there is diagonal (the identity, G
+    halved to the finer spacing), so P has such a row block for every kept coarse node: |P v| >= |v| / 2, and every
+    Galerkin operator P^T A P is positive definite, its smallest eigenvalue at least a quarter of the finer
+    operator's. A rule that kept a coarse node for the fine unknowns around it (at least 27 / 8 of them) kept nodes
+    that only a thin layer of fine nodes between them supported; two such nodes could prolong to the same few fine
+    values, and the coarsest operator was singular (a human cage at n = 29 and 33, a flat ellipsoid at 21-30, a thin
+    neck at 30-46). The shift (0 or 1 along each axis, chosen per level from :func:`parity_counts`) keeps coarsening
+    going where the finer unknowns are a layer of odd coordinates (a thin sheet): with shift 0 none would be kept."""
     i, j, k = wp.tid()
-    centre = wp.vec3i(2 * i, 2 * j, 2 * k)
-    count = int(0)
-    for s in range(27):
-        if node_row(fine_index, n_fine, centre + neighbour_offset(s)) >= 0:
-            count += 1
     kept = wp.int8(-1)
-    if count * 8 >= 27:
+    if node_row(fine_index, n_fine, wp.vec3i(2 * i, 2 * j, 2 * k) + shift) >= 0:
         kept = wp.int8(0)
     classes[i, j, k] = kept
 
@@ -243,15 +255,17 @@ def prolongation_triplets(
     fine_ijk: wp.array(dtype=wp.vec3i),
     coarse_index: wp.array3d(dtype=wp.int32),
     n_coarse: int,
+    shift: wp.vec3i,
     table: wp.array(dtype=wp.mat44d),
     rows: wp.array(dtype=int),
     cols: wp.array(dtype=int),
     blocks: wp.array(dtype=wp.mat44f),
 ):
     """P's blocks for each fine unknown as 8 triplet slots (parents), -1 where a parent does not exist or is not
-    kept: P as a matrix, for inspection and tests (the V-cycle applies P and P^T with the kernels below)."""
+    kept: P as a matrix, for inspection and tests (the V-cycle applies P and P^T with the kernels below). Coarse node
+    c sits on the fine node 2c + shift."""
     n = wp.tid()
-    f = fine_ijk[n]
+    f = fine_ijk[n] - shift
     for slot in range(8):
         parent = parent_slot(f, slot)
         d = wp.vec3i(parent[0], parent[1], parent[2])
@@ -303,6 +317,7 @@ def galerkin_blocks(
     n_fine: int,
     fine_blocks: wp.array2d(dtype=wp.mat44f),
     fine_operator: int,
+    shift: wp.vec3i,
     table: wp.array(dtype=wp.mat44d),
     blocks: wp.array2d(dtype=wp.mat44f),
 ):
@@ -312,7 +327,8 @@ def galerkin_blocks(
     BLOCKS), the 19-point stencil (BIHARMONIC) or the 7-point one (LAPLACE); sums in float64.
 
     (P^T A P)[c, c'] = sum over the fine unknowns f around c (|f - 2c| <= 1) of P[f, c]^T (A P)[f, c'], with
-    (A P)[f, c'] = sum over A's neighbours g of f that lie around c' (|g - 2c'| <= 1) of A[f, g] P[g, c']."""
+    (A P)[f, c'] = sum over A's neighbours g of f that lie around c' (|g - 2c'| <= 1) of A[f, g] P[g, c'] (fine
+    coordinates less ``shift``: coarse node c sits on the fine node 2c + shift)."""
     m, u = wp.tid()
     o = CENTRE + u
     c = coarse_ijk[m]
@@ -324,14 +340,14 @@ def galerkin_blocks(
     for s in range(27):
         ds = neighbour_offset(s)
         f = 2 * c + ds
-        row_f = node_row(fine_index, n_fine, f)
+        row_f = node_row(fine_index, n_fine, f + shift)
         if row_f >= 0:
             ap = wp.mat44d()
             for t in range(27):
                 dt = neighbour_offset(t)
                 e = f + dt - 2 * other
                 if wp.abs(e[0]) <= 1 and wp.abs(e[1]) <= 1 and wp.abs(e[2]) <= 1:
-                    if node_row(fine_index, n_fine, f + dt) >= 0:
+                    if node_row(fine_index, n_fine, f + dt + shift) >= 0:
                         if fine_operator == BIHARMONIC:
                             ap += stencil_times(dt, table[parent_entry(e)])
                         elif fine_operator == LAPLACE:
@@ -421,17 +437,19 @@ def restrict(
     coarse_ijk: wp.array(dtype=wp.vec3i),
     fine_index: wp.array3d(dtype=wp.int32),
     n_fine: int,
+    shift: wp.vec3i,
     r: wp.array2d(dtype=wp.vec4f),
     b: wp.array2d(dtype=wp.vec4f),
 ):
-    """b = P^T r: each coarse node gathers from the fine unknowns around it; launch (coarse rows, handles). The table in
-    float32 (its entries are halves, quarters and eighths: exact)."""
+    """b = P^T r: each coarse node gathers from the fine unknowns around it (coarse node c sits on the fine node
+    2c + shift); launch (coarse rows, handles). The table in float32 (its entries are halves, quarters and eighths:
+    exact)."""
     m, h = wp.tid()
     c = coarse_ijk[m]
     acc = wp.vec4f(0.0)
     for s in range(27):
         d = neighbour_offset(s)
-        row = node_row(fine_index, n_fine, 2 * c + d)
+        row = node_row(fine_index, n_fine, 2 * c + d + shift)
         if row >= 0:
             acc += wp.transpose(table[parent_entry(d)]) * r[row, h]
     b[m, h] = acc
@@ -442,12 +460,14 @@ def prolong_add(
     table: wp.array(dtype=wp.mat44f),
     fine_ijk: wp.array(dtype=wp.vec3i),
     coarse_index: wp.array3d(dtype=wp.int32),
+    shift: wp.vec3i,
     xc: wp.array2d(dtype=wp.vec4f),
     x: wp.array2d(dtype=wp.vec4f),
 ):
-    """x += P xc: each fine unknown gathers from its kept parents; launch (fine rows, handles)."""
+    """x += P xc: each fine unknown gathers from its kept parents (coarse node c sits on the fine node 2c + shift);
+    launch (fine rows, handles)."""
     n, h = wp.tid()
-    f = fine_ijk[n]
+    f = fine_ijk[n] - shift
     acc = wp.vec4f(0.0)
     for slot in range(8):
         parent = parent_slot(f, slot)
@@ -518,6 +538,25 @@ def chebyshev_step(
     v = a * d[n, h] + b * (diagonal_block(inv_diag, n) * r[n, h])
     d[n, h] = v
     x[n, h] = x[n, h] + v
+
+
+@wp.kernel
+def row_sum_bound(
+    blocks: wp.array2d(dtype=wp.mat44f),
+    inv_diag: wp.array(dtype=wp.mat44f),
+    slot: int,
+    bound: wp.array(dtype=wp.float32),
+):
+    """bound[slot] = max over rows of sum_j |(D^-1 A)_ij| for a 27-point block stencil: a guaranteed upper bound of the
+    largest eigenvalue of D^-1 A (its infinity norm); launch (rows,)."""
+    n = wp.tid()
+    sums = wp.vec4f(0.0)
+    d_inv = inv_diag[n]
+    for o in range(NEIGHBOURS):
+        b = d_inv * blocks[n, o]
+        for r in range(4):
+            sums[r] += wp.abs(b[r, 0]) + wp.abs(b[r, 1]) + wp.abs(b[r, 2]) + wp.abs(b[r, 3])
+    wp.atomic_max(bound, slot, wp.max(wp.max(sums[0], sums[1]), wp.max(sums[2], sums[3])))
 
 
 @wp.kernel

@@ -110,7 +110,9 @@ def test_deform_on_the_host_matches_the_kernel(bindings, device):
     kernel = ws.deform_vertices(weights_t, poses, device=device)
     np.testing.assert_allclose(host, kernel, atol=1e-4)
     np.testing.assert_allclose(host[2], b.weights.astype(np.float64) @ poses[2], atol=1e-4)
-    np.testing.assert_allclose(ws.binding.deform.deform_on_host(b.weights, poses[1]), host[1], atol=1e-6)
+    # one pose alone and within a batch: float32 products summed in another order, so within their rounding
+    rounding = 8 * np.finfo(np.float32).eps * (np.abs(b.weights) @ np.abs(poses[1])).max()
+    np.testing.assert_allclose(ws.binding.deform.deform_on_host(b.weights, poses[1]), host[1], rtol=0, atol=rounding)
 
 
 def test_deform_with_a_cage_file_and_topology_check(bindings, tmp_path):

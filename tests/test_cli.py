@@ -50,12 +50,44 @@ def test_errors_are_one_line_and_exit_non_zero(tmp_path, capsys, args, message):
 
 
 def test_an_unconverged_bind_exits_non_zero(tmp_path, capsys, device):
+    # weights that break partition of unity and linear precision are never written: one line, exit code 1, and
+    # advice that holds (the Jacobi CG was still converging when its limit of 2 stopped it)
     out = tmp_path / "arm.npz"
     rc = main(["bind", str(EXAMPLE / "arm.obj"), str(EXAMPLE / "arm_cage.obj"), "-o", str(out),
                "--resolution", "16", "--device", device, "--solver", "jacobi", "--max-iterations", "2"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 1 and not out.exists() and len(err) == 1, err
+    assert err[0].startswith("warp-stokes: error: the solver could not bring partition of unity and linear "
+                             "precision within 1e-05") and err[0].endswith("while still converging (residual "
+                                                                           + err[0].split("(residual ")[-1])
+    assert "no weights were returned" in err[0] and err[0].endswith("raise the limit")
+    # a residual short of a tolerance float32 cannot reach, with exact weights: written, said so, exit code 1
+    rc = main(["bind", str(EXAMPLE / "arm.obj"), str(EXAMPLE / "arm_cage.obj"), "-o", str(out),
+               "--resolution", "16", "--device", device, "--tol", "1e-9"])
     captured = capsys.readouterr()
-    assert rc == 1 and out.exists()
-    assert "did not converge" in captured.err and "NOT converged" in captured.out
+    assert rc == 1 and out.exists() and "NOT converged" in captured.out
+    assert "the solver did not reach tol 1e-09" in captured.err and "float32 accuracy limit" in captured.err
+    assert ws.load_binding(out).stats["partition_of_unity_error"] <= 1e-6
+
+
+def test_a_recovered_solve_says_so_once(tmp_path):
+    # the command in a process of its own, its smoothers' bounds forced too low (the fault the watchdog recovers
+    # from): it binds, says in its table what it did, and warns once on stderr
+    import sys
+
+    out = tmp_path / "arm.npz"
+    script = ("import sys; from warp_stokes.solver import multigrid; multigrid.LMAX_SAFETY = 0.3; "
+              "from warp_stokes.cli import main; sys.exit(main(sys.argv[1:]))")
+    proc = subprocess.run([sys.executable, "-c", script, "bind", str(EXAMPLE / "arm.obj"), str(EXAMPLE / "arm_cage.obj"),
+                           "-o", str(out), "--resolution", "20", "--device", "cpu"], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    assert "converged (after 1 fault(s) of its preconditioner, with multigrid with guaranteed smoother bounds)" in (
+        proc.stdout)
+    notices = [line for line in proc.stderr.splitlines() if "the solver's" in line]
+    assert len(notices) == 1 and notices[0].startswith("warning: the solver's multigrid preconditioner failed after 0 "
+                                                       "iterations (the preconditioner is not positive definite")
+    recoveries = ws.load_binding(out).stats["recoveries"]
+    assert [e["next"] for e in recoveries] == ["multigrid with guaranteed smoother bounds"]
 
 
 def test_bad_budget_and_resolution_fail_cleanly(tmp_path, capsys):

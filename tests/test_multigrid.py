@@ -70,8 +70,8 @@ def test_the_coarsest_inverse_on_a_host_thread_is_the_one_computed_in_turn(arm_h
 
     grid, in_turn = arm_hierarchy
     threads = []
-    invert = multigrid._dense_inverse
-    monkeypatch.setattr(multigrid, "_dense_inverse", lambda dense: threads.append(threading.current_thread().name)
+    invert = multigrid.coarsest_inverse
+    monkeypatch.setattr(multigrid, "coarsest_inverse", lambda dense: threads.append(threading.current_thread().name)
                         or invert(dense))
     monkeypatch.setattr(multigrid, "_inverts_beside", lambda device: True)
     beside = ws.Multigrid(grid, device=device, coarsest_nodes=60)
@@ -212,6 +212,44 @@ def test_hermite_prolongation_is_exact_for_cubics_along_axes(device):
     np.testing.assert_allclose(got[complete], exact_fine[complete], atol=1e-5 * np.abs(exact_fine).max())
 
 
+def test_a_thin_sheet_keeps_coarsening_on_a_shifted_lattice(device):
+    # A sheet of unknowns one node thick at an odd z: no coarse node sits over one on the unshifted lattice (the
+    # hierarchy would stop at the fine level, inverted densely), and the rule that kept nodes for the unknowns around
+    # them put two coarse layers over the one sheet (singular). The coarse lattice shifts by one finer step along z:
+    # every level is P^T A P of the one above with P's shift (formed with scipy), P keeps a diagonal block per coarse
+    # node (P^T P >= 1/4), and CG with the cycle reaches the direct solve.
+    from reference import assemble, reference_solve
+
+    mask = np.zeros((46, 46, 12), bool)
+    mask[5:41, 5:41, 5] = True
+    grid = ws.grid_from_mask(mask, spacing=0.1, device=device)
+    mg = ws.Multigrid(grid, device=device, coarsest_nodes=40)
+    assert len(mg.levels) >= 3 and mg.levels[1].shift == (0, 0, 1), (mg.level_sizes, [lv.shift for lv in mg.levels])
+    A = assemble(grid.labels == 1)[0]
+    n = mg.level_sizes
+    for depth in range(1, len(n)):
+        P = to_scipy(mg.prolongation_triplets(depth - 1), n[depth - 1], n[depth])
+        assert np.linalg.eigvalsh((P.T @ P).toarray()).min() >= 0.25 - 1e-6, depth
+        expected = (P.T @ A @ P).tocsr()
+        A = to_scipy(mg.operator_triplets(depth), n[depth], n[depth])
+        assert abs(A - expected).max() <= 2e-6 * abs(expected).max(), depth
+    assert mg.coarsest["smallest_eigenvalue"] > 1e-4
+    rng = np.random.default_rng(3)
+    known = np.zeros(grid.shape + (2, 4))
+    ring = grid.labels >= 2
+    known[ring] = rng.uniform(-1, 1, size=(ring.sum(), 2, 4))
+    reference = reference_solve(grid.labels == 1, known.astype(np.float32).astype(np.float64))
+    field = wp.array(known[tuple(grid.active_ijk.T)].astype(np.float32), dtype=wp.vec4f, device=device)
+    field_np = field.numpy()
+    field_np[: grid.n_interior] = 0.0
+    field = wp.array(field_np, dtype=wp.vec4f, device=device)
+    report = ws.solve_biharmonic(grid, field, tol=1e-7, device=device, preconditioner=mg)
+    assert report.converged and report.iterations <= 12 and not report.recoveries
+    got = field.numpy()[: grid.n_interior]
+    expected = reference[tuple(grid.active_ijk[: grid.n_interior].T)]
+    assert np.abs(got - expected).max() <= 1e-5 * np.abs(expected).max()
+
+
 def test_v_cycle_is_a_symmetric_positive_preconditioner(arm_hierarchy, device):
     grid, mg = arm_hierarchy
     rng = np.random.default_rng(5)
@@ -281,7 +319,7 @@ def test_deep_hierarchies_smooth_harder(arm_cage, device, monkeypatch):
     """A hierarchy of DEEP_LEVELS levels or more smooths with DEEP_SMOOTHER_DEGREES; a shallower one does not."""
     from warp_stokes.solver import multigrid
 
-    grid = ws.voxelize(arm_cage, resolution=32, device=device)  # 8 levels down to one node, 4 down to 60
+    grid = ws.voxelize(arm_cage, resolution=32, device=device)  # 5 levels down to one node, 2 down to 60
     rng = np.random.default_rng(7)
     r = wp.array(rng.normal(size=(grid.n_interior, 2, 4)).astype(np.float32), dtype=wp.vec4f, device=device)
 
@@ -291,6 +329,7 @@ def test_deep_hierarchies_smooth_harder(arm_cage, device, monkeypatch):
         mg.apply(r, z)
         return len(mg.level_sizes), z.numpy()
 
+    monkeypatch.setattr(multigrid, "DEEP_LEVELS", 5)  # the threshold (8 levels) is met at n = 512; lowered here
     depth_deep, deep = cycle(1)
     depth_shallow, shallow = cycle(60)
     assert depth_deep >= multigrid.DEEP_LEVELS > depth_shallow

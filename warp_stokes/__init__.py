@@ -20,7 +20,7 @@ __version__ = "0.2.0"
 # The public names, imported on first use (PEP 562): `warp-stokes --help` and `--version` start without importing
 # Warp, numpy or trimesh; `import warp_stokes as ws; ws.bind(...)` works as if they were imported here.
 _PUBLIC = {
-    ".errors": ["WarpStokesError", "MeshError", "CageError", "BindingError", "ResolutionError"],
+    ".errors": ["WarpStokesError", "MeshError", "CageError", "BindingError", "ResolutionError", "ConvergenceError"],
     ".device": ["resolve_device", "device_name"],
     ".io": ["Surface", "load_surface", "Poses", "load_poses", "write_animation"],
     ".geometry": ["Cage", "check_cage", "signed_volume", "Grid", "voxelize", "wedge_resolution", "grid_from_mask",
@@ -44,7 +44,7 @@ __all__ = [
     "MemoryEstimate", "estimate_memory", "available_memory", "plan_chunks",
     "resolve_device", "device_name",
     "Poses", "load_poses", "write_animation", "inbetween", "read_manifest", "run_batch",
-    "WarpStokesError", "MeshError", "CageError", "BindingError", "ResolutionError",
+    "WarpStokesError", "MeshError", "CageError", "BindingError", "ResolutionError", "ConvergenceError",
 ]
 
 

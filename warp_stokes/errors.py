@@ -1,4 +1,5 @@
-"""Exceptions raised for bad input. All derive from ValueError so callers can catch either."""
+"""Exceptions raised for bad input, and for a solve that could not give exact weights. All derive from ValueError so
+callers can catch either."""
 
 
 class WarpStokesError(ValueError):
@@ -19,3 +20,10 @@ class BindingError(WarpStokesError):
 
 class ResolutionError(WarpStokesError):
     """The requested grid is too coarse for the cage or too large for the device."""
+
+
+class ConvergenceError(WarpStokesError):
+    """The solver could not bring partition of unity and linear precision within tolerance: no weights. ``report``
+    holds the solver's report (``warp_stokes.SolveReport``) where one was made."""
+
+    report = None

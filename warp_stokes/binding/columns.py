@@ -50,6 +50,7 @@ class GridColumns:
     grid : GridSummary
     levels : list of int, the multigrid's level sizes (the interior alone with the Jacobi preconditioner)
     multigrid_seconds : dict, the multigrid's setup time by phase
+    coarsest : dict or None, the multigrid's coarsest operator (``Multigrid.coarsest``: unknowns, condition, ...)
     chunks : int, chunks the range was solved in
     memory_estimate : int, bytes the plan counted for the largest chunk
     seconds : dict, time by phase: voxelize, setup, boundary, solve, sample
@@ -63,6 +64,7 @@ class GridColumns:
     grid: GridSummary
     levels: list
     multigrid_seconds: dict
+    coarsest: dict | None
     chunks: int
     memory_estimate: int
     seconds: dict = field(default_factory=dict)
@@ -139,7 +141,8 @@ def grid_columns(checked: Cage, points: np.ndarray, resolution: int, device, han
     return GridColumns(
         weights=weights, corners=corners, reports=reports, grid=summary,
         levels=preconditioner.level_sizes if solver == "multigrid" else [grid.n_interior],
-        multigrid_seconds=preconditioner.seconds if solver == "multigrid" else {}, chunks=len(chunks),
+        multigrid_seconds=preconditioner.seconds if solver == "multigrid" else {},
+        coarsest=preconditioner.coarsest if solver == "multigrid" else None, chunks=len(chunks),
         memory_estimate=estimate.total(chunk_columns(chunks) + (COMPLEMENT_COLUMNS if partial and len(chunks) == 1
                                                                  else 0)),
         seconds=seconds)

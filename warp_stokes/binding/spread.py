@@ -168,6 +168,6 @@ def _gathered(parts: list[GridColumns], wall: float) -> GridColumns:
     return GridColumns(
         weights=np.concatenate([p.weights for p in parts], axis=1), corners=first.corners,
         reports=[r for p in parts for r in p.reports], grid=first.grid, levels=first.levels,
-        multigrid_seconds=first.multigrid_seconds, chunks=sum(p.chunks for p in parts),
+        multigrid_seconds=first.multigrid_seconds, coarsest=first.coarsest, chunks=sum(p.chunks for p in parts),
         memory_estimate=max(p.memory_estimate for p in parts), seconds=seconds,
         devices=[d for p in parts for d in p.devices])

@@ -80,6 +80,9 @@ def mvc_stats(checked: Cage, surface, inside, device, pu_error: float, lp_error:
         "vertices_beyond_band": 0,
         "vertices_in_thin_features": 0,
         "solver": None,
+        "coarsest_operator": None,
+        "preconditioners": [],
+        "recoveries": [],
         "levels": [],
         "chunks": 0,
         "iterations": 0,
@@ -126,9 +129,14 @@ def settings_record(resolution, tol, max_iterations, solver, boundary, sampling,
     }
 
 
-def solver_stats(reports) -> dict:
-    """The solve reports of all chunks, summed up for the binding's stats."""
+def solver_stats(reports, coarsest: dict | None = None) -> dict:
+    """The solve reports of all chunks, summed up for the binding's stats, and the multigrid's coarsest operator:
+    ``recoveries`` lists each switch of preconditioner after a fault (with its chunk), ``preconditioners`` what
+    ended each chunk's solve."""
     return {
+        "coarsest_operator": coarsest,
+        "preconditioners": [r.preconditioner for r in reports],
+        "recoveries": [{"chunk": k, **event} for k, r in enumerate(reports) for event in (r.recoveries or [])],
         "iterations": max(r.iterations for r in reports),
         "restarts": max(r.restarts for r in reports),
         "solver_rounds": reports[0].rounds,

@@ -81,8 +81,8 @@ def _slice(text: str) -> tuple:
 
 
 def main(argv=None) -> int:
-    """Entry point of the ``warp-stokes`` command: its exit code (0 done, 1 not converged or an asset failed,
-    2 bad input or a failed write, 130 interrupted)."""
+    """Entry point of the ``warp-stokes`` command: its exit code (0 done, 1 a solve that did not converge or an asset
+    that failed, 2 bad input or a failed write, 130 interrupted)."""
     try:
         return _main(argv)
     except KeyboardInterrupt:
@@ -244,13 +244,16 @@ def _main(argv) -> int:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # --help, --version, or a bad argument (one line on stderr already)
         return exc.code if isinstance(exc.code, int) else 2
-    from warp_stokes.errors import WarpStokesError
+    from warp_stokes.errors import ConvergenceError, WarpStokesError
 
     # warnings are shown once the command has run, so that bad input ends in its one-line error alone
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
             rc = args.run(args)
+        except ConvergenceError as exc:  # not bad input: the solve could not give exact weights (none written)
+            print(f"warp-stokes: error: {exc}", file=sys.stderr)
+            return 1
         except (WarpStokesError, OSError) as exc:
             print(f"warp-stokes: error: {exc}", file=sys.stderr)
             return 2

@@ -39,7 +39,9 @@ def format_stats(stats: dict) -> str:
                      f"{stats['vertices_beyond_band']} beyond the band)"),
         ("solver", f"{stats['solver']}, {len(stats['levels'])} level(s), {stats['chunks']} chunk(s), "
                    f"{stats['iterations']} iterations, residual {stats['residual']:.2e}, "
-                   + ("converged" if stats["converged"] else "NOT converged")),
+                   + ("converged" if stats["converged"] else "NOT converged")
+                   + (f" (after {len(stats['recoveries'])} fault(s) of its preconditioner, with "
+                      f"{stats['preconditioners'][-1]})" if stats.get("recoveries") else "")),
         ("memory", f"{stats['memory_estimate_bytes'] / 2**20:.0f} MiB (estimate)"),
         ("partition of unity", f"max |sum w - 1| = {stats['partition_of_unity_error']:.2e}"),
         ("linear precision", f"max |W C - P| = {stats['linear_precision_error']:.2e} x diagonal"),
@@ -100,8 +102,11 @@ def bind_command(args) -> int:
         print(f"{len(binding.parts)} meshes: " + ", ".join(f"{p['path']} ({p['vertices']})" for p in binding.parts))
     print(f"wrote {args.output}")
     if not binding.stats["converged"]:
-        print(f"warp-stokes: error: the solver did not converge to tol {args.tol:g}; {args.output} holds its last "
-              "iterate (raise --max-iterations or --tol)", file=sys.stderr)
+        stats = binding.stats
+        print(f"warp-stokes: error: the solver did not reach tol {args.tol:g} (relative residual "
+              f"{stats['residual']:.2g}); {args.output} holds weights with partition of unity within "
+              f"{stats['partition_of_unity_error']:.2g} and linear precision within "
+              f"{stats['linear_precision_error']:.2g} of the diagonal", file=sys.stderr)
         return 1
     return 0
 
@@ -275,6 +280,8 @@ def batch_command(args) -> int:
                         ray_address=args.ray_address)
     print(format_summary(results))
     failed = sum(r.status == "failed" for r in results)
-    print(f"{len(results) - failed} of {len(results)} assets done, {failed} failed; "
-          f"summary in {os.path.join(args.output, 'summary.json')}")
-    return 1 if failed else 0
+    short = sum(r.status == "not converged" for r in results)
+    print(f"{len(results) - failed} of {len(results)} assets done, {failed} failed"
+          + (f", {short} written without reaching the solver's tolerance" if short else "")
+          + f"; summary in {os.path.join(args.output, 'summary.json')}")
+    return 1 if failed or short else 0

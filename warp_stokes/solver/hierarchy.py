@@ -12,7 +12,7 @@ from ..device import resolve_device
 from ..geometry.grid import Grid, lattice_counts, lattice_rows
 from ..kernels import multigrid as mg_kernels
 
-__all__ = ["Level", "coarsen", "hierarchy_bytes", "COARSEST_NODES", "COARSE_NODE_BYTES"]
+__all__ = ["Level", "coarsen", "lattice_shift", "hierarchy_bytes", "COARSEST_NODES", "COARSE_NODE_BYTES"]
 
 #: coarsen until a level has at most this many nodes; it is then inverted densely (1600 x 1600 floats at most:
 #: 10 MiB). A lower limit adds a level below and costs CG iterations (one at n = 80 on a bulky cage, measured)
@@ -33,6 +33,7 @@ class Level:
     inv_diag: wp.array | None = None  # (n,) mat44 inverses of the diagonal blocks ((1,) on the fine level)
     lmax: float = 0.0
     work: dict = field(default_factory=dict)
+    shift: tuple = (0, 0, 0)  # this level's node c sits on the finer level's node 2c + shift
 
 
 def coarsen(grid: Grid, device=None, coarsest_nodes: int = COARSEST_NODES) -> list[Level]:
@@ -63,18 +64,41 @@ def coarsen(grid: Grid, device=None, coarsest_nodes: int = COARSEST_NODES) -> li
     with wp.ScopedDevice(device):
         while levels[-1].n > coarsest_nodes:
             lev = levels[-1]
+            shift = lattice_shift(lev)
             coarse_shape = tuple(int(s) for s in shape // 2 + 1)
             kept = wp.empty(coarse_shape, dtype=wp.int8)
-            wp.launch(mg_kernels.coarse_nodes, dim=coarse_shape, inputs=[lev.index, lev.n], outputs=[kept])
+            wp.launch(mg_kernels.coarse_nodes, dim=coarse_shape, inputs=[lev.index, lev.n, wp.vec3i(*shift)],
+                      outputs=[kept])
             counts, per_class = lattice_counts(kept)
             n = int(per_class[0])
+            # every unknown kept: all of one parity, no two neighbours, and the level's operator block diagonal
             if n == 0 or n >= lev.n:
                 break
             index, ijk = lattice_rows(kept, counts, n)
             del kept, counts
-            levels.append(Level(n=n, ijk=ijk.numpy(), index=index, ijk_device=ijk))
+            levels.append(Level(n=n, ijk=ijk.numpy(), index=index, ijk_device=ijk, shift=shift))
             shape = np.array(coarse_shape)
     return levels
+
+
+def lattice_shift(level: Level) -> tuple:
+    """Where the next coarser lattice sits on ``level``'s: its node c on ``level``'s node 2c + shift. No shift unless
+    another would keep more than twice the coarse nodes (:func:`warp_stokes.kernels.multigrid.coarse_nodes` keeps a
+    node over each unknown of the shift's parities): a thin sheet of unknowns at odd coordinates keeps coarsening.
+    At least 1/16 of the unknowns become coarse nodes.
+
+    Examples
+    --------
+    >>> lattice_shift(levels[0])   # doctest: +SKIP
+    (0, 0, 0)
+    """
+    counts = wp.zeros(8, dtype=wp.int32)
+    wp.launch(mg_kernels.parity_counts, dim=level.n, inputs=[level.ijk_device], outputs=[counts])
+    counts = counts.numpy()
+    best = int(np.argmax(counts))
+    if 2 * counts[0] >= counts[best]:
+        return (0, 0, 0)
+    return (best & 1, (best >> 1) & 1, (best >> 2) & 1)
 
 
 def hierarchy_bytes(levels: list[Level]) -> int:

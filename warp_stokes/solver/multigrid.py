@@ -2,9 +2,11 @@
 
 One V-cycle for all handles at once (every handle a column of the level arrays):
 
-- levels: interior nodes of the grid, then nodes of lattices of spacing 2h, 4h, ...; a coarse node is kept only
-  where it covers at least 1/8 of the 27 finer nodes around it (otherwise thin features make coarse matrices
-  singular);
+- levels: interior nodes of the grid, then nodes of lattices of spacing 2h, 4h, ...; a coarse node is kept where
+  the finer node under it is an unknown, which makes every coarse operator positive definite by construction
+  (``kernels.multigrid.coarse_nodes`` says why; keeping nodes for the finer unknowns around them made the coarsest
+  operator singular on thin parts at some resolutions, and CG diverged); a coarse lattice may sit one finer step
+  off along some axes (:func:`warp_stokes.solver.hierarchy.lattice_shift`) where that keeps a thin sheet coarsening;
 - prolongation: cubic Hermite, using the stored gradients (value at an edge midpoint (q0+q1)/2 + (G0-G1)/8),
   applied axis by axis; its blocks form a table of 64 entries (the fine node's parities, which parent);
 - coarse operators: Galerkin products P^T A P, so they stay symmetric positive definite. On a lattice they are
@@ -15,8 +17,15 @@ One V-cycle for all handles at once (every handle a column of the level arrays):
   pair at n = 512 took 27 CG iterations with degree 3 everywhere, 19 with this, in 21% less time, H100), lmax 1.2
   times the estimate of 40 power iterations (12 underestimated it by 20% at n = 512, and higher degrees then
   diverged); it is a fixed polynomial, so the V-cycle is a symmetric preconditioner;
-- coarsest level: a dense inverse computed once in float64; for a GPU, on a host thread while the device estimates
-  the smoother's eigenvalues and the bind forms its boundary data (it is first needed by the first V-cycle).
+- coarsest level: its inverse in float64, checked (:func:`coarsest_inverse`: a Cholesky factorisation and a
+  condition estimate, else an eigendecomposition that leaves out eigenvalues below COARSEST_CUTOFF of the largest:
+  a mode the float32 cycle cannot resolve is dropped, not amplified), its conditioning recorded
+  (:attr:`Multigrid.coarsest`); for a GPU computed on a host thread
+  while the device estimates the smoother's eigenvalues and the bind forms its boundary data (it is first needed by
+  the first V-cycle).
+
+When a solve finds the cycle misbehaving (:mod:`warp_stokes.solver.solve`), :meth:`Multigrid.bound_eigenvalues`
+replaces the estimated upper ends of the smoothers by guaranteed ones (the largest absolute row sum of D^-1 A).
 
 Harmonic coordinates (``equation="laplace"``, the 7-point operator of ``warp_stokes.kernels.laplace``) use the same
 cycle with a trilinear prolongation of each of (q, G): their gradient rows are identity rows, decoupled.
@@ -42,8 +51,8 @@ from .hierarchy import COARSE_NODE_BYTES, COARSEST_NODES, Level, coarsen, hierar
 from .operator import apply_operator, chebyshev_step, check_equation
 
 # the levels' sizes are planned before the hierarchy is formed (solver.hierarchy); offered here too
-__all__ = ["Multigrid", "coarsen", "hierarchy_bytes", "Level", "SMOOTHER_DEGREES", "DEEP_SMOOTHER_DEGREES",
-           "DEEP_LEVELS", "COARSEST_NODES", "COARSE_NODE_BYTES"]
+__all__ = ["Multigrid", "coarsen", "coarsest_inverse", "hierarchy_bytes", "Level", "SMOOTHER_DEGREES",
+           "DEEP_SMOOTHER_DEGREES", "DEEP_LEVELS", "COARSEST_NODES", "COARSE_NODE_BYTES", "COARSEST_CUTOFF"]
 
 #: Chebyshev degree on the fine level, the first coarse level, ...; the last entry holds for every deeper level
 #: (measured with benchmarks/bench_smoother.py: RESULTS.md)
@@ -59,6 +68,16 @@ POWER_ITERATIONS = 40
 #: the power iteration's estimate approaches lmax from below: the smoother's upper end is this much above it
 LMAX_SAFETY = 1.2
 
+#: eigenvalues of the coarsest operator at most this fraction of its largest are left out of its inverse: the
+#: cycle's float32 right-hand sides carry relative errors near 6e-8, which 1 / lambda would amplify beyond the
+#: correction itself. Coarsest levels are positive definite with lambda_min / lambda_max >= 1.7e-4 on the sweeps'
+#: cages (benchmarks/RESULTS.md); a singular one (a fault) loses its null space instead of blowing up
+COARSEST_CUTOFF = 1e-7
+#: a guaranteed bound of the largest eigenvalue of D^-1 A on the fine level: its largest absolute row sum, the same
+#: on every row that has all its neighbours (the compact scheme: value rows (48 + 6 * 10 + 12 + 6 * 3) / 48, gradient
+#: rows (4 + 2 + 2 * 3) / 4; Laplace: (6 + 6) / 6)
+FINE_ROW_SUM_BOUND = {"biharmonic": 3.0, "laplace": 2.0}
+
 #: inverts the coarsest operators on the host (LAPACK releases the GIL), beside the device's work. One worker:
 #: hierarchies formed faster than they are inverted wait in turn (each holds its dense matrix, at most 20 MB, until
 #: then); a process forked from one that used it must not use it (CUDA forbids forking anyway)
@@ -71,14 +90,56 @@ def _inverts_beside(device) -> bool:
     return device.is_cuda
 
 
-def _dense_inverse(dense: np.ndarray) -> tuple[np.ndarray, float]:
-    """(float32 inverse of ``dense``, seconds it took); the pseudo-inverse of a singular matrix."""
+def coarsest_inverse(dense: np.ndarray, cutoff: float = COARSEST_CUTOFF) -> tuple[np.ndarray, float, dict]:
+    """The inverse of a symmetric coarsest operator, never unchecked: a Cholesky factorisation proves it positive
+    definite, and ||A||_inf ||A^-1||_inf bounds its condition number from above (2.4-4 times the true one on the
+    shared pairs and synthetic cages); where either fails (not positive definite, or the bound above 1 / ``cutoff``),
+    the pseudo-inverse from its eigendecomposition in float64, eigenvalues at most ``cutoff`` times the largest left
+    out (it cannot blow up on a singular operator). The bound takes two passes over the matrices: power iterations
+    (60 small BLAS calls) took 0.15 s for 632 rows on the 16-core host of an H100, beside Warp's threads.
+
+    Parameters
+    ----------
+    dense : (m, m) float64, symmetric
+    cutoff : float
+
+    Returns
+    -------
+    inverse : (m, m) float32
+    seconds : float, the time it took
+    report : dict, ``unknowns``, ``condition`` (largest over the smallest kept eigenvalue; on the Cholesky path the
+        upper bound), ``smallest_eigenvalue`` (relative to the largest; on the Cholesky path 1 / the bound, a lower
+        bound), ``dropped`` (eigenvalues left out) and ``method`` ("cholesky" or "eigen")
+
+    Examples
+    --------
+    >>> inverse, _, report = coarsest_inverse(np.diag([4.0, 2.0, 1.0]))
+    >>> inverse.diagonal().tolist(), report["method"], round(report["condition"], 6)
+    ([0.25, 0.5, 1.0], 'cholesky', 4.0)
+    >>> inverse, _, report = coarsest_inverse(np.diag([4.0, 2.0, 0.0]))
+    >>> inverse.diagonal().tolist(), report["method"], report["dropped"], report["condition"]
+    ([0.25, 0.5, 0.0], 'eigen', 1, 2.0)
+    """
     start = time.perf_counter()
+    report = {"unknowns": int(len(dense)), "dropped": 0}
     try:
+        np.linalg.cholesky(dense)  # raises unless positive definite (the coarsening rule makes it so)
         inverse = np.linalg.inv(dense)
+        # for a symmetric matrix the spectral norm is at most the largest absolute row sum
+        condition = float(np.abs(dense).sum(axis=1).max() * np.abs(inverse).sum(axis=1).max())
+        if np.isfinite(condition) and condition * cutoff < 1.0:
+            report.update(smallest_eigenvalue=1.0 / condition, condition=condition, method="cholesky")
+            return inverse.astype(np.float32), time.perf_counter() - start, report
     except np.linalg.LinAlgError:
-        inverse = np.linalg.pinv(dense)
-    return inverse.astype(np.float32), time.perf_counter() - start
+        pass
+    values, vectors = np.linalg.eigh(dense)
+    largest = float(np.abs(values).max()) if values.size else 0.0
+    kept = values > cutoff * largest
+    inverse = (vectors[:, kept] / values[kept]) @ vectors[:, kept].T
+    report.update(smallest_eigenvalue=float(values.min() / largest) if largest > 0 else 0.0,
+                  condition=float(largest / values[kept].min()) if kept.any() else float("inf"),
+                  dropped=int((~kept).sum()), method="eigen")
+    return inverse.astype(np.float32), time.perf_counter() - start, report
 
 
 class Multigrid:
@@ -109,6 +170,9 @@ class Multigrid:
         self.equation = check_equation(equation)
         #: setup time by phase: Galerkin product per coarse level, the coarsest inverse, eigenvalue estimates
         self.seconds = {"galerkin": [], "coarsest": 0.0, "eigenvalues": 0.0}
+        #: where the smoothers' upper ends come from: "power iteration" estimates, or guaranteed "row sums"
+        self.smoother_bounds = "power iteration"
+        self._coarsest = None
         with wp.ScopedDevice(self.device):
             self.table = wp.empty(64, dtype=wp.mat44d)
             table = mg_kernels.trilinear_table if equation == "laplace" else mg_kernels.hermite_table
@@ -138,7 +202,8 @@ class Multigrid:
                 dim=(coarse.n, 14),
                 inputs=[coarse.ijk_device, coarse.index, coarse.n, finer.index, finer.n,
                         empty if finer.blocks is None else finer.blocks,
-                        int(fine_operator) if finer.blocks is None else int(mg_kernels.BLOCKS), self.table],
+                        int(fine_operator) if finer.blocks is None else int(mg_kernels.BLOCKS),
+                        wp.vec3i(*coarse.shift), self.table],
                 outputs=[coarse.blocks],
             )
             coarse.rows = wp.empty((coarse.n, 27), dtype=wp.int32)
@@ -151,10 +216,10 @@ class Multigrid:
         self._coarse_inverse = None
         dense = self._dense(len(self.levels) - 1)
         if _inverts_beside(self.device):
-            self._coarse_future = _HOST.submit(_dense_inverse, dense)
+            self._coarse_future = _HOST.submit(coarsest_inverse, dense)
         else:
             self._coarse_future = Future()
-            self._coarse_future.set_result(_dense_inverse(dense))
+            self._coarse_future.set_result(coarsest_inverse(dense))
 
     @property
     def coarse_inverse(self) -> wp.array:
@@ -163,11 +228,33 @@ class Multigrid:
         ``seconds["coarsest_wait"]`` how long that first read waited (part of the first solve's time)."""
         if self._coarse_inverse is None:
             start = time.perf_counter()
-            inverse, self.seconds["coarsest"] = self._coarse_future.result()
+            inverse, self.seconds["coarsest"], self._coarsest = self._coarse_future.result()
             self.seconds["coarsest_wait"] = time.perf_counter() - start
             self._coarse_inverse = wp.array(inverse, dtype=wp.float32, device=self.device)
             self._coarse_future = None
         return self._coarse_inverse
+
+    @property
+    def coarsest(self) -> dict:
+        """The coarsest operator's figures (:func:`coarsest_inverse`'s report: ``unknowns``, ``smallest_eigenvalue``,
+        ``condition``, ``dropped``); waits for its inverse where that is computed on a host thread."""
+        self.coarse_inverse
+        return dict(self._coarsest)
+
+    def bound_eigenvalues(self) -> None:
+        """Replace the smoothers' estimated upper ends (power iteration, times LMAX_SAFETY) by guaranteed bounds of
+        the largest eigenvalue of D^-1 A: its largest absolute row sum on each level. A Chebyshev smoother whose
+        interval ends below the spectrum amplifies the modes above it; with these bounds none is left above, at the
+        cost of a somewhat weaker smoother. ``smoother_bounds`` says which are in use."""
+        with wp.ScopedDevice(self.device):
+            bounds = wp.zeros(len(self.levels), dtype=wp.float32)
+            for depth, lev in enumerate(self.levels[1:-1], start=1):
+                wp.launch(mg_kernels.row_sum_bound, dim=lev.n, inputs=[lev.blocks, lev.inv_diag, depth],
+                          outputs=[bounds])
+            bounds = bounds.numpy()
+        for depth, lev in enumerate(self.levels[:-1]):
+            lev.lmax = FINE_ROW_SUM_BOUND[self.equation] if depth == 0 else float(bounds[depth])
+        self.smoother_bounds = "row sums"
 
     def _dense(self, depth: int) -> np.ndarray:
         rows, cols, blocks = self.operator_triplets(depth)
@@ -242,7 +329,8 @@ class Multigrid:
             cols = wp.empty(8 * fine.n, dtype=int)
             blocks = wp.empty(8 * fine.n, dtype=wp.mat44f)
             wp.launch(mg_kernels.prolongation_triplets, dim=fine.n,
-                      inputs=[fine.ijk_device, coarse.index, coarse.n, self.table], outputs=[rows, cols, blocks])
+                      inputs=[fine.ijk_device, coarse.index, coarse.n, wp.vec3i(*coarse.shift), self.table],
+                      outputs=[rows, cols, blocks])
         rows, cols, blocks = rows.numpy(), cols.numpy(), blocks.numpy()
         keep = rows >= 0
         return rows[keep], cols[keep], blocks[keep]
@@ -348,11 +436,12 @@ class Multigrid:
         r, d = work["r"], work["d"]
         self._smooth(depth, b, x, r, d, x_is_zero=True, residual=True)
         coarse = self._work(depth + 1, n_cols)
-        wp.launch(mg_kernels.restrict, dim=coarse["b"].shape, inputs=[self.table32, coarse_level.ijk_device, lev.index, lev.n, r],
-                  outputs=[coarse["b"]])
+        shift = wp.vec3i(*coarse_level.shift)
+        wp.launch(mg_kernels.restrict, dim=coarse["b"].shape,
+                  inputs=[self.table32, coarse_level.ijk_device, lev.index, lev.n, shift, r], outputs=[coarse["b"]])
         self._cycle(depth + 1, coarse["b"], coarse["x"])
-        wp.launch(mg_kernels.prolong_add, dim=x.shape, inputs=[self.table32, lev.ijk_device, coarse_level.index, coarse["x"]],
-                  outputs=[x])
+        wp.launch(mg_kernels.prolong_add, dim=x.shape,
+                  inputs=[self.table32, lev.ijk_device, coarse_level.index, shift, coarse["x"]], outputs=[x])
         self._smooth(depth, b, x, r, d, x_is_zero=False, residual=False)
 
     def apply(self, r: wp.array, z: wp.array) -> None:

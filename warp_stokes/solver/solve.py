@@ -18,6 +18,18 @@ floor, measured on the starting field, when that is larger). Otherwise, or when 
 float32 floor, CG restarts from the recomputed residual with a tighter tolerance. Checked against a direct
 float64 solve in tests/test_solve.py.
 
+Faults and recovery. A watchdog (:class:`warp_stokes.solver.krylov.Watchdog`) ends a round at the first sign of a
+broken preconditioner: a residual that is not finite or grows by orders of magnitude, r^T M r < 0, or a multigrid
+round that stagnates. The solve then goes on with the next preconditioner of a ladder, each built only when needed:
+the multigrid cycle; the same cycle with guaranteed upper ends of its smoothers (:meth:`Multigrid.bound_eigenvalues`:
+an underestimated largest eigenvalue is what can still break a cycle whose coarse levels are positive definite);
+the inverse diagonal (slow, O(n^2) iterations, but it converges on any positive definite system). It restarts from
+the current iterate, a handle whose residual is worse than that of a zero iterate from zero. Each switch is recorded
+(``SolveReport.recoveries``) and warned of once. A solve of cage coordinates whose partition of unity or linear
+precision at the nodes ends above ACCEPTABLE times its tolerance, or whose every preconditioner failed, raises
+:class:`ConvergenceError` (no weights that break them, and no unsolved ones, are returned); within it, a solve that
+did not reach ``tol`` returns with ``converged`` False and a warning.
+
 Harmonic coordinates. ``equation="laplace"`` solves the 7-point Laplace equation instead, with the same data,
 stopping rule, multigrid cycle (trilinear prolongation) and identity check (the 7-point operator reproduces linear
 functions exactly, too); its gradient rows are identity rows, and the interior G are set to the central
@@ -38,19 +50,25 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from ..geometry.boundary import COMPLEMENT_COLUMNS
 from ..device import resolve_device
+from ..errors import ConvergenceError
+from ..geometry.boundary import COMPLEMENT_COLUMNS
 from ..geometry.grid import Grid
 from ..geometry.topology import bounding_diagonal
 from ..kernels import cg, checks, laplace
-from .krylov import BatchedCG, cg_round
+from .krylov import GROWTH, BatchedCG, Watchdog, cg_round
 from .multigrid import Multigrid
 from .operator import apply_operator, check_equation
 
-__all__ = ["SolveReport", "solve_biharmonic", "apply_operator"]
+__all__ = ["SolveReport", "solve_biharmonic", "apply_operator", "ACCEPTABLE"]
 
 #: true-residual checks (restarts) before giving up on reaching `tol`
 MAX_RESTARTS = 8
+#: a solve of cage coordinates whose identity deviation ends above this many times its tolerance raises
+#: ConvergenceError: with the default tol 1e-6, partition of unity and linear precision within 1e-5
+ACCEPTABLE = 10.0
+#: the multigrid's iteration limit (it needs 6-20)
+MULTIGRID_ITERATIONS = 200
 
 
 @dataclass
@@ -69,6 +87,10 @@ class SolveReport:
     seconds : float, wall time of the solve (synchronised), multigrid setup included
     setup_seconds : float, of which building the multigrid hierarchy
     rounds : list of [iterations so far, residual, identity deviation] after each CG round (restart)
+    preconditioner : str, the preconditioner that ended the solve ("multigrid", "multigrid with guaranteed smoother
+        bounds", "jacobi")
+    recoveries : list of dict, each switch to the next preconditioner after a fault: ``iteration``, ``fault``,
+        ``preconditioner`` (the one that failed), ``next``
     """
 
     iterations: int
@@ -79,6 +101,8 @@ class SolveReport:
     seconds: float
     setup_seconds: float = 0.0
     rounds: list = None
+    preconditioner: str = ""
+    recoveries: list = None
 
 
 def solve_biharmonic(
@@ -106,7 +130,8 @@ def solve_biharmonic(
         Relative preconditioned residual per handle, and (with ``handles``) the largest deviation from partition
         of unity and linear precision at the interior nodes, relative to the cage's diagonal.
     max_iterations : int, optional
-        Default: 200 with multigrid, 40 * (resolution + 8)**2 with Jacobi.
+        For the preconditioner asked for. Default: 200 with multigrid, 40 * (resolution + 8)**2 with Jacobi; a
+        preconditioner taken after a fault has its default.
     source : (n_interior, handles) array, optional
         ``f`` at interior nodes; the value equation's right-hand side is ``h**4 / 2 * f`` (``h**2 * f`` for the
         Laplace equation, ``-Laplace(q) = f``). Zero by default
@@ -134,6 +159,13 @@ def solve_biharmonic(
     -------
     SolveReport
 
+    Raises
+    ------
+    ConvergenceError
+        When every preconditioner failed, or (with ``handles``) partition of unity or linear precision at the nodes
+        ends above ACCEPTABLE times its tolerance (or not finite); its ``report`` is the SolveReport, the field holds
+        the last iterate.
+
     Examples
     --------
     >>> field = boundary_field(grid, cage)                               # doctest: +SKIP
@@ -141,68 +173,148 @@ def solve_biharmonic(
     >>> report.converged                                                 # doctest: +SKIP
     True
     """
-    # about 70 lines: the stopping rule (rounds, recomputed residual, identity check, restarts) reads in one place
+    # the stopping rule (rounds, recomputed residual, identity check, restarts) in _attempt; the ladder of
+    # preconditioners after faults here
     device = resolve_device(device)
     check_equation(equation)
     start = time.perf_counter()
     with wp.ScopedDevice(device):
         deviation = _identity_check(grid, field, handles, device, chunk)  # first: it checks the columns
-        precondition, default_iterations, setup_seconds = _preconditioner(grid, preconditioner, device, equation)
-        if max_iterations is None:
-            max_iterations = default_iterations
-        solver = BatchedCG(grid, field, source, precondition, device, equation)
-        rel = solver.start()
-
-        # The preconditioned residual is a few times smaller than the weight error it stands for: aim ten times
-        # below tol before the first identity check.
-        iterations, restarts, tol_cg = 0, 0, 0.1 * tol
-        rounds = []
-        # The starting MVC field reproduces constants and linear functions exactly in float64; its deviation
-        # once stored in float32 is the rounding floor of the identity check (it grows with the handles and
-        # the nodes: 1e-6 is within reach of 100+ handles on 10^6 nodes). Ask for the tolerance or twice it.
-        identity = deviation()
-        identity_tol = max(tol, 2.0 * identity)
+        # The starting field reproduces constants and linear functions exactly in float64; its deviation once
+        # stored in float32 is the rounding floor of the identity check (it grows with the handles and the nodes:
+        # 1e-6 is within reach of 100+ handles on 10^6 nodes). Ask for the tolerance or twice it.
+        identity_tol = max(tol, 2.0 * deviation())
         if callback is not None:
             callback(0, field)
-        while True:
-            iterations = cg_round(solver, rel, tol_cg, deviation, identity_tol, iterations, max_iterations,
-                                   callback, field)
-            # the CG recurrence drifts from the true residual in float32: check it from scratch
-            rel = solver.recompute()
-            identity = deviation()
-            rounds.append([iterations, float(rel.max()), identity])
-            if ((rel <= tol).all() and identity <= identity_tol) or iterations >= max_iterations:
+        totals = {"iterations": 0, "restarts": 0, "rounds": [], "setup": 0.0}
+        recoveries = []
+        solver = None
+        for k, (name, precondition, limit, build_seconds) in enumerate(_ladder(grid, preconditioner, device,
+                                                                                equation)):
+            totals["setup"] += build_seconds
+            if k == 0 and max_iterations is not None:
+                limit = max_iterations
+            del solver  # its vectors go before the next ones are allocated (the memory plan counts one set)
+            solver = BatchedCG(grid, field, source, precondition, device, equation)
+            rel = solver.start()
+            if recoveries:
+                recoveries[-1]["next"] = name
+                # from the iterate the fault left; a handle worse off than from zero (or not finite) from zero
+                worse = ~np.isfinite(rel) | (rel > 1.0)
+                if worse.any():
+                    solver.clear(worse)
+                    rel = solver.start()
+            rel, identity, fault = _attempt(solver, rel, tol, identity_tol, deviation, totals, limit, callback,
+                                            field, stagnation=name != "jacobi")
+            if fault is None:
                 break
-            if restarts >= MAX_RESTARTS:
-                break
-            # CG starts again from the recomputed residual; when the weights were what fell short, asking
-            # for more
-            restarts += 1
-            if identity > identity_tol:
-                tol_cg = min(tol_cg, float(rel.max())) / 10.0
+            recoveries.append({"iteration": totals["iterations"], "fault": fault, "preconditioner": name})
         if equation == "laplace":
             _gradients_from_values(grid, field, device)
         wp.synchronize_device(device)
 
     residual = float(rel.max()) if len(rel) else 0.0
-    converged = bool((rel <= tol).all() and identity <= identity_tol)
-    if not converged:
+    converged = bool(fault is None and (rel <= tol).all() and identity <= identity_tol)
+    for event in recoveries:
         warnings.warn(
-            f"the solver stopped after {iterations} iterations with relative residual {residual:.3g} and identity "
-            f"deviation {identity:.3g} (tol {tol:g}, identity tol {identity_tol:.3g})"
-            + (": iteration limit reached" if iterations >= max_iterations else ": float32 accuracy limit"),
-            stacklevel=2,
-        )
-    return SolveReport(
-        iterations=iterations,
+            f"the solver's {event['preconditioner']} preconditioner failed after {event['iteration']} iterations "
+            f"({event['fault']}); " + (f"it went on with {event['next']}" if "next" in event else
+                                       "nothing else was left to try"), stacklevel=2)
+    report = SolveReport(
+        iterations=totals["iterations"],
         residual=residual,
         identity_error=identity,
         converged=converged,
-        restarts=restarts,
+        restarts=totals["restarts"],
         seconds=time.perf_counter() - start,
-        setup_seconds=setup_seconds,
-        rounds=rounds,
+        setup_seconds=totals["setup"],
+        rounds=totals["rounds"],
+        preconditioner=name,
+        recoveries=recoveries,
     )
+    # a fault on every preconditioner leaves an iterate that is no solution, whatever its identity deviation (the
+    # starting field already reproduces constants and linear functions)
+    if fault is not None or (handles is not None and not identity <= ACCEPTABLE * identity_tol):
+        with wp.ScopedDevice(device):
+            data = deviation(known=True)
+        error = ConvergenceError(_failure_message(totals, residual, identity, ACCEPTABLE * identity_tol, recoveries,
+                                                  fault, limit, data))
+        error.report = report
+        raise error
+    if not converged:
+        warnings.warn(
+            f"the solver stopped after {totals['iterations']} iterations with relative residual {residual:.3g} and "
+            f"identity deviation {identity:.3g} (tol {tol:g}, identity tol {identity_tol:.3g})"
+            + (": iteration limit reached" if totals["limit_reached"] else ": float32 accuracy limit"),
+            stacklevel=2,
+        )
+    return report
+
+
+def _attempt(solver: BatchedCG, rel: np.ndarray, tol: float, identity_tol: float, deviation, totals: dict,
+             max_iterations: int, callback, field, stagnation: bool):
+    """Rounds of CG with one preconditioner until the stopping rule is met, the iteration limit is reached, restarts
+    run out, or a watchdog sees a fault. Adds to ``totals`` (iterations, restarts, rounds, whether the limit was
+    reached, and ``progress``: the residual's fall over the last rounds). Returns (relative residuals, identity
+    deviation, the fault or None)."""
+    # The preconditioned residual is a few times smaller than the weight error it stands for: aim ten times below
+    # tol before the first identity check.
+    tol_cg, restarts, used = 0.1 * tol, 0, 0
+    first = float(rel.max()) if len(rel) else 0.0
+    totals["progress"], totals["limit_reached"] = (first, first), False
+    if solver.indefinite:  # found by start(): the residuals measured in M are meaningless
+        return rel, deviation(), "the preconditioner is not positive definite (b^T M b < 0)"
+    while True:
+        iterations, fault = cg_round(solver, rel, tol_cg, deviation, identity_tol, used, max_iterations, callback,
+                                     field, Watchdog(stagnation))
+        totals["iterations"] += iterations - used
+        used = iterations
+        # the CG recurrence drifts from the true residual in float32: check it from scratch
+        rel = solver.recompute()
+        identity = deviation()
+        totals["rounds"].append([totals["iterations"], float(rel.max()) if len(rel) else 0.0, identity])
+        if fault is None and not (np.isfinite(rel).all() and np.isfinite(identity)):
+            fault = "the residual is not finite"
+        if fault is None and solver.indefinite:
+            fault = "the preconditioner is not positive definite (r^T M r < 0)"
+        if fault is None and len(rel) and rel.max() > GROWTH * max(first, 1.0):
+            fault = f"the residual grew {rel.max() / max(first, 1.0):.0e}-fold"
+        totals["limit_reached"] = used >= max_iterations
+        totals["progress"] = (first, float(rel.max()) if len(rel) else 0.0)
+        if fault is not None:
+            return rel, identity, fault
+        if ((rel <= tol).all() and identity <= identity_tol) or used >= max_iterations or restarts >= MAX_RESTARTS:
+            return rel, identity, None
+        # CG starts again from the recomputed residual; when the weights were what fell short, asking for more
+        restarts += 1
+        totals["restarts"] += 1
+        if identity > identity_tol:
+            tol_cg = min(tol_cg, float(rel.max())) / 10.0
+
+
+def _failure_message(totals: dict, residual: float, identity: float, acceptable: float, recoveries: list, fault,
+                     limit: int, data: float) -> str:
+    """One line: what the solve reached, what it tried, and the cause as far as it is known (``data``: the boundary
+    data's own deviation at the ring and band nodes); advice only where it holds for this case."""
+    tried = [e["preconditioner"] for e in recoveries] + ([recoveries[-1]["next"]] if recoveries and fault is None
+                                                         else [])
+    message = (f"the solver could not bring partition of unity and linear precision within {acceptable:.1g} "
+               f"(reached {identity:.2g}, relative residual {residual:.2g}, after {totals['iterations']} iterations"
+               + (f" with {', then '.join(tried)}" if tried else "") + "); no weights were returned: ")
+    if not data <= acceptable:
+        return message + (f"the boundary data does not reproduce constant and linear functions (deviation {data:.2g} "
+                          "at the ring and band nodes)")
+    if fault is not None:
+        return message + (f"{fault}, a fault of the solver on this cage at this resolution; please report it with "
+                          "the cage")
+    first, last = totals["progress"]
+    if totals["limit_reached"]:
+        if last < first:
+            return message + (f"it reached its iteration limit ({limit}) while still converging (residual {first:.2g}"
+                              f" to {last:.2g}); raise the limit")
+        return message + (f"it reached its iteration limit ({limit}) without converging (residual {first:.2g} to "
+                          f"{last:.2g}); please report it with the cage")
+    return message + (f"it stopped improving after {MAX_RESTARTS} restarts; please report it with the cage")
 
 
 def _gradients_from_values(grid: Grid, field: wp.array, device) -> None:
@@ -212,28 +324,42 @@ def _gradients_from_values(grid: Grid, field: wp.array, device) -> None:
               inputs=[field, arrays["index"], arrays["active_ijk"]], device=device)
 
 
-def _preconditioner(grid: Grid, preconditioner, device, equation: str = "biharmonic"):
-    """(apply(r, z), default iteration limit, setup seconds) of the V-cycle (built here for "multigrid", or given
-    as a Multigrid) or of the inverse diagonal ("jacobi")."""
-    setup_seconds = 0.0
+def _ladder(grid: Grid, preconditioner, device, equation: str = "biharmonic"):
+    """The preconditioners a solve takes in turn, each only after a fault of the one before it, built when reached:
+    (name, apply(r, z), default iteration limit, seconds to build it). The multigrid cycle (built here for
+    "multigrid"), then the same cycle with guaranteed smoother bounds, then the inverse diagonal; "jacobi" alone
+    when asked for."""
+    jacobi_iterations = 40 * (grid.resolution + 8) ** 2
+    if preconditioner == "jacobi":
+        yield "jacobi", _jacobi(equation, device), jacobi_iterations, 0.0
+        return
+    start = time.perf_counter()
     if preconditioner == "multigrid":
-        start = time.perf_counter()
         preconditioner = Multigrid(grid, device=device, equation=equation)
         wp.synchronize_device(device)
-        setup_seconds = time.perf_counter() - start
-    if isinstance(preconditioner, Multigrid):
-        if preconditioner.equation != equation:
-            raise ValueError(f"the multigrid was built for the {preconditioner.equation} equation, the solve is for "
-                             f"the {equation} one")
-        return preconditioner.apply, 200, setup_seconds
-    if preconditioner == "jacobi":
-        def precondition(r, z):
-            if equation == "laplace":
-                wp.launch(laplace.jacobi, dim=r.shape, inputs=[r], outputs=[z], device=device)
-            else:
-                wp.launch(cg.jacobi, dim=r.shape, inputs=[r], outputs=[z], device=device)
-        return precondition, 40 * (grid.resolution + 8) ** 2, setup_seconds
-    raise ValueError(f"unknown preconditioner {preconditioner!r}: use 'multigrid' or 'jacobi'")
+    if not isinstance(preconditioner, Multigrid):
+        raise ValueError(f"unknown preconditioner {preconditioner!r}: use 'multigrid' or 'jacobi'")
+    if preconditioner.equation != equation:
+        raise ValueError(f"the multigrid was built for the {preconditioner.equation} equation, the solve is for the "
+                         f"{equation} one")
+    setup = time.perf_counter() - start
+    if preconditioner.smoother_bounds == "power iteration":
+        yield "multigrid", preconditioner.apply, MULTIGRID_ITERATIONS, setup
+        start = time.perf_counter()
+        preconditioner.bound_eigenvalues()  # kept: the later chunks of a bind use the cycle that worked
+        setup = time.perf_counter() - start
+    yield "multigrid with guaranteed smoother bounds", preconditioner.apply, MULTIGRID_ITERATIONS, setup
+    yield "jacobi", _jacobi(equation, device), jacobi_iterations, 0.0
+
+
+def _jacobi(equation: str, device):
+    """apply(r, z): z = D^-1 r, the inverse diagonal of the fine operator."""
+    kernel = laplace.jacobi if equation == "laplace" else cg.jacobi
+
+    def precondition(r, z):
+        wp.launch(kernel, dim=r.shape, inputs=[r], outputs=[z], device=device)
+
+    return precondition
 
 
 def _identity_check(grid: Grid, field: wp.array, handles, device, chunk: slice | None = None):
@@ -241,7 +367,7 @@ def _identity_check(grid: Grid, field: wp.array, handles, device, chunk: slice |
     interior nodes (0 when ``handles`` is None), over the columns of ``field``: the cage coordinates of all
     ``handles``; or of ``handles[chunk]`` followed by the complement column, and then partition of unity only."""
     if handles is None:
-        return lambda: 0.0
+        return lambda known=False: 0.0
     handles = np.asarray(handles, dtype=np.float64)
     scale = bounding_diagonal(handles)
     first, stop, _ = (chunk or slice(None)).indices(len(handles))
@@ -261,13 +387,15 @@ def _identity_check(grid: Grid, field: wp.array, handles, device, chunk: slice |
     columns = wp.array(columns, dtype=wp.vec4d, device=device)
     out = wp.zeros(1, dtype=float, device=device)
 
-    def deviation() -> float:
+    def deviation(known: bool = False) -> float:
+        """At the interior nodes; with ``known``, of the boundary data at the ring and band nodes."""
+        rows = slice(grid.n_interior, field.shape[0]) if known else slice(0, grid.n_interior)
         out.zero_()
         wp.launch(
             checks.identity_deviation,
-            dim=grid.n_interior,
-            inputs=[field, ijk, wp.vec3d(*grid.origin), wp.float64(grid.spacing), columns, wp.float64(scale),
-                    int(chunk is None)],
+            dim=rows.stop - rows.start,
+            inputs=[field[rows], ijk[rows], wp.vec3d(*grid.origin), wp.float64(grid.spacing), columns,
+                    wp.float64(scale), int(chunk is None)],
             outputs=[out],
             device=device,
         )
