@@ -82,9 +82,15 @@ def test_batch_keeps_going_and_reports(manifest, tmp_path, capsys, device):
     assert "short.npy: poses must have shape (frames, 58, 3)" in summary["short_pose"]["error"]
     assert summary["arm_b"]["resolution"] == 20 and summary["arm_a"]["handles"] == 58
     assert summary["arm_a"]["vertices"] == 2089
+    # the summary lists only what was written
+    assert summary["open"]["outputs"] == [] and summary["short_pose"]["outputs"] == []
+    assert [os.path.basename(p) for p in summary["arm_b"]["outputs"]] == ["arm_b.npz", "arm_b.usd"]
     # the table and the progress lines
     assert "open" in captured.out and "failed" in captured.out and "3 of 5 assets done, 2 failed" in captured.out
     assert "arm_b: binding at resolution 20" in captured.err
+    # the warnings at the end name their asset, once per asset (a failed one's too: its cage was checked)
+    warned = [line for line in captured.err.splitlines() if "folds back on itself" in line]
+    assert sorted(line.split(": ")[1] for line in warned) == ["arm_a", "arm_b", "arm_c", "short_pose"], warned
     # what was written is whole: the bindings load and the USD files hold every frame
     from pxr import Usd, UsdGeom
 
@@ -92,6 +98,33 @@ def test_batch_keeps_going_and_reports(manifest, tmp_path, capsys, device):
     stage = Usd.Stage.Open(str(out / "arm_a.usd"))
     assert UsdGeom.Mesh(stage.GetPrimAtPath("/Root/Mesh")).GetPointsAttr().GetTimeSamples() == [1.0, 2.0, 3.0]
     assert b.settings["resolution"] == 16
+
+
+def test_a_solve_short_of_its_tolerance_is_written_and_one_without_exact_weights_is_not(tmp_path, monkeypatch,
+                                                                                        capsys):
+    # what bind does: weights exact to 10 tol but a residual float32 cannot bring below tol 1e-9 are written and
+    # said so (exit code 1); a solve whose weights break partition of unity fails the asset and writes nothing
+    arm, arm_cage = EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj"
+    manifest = tmp_path / "m.toml"
+    manifest.write_text(f'[[asset]]\nname = "strict"\nmesh = "{arm}"\ncage = "{arm_cage}"\nresolution = 16\n'
+                        f'tol = 1e-9\n')
+    out = tmp_path / "out"
+    rc = main(["batch", str(manifest), "-o", str(out), "--device", "cpu"])
+    captured = capsys.readouterr()
+    (strict,) = json.loads((out / "summary.json").read_text())["assets"]
+    assert rc == 1 and strict["status"] == "not converged" and (out / "strict.npz").exists()
+    assert strict["error"].startswith("the solver did not reach tol 1e-09") and strict["outputs"]
+    assert "1 written without reaching the solver's tolerance" in captured.out
+    assert ws.load_binding(out / "strict.npz").stats["partition_of_unity_error"] <= 1e-6
+
+    from warp_stokes.solver import solve
+
+    monkeypatch.setattr(solve, "ACCEPTABLE", 1e-3)  # no solve is exact enough: every asset's weights refused
+    rc = main(["batch", str(manifest), "-o", str(out), "--device", "cpu", "--force"])
+    (strict,) = json.loads((out / "summary.json").read_text())["assets"]
+    assert rc == 1 and strict["status"] == "failed" and strict["outputs"] == []
+    assert strict["error"].startswith("the solver could not bring partition of unity and linear precision")
+    assert sorted(os.listdir(out)) == ["strict.npz", "summary.json"]  # the earlier run's binding, untouched
 
 
 def test_rerun_skips_up_to_date_assets_unless_forced(manifest, tmp_path, device, monkeypatch):

@@ -21,10 +21,9 @@ import glob
 import logging
 import os
 import signal
-import warnings
 
 from ..device import require_ray
-from .run import Result, bind_one, outputs_of, skipped
+from .run import Result, bind_one, skipped, warn_for
 
 __all__ = ["run_on_ray", "require_ray", "TASK_RETRIES", "KILL_ONCE_VARIABLE"]
 
@@ -109,14 +108,12 @@ def run_on_ray(assets, outdir: str, manifest, force: bool, device, progress, wor
                 reason = " ".join(str(exc).split())[:300]
                 died = isinstance(exc, (ray.exceptions.WorkerCrashedError, ray.exceptions.NodeDiedError))
                 what = f"its worker died ({TASK_RETRIES + 1} tries)" if died else "the Ray task failed"
-                result = Result(assets[k].name, "failed", resolution=assets[k].resolution,
-                                outputs=outputs_of(assets[k], outdir),
+                result = Result(assets[k].name, "failed", resolution=assets[k].resolution, outputs=[],
                                 error=f"{what}: {type(exc).__name__}: {reason}")
             results[k] = result
             done += 1
             failed += result.status == "failed"
-            for message in result.warnings:
-                warnings.warn(message, stacklevel=2)
+            warn_for(result)
             if progress:
                 _line(progress, done, total, len(pending), failed, result)
         # no task runs any more and the folder is locked: what dead workers left is removed

@@ -19,13 +19,13 @@ from ..io.files import atomic_output
 from .lock import folder_lock
 from .manifest import Asset, read_manifest
 
-__all__ = ["Result", "run_batch", "bind_one", "skipped", "outputs_of", "format_summary"]
+__all__ = ["Result", "run_batch", "bind_one", "skipped", "outputs_of", "format_summary", "warn_for"]
 
 
 @dataclass
 class Result:
     name: str
-    status: str  # "ok", "skipped" or "failed"
+    status: str  # "ok", "not converged" (written: exact weights, a residual short of tol), "skipped" or "failed"
     vertices: int | None = None
     handles: int | None = None
     resolution: int | None = None
@@ -167,6 +167,7 @@ def bind_one(asset: Asset, outdir: str, device, progress=None, k: int = 0, total
             os.replace(tmp, path)
     except Exception as exc:  # keep going: one asset's failure is reported, not raised
         result.status = "failed"
+        result.outputs = []  # none was written (or left: the temporary files go below)
         known = isinstance(exc, (ValueError, OSError))
         result.error = str(exc) if known else f"{type(exc).__name__}: {exc}"
         if not known and progress:
@@ -191,14 +192,19 @@ def _run_assets(assets, outdir, manifest, force, device, progress) -> list[Resul
         result = up_to_date[k]
         if result is None:
             result = bind_one(asset, outdir, device, progress, k, len(assets))
-            # what the bind warned of, in the summary and (once the command has run) on stderr
-            for message in result.warnings:
-                warnings.warn(message, stacklevel=2)
+            warn_for(result)
         if progress:
             _progress(progress, k + 1, len(assets), asset.name,
                       "up to date, skipped" if result.status == "skipped" else result.status)
         results.append(result)
     return results
+
+
+def warn_for(result: Result) -> None:
+    """What an asset's bind warned of, warned of again naming the asset (the summary keeps the messages as they
+    were); on stderr once the command has run."""
+    for message in result.warnings:
+        warnings.warn(f"{result.name}: {message}", stacklevel=3)
 
 
 def _bind_asset(asset, pending: dict, device, progress, k: int, total: int, result: Result) -> None:
@@ -230,11 +236,12 @@ def _bind_asset(asset, pending: dict, device, progress, k: int, total: int, resu
                    mesh_prims=asset.mesh_prims, rest_time=asset.rest_time)
     result.vertices, result.handles = binding.n_vertices, binding.n_handles
     result.device = binding.stats["device"]
-    if not binding.stats["converged"]:
-        raise WarpStokesError(
-            f"the solver did not converge (residual {binding.stats['residual']:.2g}, identity error "
-            f"{binding.stats['identity_error']:.2g}, tol {asset.tol:g})"
-        )
+    if not binding.stats["converged"]:  # exact weights (bind raises otherwise), a residual short of tol: written
+        stats = binding.stats
+        result.status = "not converged"
+        result.error = (f"the solver did not reach tol {asset.tol:g} (relative residual {stats['residual']:.2g}); "
+                        f"partition of unity within {stats['partition_of_unity_error']:.2g}, linear precision within "
+                        f"{stats['linear_precision_error']:.2g} of the diagonal")
     binding.save(pending[npz])
     if poses is not None:
         if progress:
