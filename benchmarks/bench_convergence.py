@@ -64,7 +64,7 @@ def measure(mesh, cage, n: int, device, method: str) -> dict:
             report = exc.report
             return {"iterations": report.iterations if report else None, "fault": str(exc),
                     "seconds": time.perf_counter() - start}
-        except ws.WarpStokesError as exc:  # refused (a grid too coarse for the cage): not a solver failure
+        except ws.ResolutionError as exc:  # refused (a grid too coarse for the cage): not a solver failure
             return {"refused": str(exc), "seconds": time.perf_counter() - start}
     row = {"iterations": s["iterations"], "converged": s["converged"], "pu": s["partition_of_unity_error"],
            "lp": s["linear_precision_error"], "levels": s["levels"], "recoveries": s["recoveries"],
@@ -101,12 +101,17 @@ def main() -> int:
     parser.add_argument("--shared", type=resolutions, default=resolutions("20:129,132:257:4"))
     parser.add_argument("--synthetic", type=resolutions, default=resolutions("16:97"))
     parser.add_argument("--pairs", nargs="+", default=None, help="only pairs whose name starts with one of these")
-    parser.add_argument("--methods", default="stokes", help="stokes, harmonic or both (comma-separated)")
+    parser.add_argument("--methods", type=lambda text: text.split(","), default=["stokes"],
+                        help="stokes, harmonic, or both as stokes,harmonic")
     parser.add_argument("--json", default=None)
     args = parser.parse_args()
+    unknown = set(args.methods) - {"stokes", "harmonic"}
+    if unknown:
+        parser.error(f"--methods: unknown {', '.join(sorted(unknown))} (stokes, harmonic)")
     device, name = select_device(args.device)
     warm_up(device)
-    warm_up(device, method="harmonic") if "harmonic" in args.methods else None
+    if "harmonic" in args.methods:
+        warm_up(device, method="harmonic")
     cases = []
     if "shared" in args.sets:
         cases += [(key, mesh, cage, ws.load_surface(cage).vertices.shape[0], args.shared)
@@ -115,9 +120,9 @@ def main() -> int:
         cases += [(p.name, p.mesh, p.cage, len(p.cage_vertices), args.synthetic) for p in stress_pairs()]
     if args.pairs:
         cases = [c for c in cases if any(c[0].startswith(p) for p in args.pairs)]
-    print(f"device: {name}; {len(cases)} pairs; methods {args.methods}", flush=True)
+    print(f"device: {name}; {len(cases)} pairs; methods {', '.join(args.methods)}", flush=True)
     everything, table, failures = [], [], []
-    for method in args.methods.split(","):
+    for method in args.methods:
         for key, mesh, cage, handles, grid_resolutions in cases:
             rows = []
             for n in grid_resolutions:

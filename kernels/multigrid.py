@@ -14,7 +14,7 @@ formed without general sparse matrices (whose 32-bit offsets overflow on large g
 A row lookup `node_row(index, n_rows, p)` gives -1 for lattice points off the lattice, without a row, or with a
 row >= n_rows: with the grid's index and n_rows = n_interior the fine level's unknowns are the interior nodes.
 
-About 440 lines, one module on purpose: the forming kernels (Galerkin blocks, Hermite table) and the applying ones
+About 600 lines, one module on purpose: the forming kernels (Galerkin blocks, Hermite table) and the applying ones
 (stencil, restriction, prolongation, Chebyshev steps) share the lattice helpers and the slot numbering above, and
 read as one description of the V-cycle.
 """

@@ -116,6 +116,9 @@ def test_a_solve_short_of_its_tolerance_is_written_and_one_without_exact_weights
     assert strict["error"].startswith("the solver did not reach tol 1e-09") and strict["outputs"]
     assert "1 written without reaching the solver's tolerance" in captured.out
     assert ws.load_binding(out / "strict.npz").stats["partition_of_unity_error"] <= 1e-6
+    # run again, it is redone and said so again (not skipped as up to date: exit code 0 would hide it)
+    assert main(["batch", str(manifest), "-o", str(out), "--device", "cpu"]) == 1
+    assert json.loads((out / "summary.json").read_text())["assets"][0]["status"] == "not converged"
 
     from warp_stokes.solver import solve
 

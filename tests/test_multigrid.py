@@ -234,7 +234,25 @@ def test_a_thin_sheet_keeps_coarsening_on_a_shifted_lattice(device):
         A = to_scipy(mg.operator_triplets(depth), n[depth], n[depth])
         assert abs(A - expected).max() <= 2e-6 * abs(expected).max(), depth
     assert mg.coarsest["smallest_eigenvalue"] > 1e-4
+    # the cycle's own transfers on the shifted lattices are P^T and P
     rng = np.random.default_rng(3)
+    from warp_stokes.kernels import multigrid as mg_kernels
+
+    for depth in range(len(n) - 1):
+        fine, coarse = mg.levels[depth], mg.levels[depth + 1]
+        P = to_scipy(mg.prolongation_triplets(depth), fine.n, coarse.n)
+        r = rng.standard_normal((fine.n, 1, 4)).astype(np.float32)
+        xc = rng.standard_normal((coarse.n, 1, 4)).astype(np.float32)
+        b = wp.zeros((coarse.n, 1), dtype=wp.vec4f, device=device)
+        x = wp.zeros((fine.n, 1), dtype=wp.vec4f, device=device)
+        shift = wp.vec3i(*coarse.shift)
+        wp.launch(mg_kernels.restrict, dim=b.shape, device=device, outputs=[b],
+                  inputs=[mg.table32, coarse.ijk_device, fine.index, fine.n, shift,
+                          wp.array(r, dtype=wp.vec4f, device=device)])
+        wp.launch(mg_kernels.prolong_add, dim=x.shape, device=device, outputs=[x],
+                  inputs=[mg.table32, fine.ijk_device, coarse.index, shift, wp.array(xc, dtype=wp.vec4f, device=device)])
+        for got, expected in ((b, P.T @ r.reshape(-1)), (x, P @ xc.reshape(-1))):
+            assert np.abs(got.numpy().reshape(-1) - expected).max() <= 1e-6 * np.abs(expected).max(), depth
     known = np.zeros(grid.shape + (2, 4))
     ring = grid.labels >= 2
     known[ring] = rng.uniform(-1, 1, size=(ring.sum(), 2, 4))
@@ -329,7 +347,7 @@ def test_deep_hierarchies_smooth_harder(arm_cage, device, monkeypatch):
         mg.apply(r, z)
         return len(mg.level_sizes), z.numpy()
 
-    monkeypatch.setattr(multigrid, "DEEP_LEVELS", 5)  # the threshold (8 levels) is met at n = 512; lowered here
+    monkeypatch.setattr(multigrid, "DEEP_LEVELS", 5)  # the threshold (8 levels) is met beyond n = 512; lowered here
     depth_deep, deep = cycle(1)
     depth_shallow, shallow = cycle(60)
     assert depth_deep >= multigrid.DEEP_LEVELS > depth_shallow

@@ -16,7 +16,7 @@ FAMILY = shapes.stress_pairs(detail=2) + shapes.stress_pairs(detail=1)
 @pytest.mark.parametrize("pair", FAMILY, ids=[f"{p.name} ({len(p.cage_vertices)})" for p in FAMILY])
 def test_every_synthetic_cage_is_valid_and_holds_its_points(pair):
     with warnings.catch_warnings():
-        warnings.simplefilter("error")  # not even a warning (folded edges, a merged soup, flipped faces)
+        warnings.simplefilter("error", UserWarning)  # not even a warning (folded edges, a merged soup, flipped faces)
         cage = ws.check_cage(pair.cage, name=pair.name)
     assert not cage.flipped and len(cage.vertices) == len(pair.cage_vertices)
     assert ws.signed_volume(cage.vertices, cage.faces) > 0

@@ -10,7 +10,7 @@ import pytest
 
 import warp_stokes as ws
 from conftest import EXAMPLE
-from warp_stokes.sweep import COLUMNS, sweep
+from warp_stokes.sweep import COLUMNS, format_sweep, sweep
 
 
 def test_sweep_command_writes_the_table_as_csv_and_json(tmp_path):
@@ -32,6 +32,7 @@ def test_sweep_command_writes_the_table_as_csv_and_json(tmp_path):
         assert int(r["handles"]) == 58 and int(r["vertices"]) == 2089 and r["device"] == "cpu"
         assert float(r["pu_error"]) < 1e-5 and float(r["lp_error"]) < 1e-5 and float(r["seconds"]) > 0
         assert float(r["conformal_p95"]) >= 1.0  # the bent pose distorts; 1 is a similarity
+        assert r["error"] == ""
     coarse, middle, finest = rows[:3]
     mvc = rows[-1]
     # harmonic coordinates converge to their own finest grid, and are another field than Stokes coordinates
@@ -59,3 +60,16 @@ def test_sweep_command_writes_the_table_as_csv_and_json(tmp_path):
 def test_sweep_in_python_checks_its_methods():
     with pytest.raises(ws.WarpStokesError, match="methods must be among stokes, harmonic, mvc, got laplace"):
         sweep(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", [8], methods=["laplace"], device="cpu")
+
+
+def test_a_resolution_without_exact_weights_is_a_row_and_the_sweep_goes_on(monkeypatch):
+    from warp_stokes.solver import solve
+
+    monkeypatch.setattr(solve, "ACCEPTABLE", 1e-3)  # no solve exact enough: every grid bind refused
+    rows = sweep(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", [8, 12], methods=["stokes", "mvc"], device="cpu")
+    assert [(r["method"], r["resolution"]) for r in rows] == [("stokes", 8), ("stokes", 12), ("mvc", None)]
+    for r in rows[:2]:
+        assert r["error"].startswith("the solver could not bring partition of unity") and r["iterations"] > 0
+        assert r["pu_error"] is None and r["weight_diff_max"] is None and r["seconds"] > 0
+    assert rows[2]["error"] is None and rows[2]["pu_error"] < 1e-5
+    assert "the solver could not" in format_sweep(rows)

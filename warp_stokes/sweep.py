@@ -4,8 +4,9 @@ coordinates beside), and tabulate cost, exactness and convergence, for researche
 Each row: ``method, resolution, handles, vertices, seconds, peak_memory_bytes, memory_estimate_bytes, iterations,
 pu_error, lp_error, weight_diff_max, weight_diff_rms`` (the largest and RMS per-vertex change of the weights against
 the finest resolution of the same method; empty for the finest) and, with a pose, ``conformal_p95`` (the 95th
-percentile of the deformation's per-triangle conformal distortion). ``mvc`` (mean value coordinates, evaluated at the
-vertices) has no grid: one row with an empty resolution. Peak memory is the device memory pool's high-water mark
+percentile of the deformation's per-triangle conformal distortion), and ``error``: empty, or the one line of a
+solve that gave no weights (:class:`warp_stokes.ConvergenceError`; the sweep goes on). ``mvc`` (mean value
+coordinates, evaluated at the vertices) has no grid: one row with an empty resolution. Peak memory is the device memory pool's high-water mark
 on a GPU and the process's peak resident set on a CPU, each above its level when the bind starts.
 """
 
@@ -16,6 +17,7 @@ import io
 import json
 import os
 import resource
+import time
 import warnings
 
 import numpy as np
@@ -23,7 +25,7 @@ import numpy as np
 from .binding import bind
 from .binding.stats import identity_errors
 from .device import device_name, reset_peak_memory, resolve_device
-from .errors import WarpStokesError
+from .errors import ConvergenceError, WarpStokesError
 from .geometry.cage import check_cage
 from .io.files import atomic_output
 from .io.load import load_surface
@@ -32,7 +34,7 @@ from .quality import deformation_quality, vertex_weight_difference
 __all__ = ["sweep", "write_sweep", "format_sweep", "plot_sweep", "COLUMNS", "METHODS"]
 
 COLUMNS = ("method", "resolution", "handles", "vertices", "seconds", "peak_memory_bytes", "memory_estimate_bytes",
-           "iterations", "pu_error", "lp_error", "weight_diff_max", "weight_diff_rms", "conformal_p95")
+           "iterations", "pu_error", "lp_error", "weight_diff_max", "weight_diff_rms", "conformal_p95", "error")
 METHODS = ("stokes", "harmonic", "mvc")
 
 
@@ -134,9 +136,19 @@ def sweep(mesh, cage, resolutions, methods=("stokes",), pose=None, device=None, 
             continue
         for resolution in resolutions:
             peak = _PeakMemory(device)
+            start = time.perf_counter()
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                binding = bind(surface, checked, resolution=resolution, device=device, tol=tol, method=method)
+                try:
+                    binding = bind(surface, checked, resolution=resolution, device=device, tol=tol, method=method)
+                except ConvergenceError as exc:  # a row that says so; the sweep goes on
+                    row = dict.fromkeys(COLUMNS)
+                    row.update(method=method, resolution=resolution, handles=checked.n_handles,
+                               vertices=len(surface.vertices), seconds=time.perf_counter() - start,
+                               peak_memory_bytes=peak.bytes(), error=str(exc),
+                               iterations=exc.report.iterations if exc.report is not None else None)
+                    rows.append(row)
+                    continue
             weights[method][resolution] = binding.weights
             rows.append(_row(method, resolution, binding.weights, surface, checked, pose,
                              binding.stats["seconds"]["total"], peak.bytes(), binding.stats["memory_estimate_bytes"],

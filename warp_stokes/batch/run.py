@@ -59,15 +59,16 @@ def _up_to_date(asset: Asset, outputs: list[str], manifest: str) -> bool:
 
 def _made_by_this_version(npz: str) -> bool:
     """Whether the binding ``npz`` was made by this version of warp-stokes (another version may give other weights:
-    its outputs are redone)."""
+    its outputs are redone) and converged (one that did not is redone, and said so again, rather than skipped)."""
     import numpy as np
 
     try:
         with np.load(npz, allow_pickle=False) as data:
-            settings = json.loads(str(data["meta"]))["settings"]
+            meta = json.loads(str(data["meta"]))
+        version, converged = meta["settings"].get("warp_stokes_version"), meta["stats"].get("converged")
     except Exception:  # unreadable or not a binding: redo it
         return False
-    return settings.get("warp_stokes_version") == __version__
+    return version == __version__ and converged is True
 
 
 def _progress(stream, k: int, total: int, name: str, stage: str) -> None:

@@ -14,13 +14,14 @@ import warnings
 import numpy as np
 
 from ..device import resolve_device
-from ..errors import CageError, MeshError, WarpStokesError
+from ..errors import CageError, ConvergenceError, MeshError, WarpStokesError
 from ..geometry.boundary import mean_value_coordinates
 from ..geometry.cage import Cage, check_cage
 from ..geometry.grid import check_resolution, wedge_resolution
 from ..geometry.inside import classify_points
 from ..geometry.local_boundary import boundary_settings, local_values
 from ..io.scene import is_usd, load_scene
+from ..solver.solve import ACCEPTABLE
 from .columns import grid_columns
 from .sample import SAMPLINGS
 from .spread import driver_device, spread_devices
@@ -162,6 +163,7 @@ def bind(mesh, cage=None, resolution: int = 64, device=None, tol: float = 1e-6, 
     seconds["total"] = sum(seconds.values())
 
     pu_error, lp_error = identity_errors(weights, checked.vertices, points)
+    _refuse_inexact(checked, surface, pu_error, lp_error, part.reports)
     stats = {
         **grid_stats(grid, checked, surface, inside, beyond, thin, device),
         "method": method,
@@ -226,6 +228,20 @@ def _check_arguments(tol, memory_budget, solver, boundary, sampling, method) -> 
     boundary_settings(boundary)
     if sampling not in SAMPLINGS:
         raise WarpStokesError(f"sampling must be 'hermite' or 'trilinear', got {sampling!r}")
+
+
+def _refuse_inexact(checked: Cage, surface, pu_error: float, lp_error: float, reports) -> None:
+    """Weights that break partition of unity or linear precision at the vertices are an error, not a result. Each
+    solve checked its own nodes (:data:`warp_stokes.solver.solve.ACCEPTABLE` times its tolerance), but a chunk's
+    check is partition of unity alone: linear precision of a bind solved in chunks (or spread over devices) is
+    measured here, on the weights of all of them."""
+    limit = ACCEPTABLE * max(r.identity_tolerance for r in reports)
+    if not (pu_error <= limit and lp_error <= limit):
+        raise ConvergenceError(
+            f"{checked.name}: the weights of {surface.name} break partition of unity ({pu_error:.2g}) or linear "
+            f"precision ({lp_error:.2g} of the diagonal) beyond {limit:.1g} although every solve converged "
+            f"({len(reports)} chunk(s)); no weights were returned: a fault of the solver; please report it with the "
+            "cage")
 
 
 def _refuse_mesh_outside(surface, checked: Cage, inside: np.ndarray, distance: np.ndarray) -> None:

@@ -230,7 +230,10 @@ def sweep_command(args) -> int:
             print(f"no pictures: {exc}", file=sys.stderr)
         else:
             print(f"drew {pictures[0]} and {pictures[1]}")
-    return 0
+    failed = [r for r in rows if r.get("error")]
+    for r in failed:
+        print(f"warp-stokes: error: {r['method']} at resolution {r['resolution']}: {r['error']}", file=sys.stderr)
+    return 1 if failed else 0
 
 
 def show_command(args) -> int:

@@ -150,8 +150,9 @@ def ellipsoid_pair(radii=(1.0, 1.0, 1.0), noise: float = 0.0, subdivisions: int 
 def star_pair(seed: int, subdivisions: int = 2, bumps: int = 8, amplitude: float = 0.6,
               rotation="random") -> SyntheticPair:
     """A random star-shaped cage: an icosphere's vertices at radius ``1 + sum of bumps`` along their rays (Gaussian
-    bumps of random sign, centre and width on the sphere, summing to at most ``amplitude`` in size, the radius
-    kept at 0.25 or more), so arms, dents and necks of every size appear.
+    bumps of random sign, centre and width on the sphere, their heights' absolute values summing to ``amplitude``
+    times the square root of ``bumps``, the radius kept at 0.25 or more), so arms, dents and necks of every size
+    appear.
 
     Examples
     --------

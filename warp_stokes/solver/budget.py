@@ -38,7 +38,8 @@ __all__ = ["MemoryEstimate", "estimate_memory", "available_memory", "plan_chunks
 
 VEC4 = 16
 #: coarse level size over the next finer one, used when the levels are not given (measured 0.15-0.19 on the
-#: real cages at n = 64-96; a bulky cage at n = 256: 0.13)
+#: real cages at n = 64-96 and 0.13 on a bulky cage at n = 256 with the earlier coarsening; about 0.125
+#: with the present one on the real cages, benchmarks/RESULTS.md section 12: the figure stays an upper bound there)
 COARSENING_RATIO = 0.19
 #: bytes per coarse node held by the hierarchy and its lattice index (4 B per lattice node, about 8 lattice nodes
 #: per coarse node for a bulky cage; less for a thin one), when the levels are not given

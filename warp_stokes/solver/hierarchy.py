@@ -53,7 +53,7 @@ def coarsen(grid: Grid, device=None, coarsest_nodes: int = COARSEST_NODES) -> li
     --------
     >>> levels = coarsen(grid, device="cpu")    # doctest: +SKIP
     >>> [lev.n for lev in levels]                # doctest: +SKIP
-    [23113, 3968, 785, 194]
+    [16563, 2077, 268]
     """
     device = resolve_device(device)
     arrays = grid.device_arrays(device)
@@ -82,10 +82,18 @@ def coarsen(grid: Grid, device=None, coarsest_nodes: int = COARSEST_NODES) -> li
 
 
 def lattice_shift(level: Level) -> tuple:
-    """Where the next coarser lattice sits on ``level``'s: its node c on ``level``'s node 2c + shift. No shift unless
-    another would keep more than twice the coarse nodes (:func:`warp_stokes.kernels.multigrid.coarse_nodes` keeps a
-    node over each unknown of the shift's parities): a thin sheet of unknowns at odd coordinates keeps coarsening.
-    At least 1/16 of the unknowns become coarse nodes.
+    """Where the next coarser lattice sits on ``level``'s: its node c on ``level``'s node 2c + shift, each of the
+    shift's components 0 or 1. No shift unless another would keep more than twice the coarse nodes
+    (:func:`warp_stokes.kernels.multigrid.coarse_nodes` keeps a node over each unknown of the shift's parities): a
+    thin sheet of unknowns at odd coordinates keeps coarsening. At least 1/16 of the unknowns become coarse nodes.
+
+    Parameters
+    ----------
+    level : Level, with its node coordinates on the device (``ijk_device``); counted on the current device
+
+    Returns
+    -------
+    tuple of 3 int
 
     Examples
     --------

@@ -87,8 +87,10 @@ class BatchedCG:
         wp.launch(cg.add_columns, dim=self.shape, inputs=[self.r, self.p], outputs=[self.p])
         squared = self.preconditioned_norms(self.p).numpy()
         scale = np.sqrt(np.maximum(squared, 0.0))
-        # a handle with (almost) no forcing is measured against the others, not against zero
-        self.scale = np.maximum(scale, 1e-12 * scale.max() + 1e-300)
+        # a handle with (almost) no forcing is measured against the others, not against zero; a column that is not
+        # finite (a fault's) keeps its NaN and leaves the others' scales alone
+        top = np.max(scale, where=np.isfinite(scale), initial=0.0)
+        self.scale = np.maximum(scale, 1e-12 * top + 1e-300)
         self.indefinite = bool((squared < -(NEGATIVE_TOLERANCE * self.scale) ** 2).any())
         self.rz = self.preconditioned_norms(self.r)
         return self._relative(self.rz.numpy())
@@ -136,6 +138,9 @@ class Watchdog:
     >>> dog = Watchdog(stagnation=True)
     >>> [dog.check(np.array([r]), indefinite=False) for r in (1.0, 0.1, 1e3)]
     [None, None, 'the residual grew 1e+04-fold (to 1e+03)']
+    >>> dog = Watchdog(stagnation=False)  # a residual of zero (converged) is no base to grow from
+    >>> [dog.check(np.array([r]), indefinite=False) for r in (0.0, 1e-9)]
+    [None, None]
     """
 
     def __init__(self, stagnation: bool):
@@ -150,7 +155,7 @@ class Watchdog:
         if not np.isfinite(rel).all():
             return "the residual is not finite"
         worst = float(rel.max()) if len(rel) else 0.0
-        if worst > GROWTH * self.best:
+        if 0.0 < self.best < np.inf and worst > GROWTH * self.best:
             return f"the residual grew {worst / self.best:.0e}-fold (to {worst:.0e})"
         self.best = min(self.best, worst)
         self.history.append(self.best)

@@ -17,9 +17,10 @@ One V-cycle for all handles at once (every handle a column of the level arrays):
   pair at n = 512 took 27 CG iterations with degree 3 everywhere, 19 with this, in 21% less time, H100), lmax 1.2
   times the estimate of 40 power iterations (12 underestimated it by 20% at n = 512, and higher degrees then
   diverged); it is a fixed polynomial, so the V-cycle is a symmetric preconditioner;
-- coarsest level: its inverse in float64, checked (:func:`coarsest_inverse`: a Cholesky factorisation and a
-  condition estimate, else an eigendecomposition that leaves out eigenvalues below COARSEST_CUTOFF of the largest:
-  a mode the float32 cycle cannot resolve is dropped, not amplified), its conditioning recorded
+- coarsest level: its inverse in float64, checked (:func:`coarsest_inverse`: scaled to a unit diagonal, a Cholesky
+  factorisation and a bound of the condition number, else an eigendecomposition that leaves out eigenvalues below
+  COARSEST_CUTOFF of the largest: a mode the float32 cycle cannot resolve is dropped, not amplified), its
+  conditioning recorded
   (:attr:`Multigrid.coarsest`); for a GPU computed on a host thread
   while the device estimates the smoother's eigenvalues and the bind forms its boundary data (it is first needed by
   the first V-cycle).
@@ -57,8 +58,10 @@ __all__ = ["Multigrid", "coarsen", "coarsest_inverse", "hierarchy_bytes", "Level
 #: Chebyshev degree on the fine level, the first coarse level, ...; the last entry holds for every deeper level
 #: (measured with benchmarks/bench_smoother.py: RESULTS.md)
 SMOOTHER_DEGREES = (3, 3, 8)
-#: hierarchies of at least DEEP_LEVELS levels smooth with DEEP_SMOOTHER_DEGREES: the CG iterations grow with the
-#: depth (the icosphere pair at n = 512, 8 levels, H100: 17-20 iterations per chunk and a restart of 2 with
+#: hierarchies of at least DEEP_LEVELS levels smooth with DEEP_SMOOTHER_DEGREES: the CG iterations grew with the
+#: depth. Measured with the earlier coarsening, whose levels shrank by 5-7 (the present one's by about 8: the ogre at
+#: n = 512 has 6 levels, the sphere at 256 6; 8 come only beyond n = 512, not measured since) (the icosphere pair at
+#: n = 512, 8 levels, H100: 17-20 iterations per chunk and a restart of 2 with
 #: (3, 3, 8); 16 and a restart of 1 with (4, 4, 12), 12% more time per chunk)
 DEEP_LEVELS = 8
 DEEP_SMOOTHER_DEGREES = (4, 4, 12)
@@ -68,10 +71,11 @@ POWER_ITERATIONS = 40
 #: the power iteration's estimate approaches lmax from below: the smoother's upper end is this much above it
 LMAX_SAFETY = 1.2
 
-#: eigenvalues of the coarsest operator at most this fraction of its largest are left out of its inverse: the
-#: cycle's float32 right-hand sides carry relative errors near 6e-8, which 1 / lambda would amplify beyond the
-#: correction itself. Coarsest levels are positive definite with lambda_min / lambda_max >= 1.7e-4 on the sweeps'
-#: cages (benchmarks/RESULTS.md); a singular one (a fault) loses its null space instead of blowing up
+#: eigenvalues of the coarsest operator (scaled to a unit diagonal) at most this fraction of its largest are left out
+#: of its inverse: the cycle's float32 right-hand sides carry relative errors near 6e-8, which 1 / lambda would
+#: amplify beyond the correction itself. The scaled coarsest levels of the sweeps' cages are far from it (the bound
+#: of lambda_min / lambda_max at least 6.6e-4 on the box at n = 16-96, 4.3e-4 on a star-shaped cage at 16-80, 1.8e-3
+#: on the arm at 16-128, CPU); a singular one (a fault) loses its null space instead of blowing up
 COARSEST_CUTOFF = 1e-7
 #: a guaranteed bound of the largest eigenvalue of D^-1 A on the fine level: its largest absolute row sum, the same
 #: on every row that has all its neighbours (the compact scheme: value rows (48 + 6 * 10 + 12 + 6 * 3) / 48, gradient
@@ -90,13 +94,19 @@ def _inverts_beside(device) -> bool:
     return device.is_cuda
 
 
+def _infinity_norm(matrix: np.ndarray, rows: int = 256) -> float:
+    """The largest absolute row sum, a block of rows at a time (no full-size temporary)."""
+    return max((float(np.abs(matrix[k : k + rows]).sum(axis=1).max()) for k in range(0, len(matrix), rows)),
+               default=0.0)
+
+
 def coarsest_inverse(dense: np.ndarray, cutoff: float = COARSEST_CUTOFF) -> tuple[np.ndarray, float, dict]:
-    """The inverse of a symmetric coarsest operator, never unchecked: a Cholesky factorisation proves it positive
-    definite, and ||A||_inf ||A^-1||_inf bounds its condition number from above (2.4-4 times the true one on the
-    shared pairs and synthetic cages); where either fails (not positive definite, or the bound above 1 / ``cutoff``),
-    the pseudo-inverse from its eigendecomposition in float64, eigenvalues at most ``cutoff`` times the largest left
-    out (it cannot blow up on a singular operator). The bound takes two passes over the matrices: power iterations
-    (60 small BLAS calls) took 0.15 s for 632 rows on the 16-core host of an H100, beside Warp's threads.
+    """The inverse of a symmetric coarsest operator, never unchecked. With S = diag(A)^-1/2 (the operator's rows are
+    scaled like h^-4 and h^-2 for values and gradients), a Cholesky factorisation proves S A S positive definite and
+    ||S A S||_inf ||(S A S)^-1||_inf bounds its condition number from above; where either fails (not positive
+    definite, or the bound above 1 / ``cutoff``), the pseudo-inverse from the eigendecomposition of S A S in float64,
+    eigenvalues at most ``cutoff`` times the largest left out (it cannot blow up on a singular operator). The inverse
+    is S (S A S)^-1 S. ``dense`` is overwritten (by S A S).
 
     Parameters
     ----------
@@ -107,35 +117,44 @@ def coarsest_inverse(dense: np.ndarray, cutoff: float = COARSEST_CUTOFF) -> tupl
     -------
     inverse : (m, m) float32
     seconds : float, the time it took
-    report : dict, ``unknowns``, ``condition`` (largest over the smallest kept eigenvalue; on the Cholesky path the
-        upper bound), ``smallest_eigenvalue`` (relative to the largest; on the Cholesky path 1 / the bound, a lower
-        bound), ``dropped`` (eigenvalues left out) and ``method`` ("cholesky" or "eigen")
+    report : dict, of S A S: ``unknowns``, ``condition`` (largest over the smallest kept eigenvalue; on the Cholesky
+        path the upper bound), ``smallest_eigenvalue`` (relative to the largest; on the Cholesky path 1 / the bound,
+        a lower bound), ``dropped`` (eigenvalues left out) and ``method`` ("cholesky" or "eigen")
 
     Examples
     --------
-    >>> inverse, _, report = coarsest_inverse(np.diag([4.0, 2.0, 1.0]))
-    >>> inverse.diagonal().tolist(), report["method"], round(report["condition"], 6)
-    ([0.25, 0.5, 1.0], 'cholesky', 4.0)
+    >>> inverse, _, report = coarsest_inverse(np.array([[4.0, 1.0], [1.0, 1.0]]))
+    >>> np.round(inverse.astype(float), 5).tolist(), report["method"], round(report["condition"], 6)
+    ([[0.33333, -0.33333], [-0.33333, 1.33333]], 'cholesky', 3.0)
     >>> inverse, _, report = coarsest_inverse(np.diag([4.0, 2.0, 0.0]))
-    >>> inverse.diagonal().tolist(), report["method"], report["dropped"], report["condition"]
-    ([0.25, 0.5, 0.0], 'eigen', 1, 2.0)
+    >>> inverse.diagonal().tolist(), report["method"], report["dropped"], round(report["condition"], 6)
+    ([0.25, 0.5, 0.0], 'eigen', 1, 1.0)
     """
     start = time.perf_counter()
     report = {"unknowns": int(len(dense)), "dropped": 0}
+    diagonal = dense.diagonal().copy()
+    # a row without a positive diagonal (no positive definite operator has one) keeps its scale: the eigen path
+    scale = 1.0 / np.sqrt(np.where(diagonal > 0, diagonal, 1.0))
+    dense *= scale[:, None]
+    dense *= scale[None, :]
     try:
         np.linalg.cholesky(dense)  # raises unless positive definite (the coarsening rule makes it so)
         inverse = np.linalg.inv(dense)
-        # for a symmetric matrix the spectral norm is at most the largest absolute row sum
-        condition = float(np.abs(dense).sum(axis=1).max() * np.abs(inverse).sum(axis=1).max())
-        if np.isfinite(condition) and condition * cutoff < 1.0:
+        condition = _infinity_norm(dense) * _infinity_norm(inverse)
+        if (diagonal > 0).all() and np.isfinite(condition) and condition * cutoff < 1.0:
             report.update(smallest_eigenvalue=1.0 / condition, condition=condition, method="cholesky")
+            inverse *= scale[:, None]
+            inverse *= scale[None, :]
             return inverse.astype(np.float32), time.perf_counter() - start, report
+        del inverse
     except np.linalg.LinAlgError:
         pass
     values, vectors = np.linalg.eigh(dense)
     largest = float(np.abs(values).max()) if values.size else 0.0
     kept = values > cutoff * largest
     inverse = (vectors[:, kept] / values[kept]) @ vectors[:, kept].T
+    inverse *= scale[:, None]
+    inverse *= scale[None, :]
     report.update(smallest_eigenvalue=float(values.min() / largest) if largest > 0 else 0.0,
                   condition=float(largest / values[kept].min()) if kept.any() else float("inf"),
                   dropped=int((~kept).sum()), method="eigen")
