@@ -19,7 +19,8 @@ from ..io.files import atomic_output
 from .lock import folder_lock
 from .manifest import Asset, read_manifest
 
-__all__ = ["Result", "run_batch", "bind_one", "skipped", "outputs_of", "format_summary", "warn_for"]
+__all__ = ["Result", "run_batch", "bind_one", "skipped", "outputs_of", "format_summary", "warn_for",
+           "refuse_outputs_over_inputs"]
 
 
 @dataclass
@@ -110,6 +111,7 @@ def run_batch(manifest, outdir, force: bool = False, device=None, progress=True,
         from .distributed import require_ray
 
         require_ray()  # before any work or file
+    refuse_outputs_over_inputs(assets, outdir, manifest)
     os.makedirs(outdir, exist_ok=True)
     with folder_lock(outdir):
         # temporary files of a batch killed in this folder (it held the lock, so none is being written now)
@@ -125,6 +127,41 @@ def run_batch(manifest, outdir, force: bool = False, device=None, progress=True,
         _write_json(os.path.join(outdir, "summary.json"), {"warp_stokes_version": __version__,
                                                            "assets": [r.__dict__ for r in results]})
     return results
+
+
+def refuse_outputs_over_inputs(assets: list[Asset], outdir: str, manifest) -> None:
+    """Before any work: no file the batch writes (each asset's outputs, ``summary.json``) is one it reads (the
+    manifest, each asset's mesh, cage and poses, and every layer those USD files are made of), nor exists as
+    anything but a regular file. An asset named like its input, written into the input's folder, would replace it.
+
+    Raises
+    ------
+    WarpStokesError, one line naming the output, what it would replace and whose it is
+    """
+    from ..io.files import check_output_target, same_file
+    from ..io.scene import is_usd
+    from ..io.usd.asset import layer_files
+
+    manifest = os.fspath(manifest)
+    inputs = [(manifest, "the manifest")]
+    for asset in assets:
+        for role, source in (("mesh", asset.mesh), ("cage", asset.cage), ("poses", asset.poses)):
+            if not source:
+                continue
+            inputs.append((source, f"the {role} of asset {asset.name!r}"))
+            if is_usd(source) and os.path.isfile(source):
+                inputs += [(layer, f"a layer of the {role} of asset {asset.name!r}") for layer in layer_files(source)]
+    outputs = [(os.path.join(outdir, "summary.json"), "the batch's summary")]
+    outputs += [(path, f"asset {asset.name!r}'s output") for asset in assets for path in outputs_of(asset, outdir)]
+    for path, what in outputs:
+        for source, whose in inputs:
+            if same_file(path, source):
+                raise WarpStokesError(f"{path}: {what} would replace {whose} ({source}); write the batch to another "
+                                      "folder or rename the asset")
+        try:
+            check_output_target(path)
+        except WarpStokesError as exc:
+            raise WarpStokesError(f"{exc} ({what})") from None
 
 
 def outputs_of(asset: Asset, outdir: str) -> list[str]:

@@ -53,8 +53,9 @@ def format_stats(stats: dict) -> str:
 
 def check_output(path: str, inputs=(), folder: bool = False) -> None:
     """Before any work: the output's folder exists and is writable, the output is not one of the inputs, and it
-    is not an existing folder (or, with ``folder``, not an existing file)."""
+    is not an existing folder (or, with ``folder``, not an existing file), nor a device, pipe or link to one."""
     from warp_stokes.errors import WarpStokesError
+    from warp_stokes.io.files import check_output_target, same_file
 
     parent = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(parent):
@@ -71,9 +72,12 @@ def check_output(path: str, inputs=(), folder: bool = False) -> None:
             raise WarpStokesError(f"{path}: the output folder is not writable")
     elif os.path.isdir(path):
         raise WarpStokesError(f"{path}: the output is a folder, not a file")
-    for source in inputs:
-        if source and os.path.exists(path) and os.path.exists(source) and os.path.samefile(path, source):
-            raise WarpStokesError(f"{path}: the output is the input {source}; choose another output name")
+    else:
+        check_output_target(path, inputs)  # not an input, not a device, pipe or link to one
+    if folder:
+        for source in inputs:
+            if source and same_file(path, source):
+                raise WarpStokesError(f"{path}: the output is the input {source}; choose another output name")
 
 
 def announce_compilation(device, harmonic: bool = False) -> None:
@@ -87,6 +91,8 @@ def bind_command(args) -> int:
     import warp_stokes as ws
 
     check_output(args.output, (args.mesh, args.cage))
+    if not args.output.lower().endswith(".npz"):  # a binding under another format's name misleads every reader
+        raise ws.WarpStokesError(f"{args.output}: a binding is written as .npz")
     from warp_stokes.binding.spread import spread_devices
 
     if spread_devices(args.device) is None:  # spread: the Ray workers compile, on their devices

@@ -8,7 +8,7 @@ import os
 import numpy as np
 
 from ...errors import WarpStokesError
-from ..files import atomic_output
+from ..files import atomic_output, same_file
 from ..normals import NormalsPlan
 from .common import deformed_frames, extent, new_stage, save_layer, set_timing, vec3f
 
@@ -92,12 +92,14 @@ def write_layer(path, ext, binding, positions, frames, poses, fps, with_cage, wi
     :func:`warp_stokes.io.usd.write_animation` for the arguments."""
     from pxr import Sdf, Usd, UsdGeom, Vt
 
-    from .asset import open_stage, stage_metadata
+    from .asset import layer_files, open_stage, stage_metadata
 
     asset_path = _asset_path(binding, asset)
-    if os.path.exists(path) and os.path.samefile(path, asset_path):
-        raise WarpStokesError(f"{path}: the output is the asset itself; write the animation layer to another file "
-                              "(it sublayers the asset)")
+    for part in layer_files(asset_path):
+        if same_file(path, part):
+            what = "the asset itself" if same_file(part, asset_path) else f"a layer of the asset {asset_path} ({part})"
+            raise WarpStokesError(f"{path}: the output is {what}; write the animation layer to another file (it "
+                                  "sublayers the asset)")
     metadata = stage_metadata(open_stage(asset_path, WarpStokesError))
     if up_axis is not None and up_axis != metadata["up_axis"]:
         raise WarpStokesError(f"up axis {up_axis}: a layer over {asset_path} keeps its up axis "
