@@ -133,9 +133,16 @@ def test_a_solve_short_of_its_tolerance_is_written_and_one_without_exact_weights
 def test_rerun_skips_up_to_date_assets_unless_forced(manifest, tmp_path, device, monkeypatch):
     out = tmp_path / "out"
     first = {r.name: r.status for r in ws.run_batch(manifest, out, device=device, progress=None)}
+    record = {r["name"]: r for r in json.loads((out / "summary.json").read_text())["assets"]}["arm_a"]
     again = {r.name: r.status for r in ws.run_batch(manifest, out, device=device, progress=None)}
     assert again == {"arm_a": "skipped", "arm_b": "skipped", "open": "failed", "arm_c": "skipped",
                      "short_pose": "failed"}
+    # a skipped asset keeps the record of the run that wrote its files (it was lost: vertices null, no warnings)
+    kept = {r["name"]: r for r in json.loads((out / "summary.json").read_text())["assets"]}["arm_a"]
+    assert kept["status"] == "skipped" and record["status"] == "ok"
+    assert {k: kept[k] for k in ("vertices", "handles", "seconds", "warnings", "pid", "device")} == {
+        k: record[k] for k in ("vertices", "handles", "seconds", "warnings", "pid", "device")}
+    assert kept["vertices"] == 2089 and kept["warnings"]
     assert first["arm_a"] == "ok"
     os.utime(tmp_path / "in" / "grow.npy")  # a newer input: its assets are redone
     future = os.path.getmtime(out / "arm_a.npz") + 10

@@ -78,8 +78,9 @@ def test_a_recovered_solve_says_so_once(tmp_path):
     out = tmp_path / "arm.npz"
     script = ("import sys; from warp_stokes.solver import multigrid; multigrid.LMAX_SAFETY = 0.3; "
               "from warp_stokes.cli import main; sys.exit(main(sys.argv[1:]))")
-    proc = subprocess.run([sys.executable, "-c", script, "bind", str(EXAMPLE / "arm.obj"), str(EXAMPLE / "arm_cage.obj"),
-                           "-o", str(out), "--resolution", "20", "--device", "cpu"], capture_output=True, text=True)
+    proc = subprocess.run([sys.executable, "-c", script, "bind", str(EXAMPLE / "arm.obj"),
+                           str(EXAMPLE / "arm_cage.obj"), "-o", str(out), "--resolution", "20", "--device", "cpu"],
+                          capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr
     assert "converged (after 1 fault(s) of its preconditioner, with multigrid with guaranteed smoother bounds)" in (
         proc.stdout)

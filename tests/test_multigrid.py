@@ -250,7 +250,8 @@ def test_a_thin_sheet_keeps_coarsening_on_a_shifted_lattice(device):
                   inputs=[mg.table32, coarse.ijk_device, fine.index, fine.n, shift,
                           wp.array(r, dtype=wp.vec4f, device=device)])
         wp.launch(mg_kernels.prolong_add, dim=x.shape, device=device, outputs=[x],
-                  inputs=[mg.table32, fine.ijk_device, coarse.index, shift, wp.array(xc, dtype=wp.vec4f, device=device)])
+                  inputs=[mg.table32, fine.ijk_device, coarse.index, shift,
+                          wp.array(xc, dtype=wp.vec4f, device=device)])
         for got, expected in ((b, P.T @ r.reshape(-1)), (x, P @ xc.reshape(-1))):
             assert np.abs(got.numpy().reshape(-1) - expected).max() <= 1e-6 * np.abs(expected).max(), depth
     known = np.zeros(grid.shape + (2, 4))

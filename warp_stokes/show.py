@@ -338,8 +338,11 @@ def mesh_colours(binding, pose=None, reference=None) -> MeshColours:
     >>> float(np.nanmin(m.values)) >= 1                                   # doctest: +SKIP
     True
     """
-    vertices = binding.mesh_vertices if pose is None else np.asarray(binding.deform(pose), dtype=np.float64)
     faces = binding.mesh_faces
+    if len(faces) == 0:
+        raise WarpStokesError("the bound mesh has no faces (a point set): there are no triangles to colour; show a "
+                              "handle's weight on a slice instead (--handle)")
+    vertices = binding.mesh_vertices if pose is None else np.asarray(binding.deform(pose), dtype=np.float64)
     if reference is None:
         return MeshColours(vertices, conformal_distortion(faces, binding.mesh_vertices, vertices),
                            "conformal distortion \u03c3\u2081/\u03c3\u2082 (1 = conformal)")

@@ -6,8 +6,9 @@ pu_error, lp_error, weight_diff_max, weight_diff_rms`` (the largest and RMS per-
 the finest resolution of the same method; empty for the finest) and, with a pose, ``conformal_p95`` (the 95th
 percentile of the deformation's per-triangle conformal distortion), and ``error``: empty, or the one line of a
 solve that gave no weights (:class:`warp_stokes.ConvergenceError`; the sweep goes on). ``mvc`` (mean value
-coordinates, evaluated at the vertices) has no grid: one row with an empty resolution. Peak memory is the device memory pool's high-water mark
-on a GPU and the process's peak resident set on a CPU, each above its level when the bind starts.
+coordinates, evaluated at the vertices) has no grid: one row with an empty resolution. Peak memory is the device
+memory pool's high-water mark on a GPU and the process's peak resident set on a CPU, each above its level when the
+bind starts.
 """
 
 from __future__ import annotations

@@ -23,7 +23,7 @@ import os
 import signal
 
 from ..device import require_ray
-from .run import Result, bind_one, skipped, warn_for
+from .run import Result, bind_one, earlier_records, skipped, warn_for
 
 __all__ = ["run_on_ray", "require_ray", "TASK_RETRIES", "KILL_ONCE_VARIABLE"]
 
@@ -93,8 +93,9 @@ def run_on_ray(assets, outdir: str, manifest, force: bool, device, progress, wor
         task = ray.remote(_bind_task).options(max_retries=TASK_RETRIES, retry_exceptions=False, **options)
         results: list[Result | None] = [None] * len(assets)
         pending = {}
+        earlier = earlier_records(outdir)
         for k, asset in enumerate(assets):
-            results[k] = skipped(asset, outdir, manifest, force)
+            results[k] = skipped(asset, outdir, manifest, force, earlier)
             if results[k] is None:
                 pending[task.remote(asset, outdir, task_device)] = k
         total, failed = len(assets), 0

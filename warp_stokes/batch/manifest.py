@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import os
 from dataclasses import dataclass
 
@@ -85,8 +86,16 @@ def _checked_entry(merged: dict, where: str) -> None:
         raise ManifestError(f"{where}: 'sampling' must be \"hermite\" or \"trilinear\"")
     for key, kind in (("resolution", int), ("fps", (int, float)), ("tol", (int, float)),
                       ("with_cage", bool), ("with_weights", bool), ("rest_time", (int, float))):
-        if key in merged and (not isinstance(merged[key], kind) or (kind is int and isinstance(merged[key], bool))):
+        value = merged.get(key)
+        if key in merged and (not isinstance(value, kind) or (kind is not bool and isinstance(value, bool))):
             raise ManifestError(f"{where}: '{key}' has the wrong type ({type(merged[key]).__name__})")
+    # the ranges the command line takes, checked before any work (not found per asset after others were bound)
+    for key, ok, expected in (("resolution", lambda v: 8 <= v <= 2048, "an integer from 8 to 2048"),
+                              ("tol", lambda v: 0 < v <= 0.1, "in (0, 0.1]"),
+                              ("fps", lambda v: math.isfinite(v) and v > 0, "a positive number"),
+                              ("rest_time", math.isfinite, "a finite time code")):
+        if key in merged and not ok(merged[key]):
+            raise ManifestError(f"{where}: '{key}' must be {expected}, got {merged[key]!r}")
 
 
 def read_manifest(path) -> list[Asset]:
@@ -99,6 +108,12 @@ def read_manifest(path) -> list[Asset]:
     """
     path = os.fspath(path)
     data = _read_data(path)
+    unknown = sorted(set(data) - {"defaults", "asset", "assets"})
+    if unknown:  # a [default] table (for [defaults]) was ignored, and every asset bound with the built-in settings
+        raise ManifestError(f"{path}: unknown top-level key(s) {unknown}; known: 'defaults', 'asset' (TOML) or "
+                            "'assets' (JSON)")
+    if "asset" in data and "assets" in data:
+        raise ManifestError(f"{path}: both 'asset' and 'assets' lists; give the assets in one of them")
     defaults = data.get("defaults", {})
     if not isinstance(defaults, dict):
         raise ManifestError(f"{path}: 'defaults' must be a table/object")

@@ -19,8 +19,8 @@ from ..io.files import atomic_output
 from .lock import folder_lock
 from .manifest import Asset, read_manifest
 
-__all__ = ["Result", "run_batch", "bind_one", "skipped", "outputs_of", "format_summary", "warn_for",
-           "refuse_outputs_over_inputs"]
+__all__ = ["Result", "run_batch", "bind_one", "skipped", "earlier_records", "outputs_of", "format_summary",
+           "warn_for", "refuse_outputs_over_inputs"]
 
 
 @dataclass
@@ -170,12 +170,28 @@ def outputs_of(asset: Asset, outdir: str) -> list[str]:
     return [npz] + ([os.path.join(outdir, f"{asset.name}.usd")] if asset.poses else [])
 
 
-def skipped(asset: Asset, outdir: str, manifest, force: bool) -> Result | None:
-    """The asset's result when its outputs are newer than its inputs (and not ``force``), else None."""
+def earlier_records(outdir: str) -> dict:
+    """The records of the assets in ``outdir/summary.json`` by name (empty when there is none, or it is unreadable)."""
+    try:
+        with open(os.path.join(outdir, "summary.json"), encoding="utf-8") as fh:
+            return {r["name"]: r for r in json.load(fh)["assets"] if isinstance(r, dict) and "name" in r}
+    except Exception:  # no summary yet, or not one of ours: nothing to keep
+        return {}
+
+
+def skipped(asset: Asset, outdir: str, manifest, force: bool, earlier: dict | None = None) -> Result | None:
+    """The asset's result when its outputs are newer than its inputs (and not ``force``), else None: status
+    "skipped", with the record of the run that wrote its outputs (vertices, handles, seconds, warnings, where it was
+    bound) from ``earlier`` (:func:`earlier_records`) where it has one."""
     outputs = outputs_of(asset, outdir)
     if force or not _up_to_date(asset, outputs, os.fspath(manifest)):
         return None
-    return Result(asset.name, "skipped", resolution=_grid_resolution(asset), outputs=outputs)
+    result = Result(asset.name, "skipped", resolution=_grid_resolution(asset), outputs=outputs)
+    record = (earlier or {}).get(asset.name, {})
+    for key in ("vertices", "handles", "seconds", "warnings", "host", "pid", "device"):
+        if record.get(key) is not None:
+            setattr(result, key, record[key])
+    return result
 
 
 def _grid_resolution(asset: Asset) -> int | None:
@@ -221,7 +237,8 @@ def bind_one(asset: Asset, outdir: str, device, progress=None, k: int = 0, total
 
 def _run_assets(assets, outdir, manifest, force, device, progress) -> list[Result]:
     results = []
-    up_to_date = [skipped(asset, outdir, manifest, force) for asset in assets]
+    earlier = earlier_records(outdir)
+    up_to_date = [skipped(asset, outdir, manifest, force, earlier) for asset in assets]
     todo = [asset for asset, done in zip(assets, up_to_date) if done is None]
     if progress and todo:  # once the folder is ours (Ray workers compile in their own processes)
         announce_compilation(device, harmonic=any(a.method == "harmonic" for a in todo), stream=progress,

@@ -32,8 +32,8 @@ def _number(kind, low=None, high=None, low_open=False):
             value = kind(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"{text!r} is not {'an integer' if kind is int else 'a number'}") from None
-        if value != value or (low is not None and (value <= low if low_open else value < low)) or (
-                high is not None and value > high):
+        if value != value or abs(value) == float("inf") or (
+                low is not None and (value <= low if low_open else value < low)) or (high is not None and value > high):
             bound = (f"> {low:g}" if low_open else f">= {low:g}") if low is not None else ""
             bound += (" and " if bound and high is not None else "") + (f"<= {high:g}" if high is not None else "")
             raise argparse.ArgumentTypeError(f"must be {bound}, got {text}")

@@ -127,6 +127,9 @@ def deform_command(args) -> int:
         raise ws.WarpStokesError(f"{args.output}: unsupported mesh format {ext!r} (use obj, ply, off, stl or glb)")
     check_output(args.output, (args.binding, args.cage))
     binding = ws.load_binding(args.binding, device=args.device)
+    if len(binding.mesh_faces) == 0 and ext in ("stl", "glb"):  # they keep triangles only: a file of no vertices
+        raise ws.WarpStokesError(f"{args.output}: the bound mesh has no faces (a point set), which {ext} cannot hold; "
+                                 "write obj, ply or off")
     vertices = binding.deform(pose_argument(args.cage, binding.n_handles))
     mesh = trimesh.Trimesh(vertices=vertices, faces=binding.mesh_faces, process=False)
     from warp_stokes.io.files import atomic_output

@@ -55,7 +55,7 @@ def _from_array(path: str, n_vertices: int) -> Poses:
 def _from_usd(path: str, n_vertices: int, prims) -> Poses:
     from pxr import UsdGeom
 
-    from .usd.asset import mesh_prim, open_stage, to_world, world_matrix
+    from .usd.asset import mesh_prim, open_stage, time_codes_per_second, to_world, world_matrix
 
     stage = open_stage(path, BindingError)
     if prims:
@@ -84,9 +84,10 @@ def _from_usd(path: str, n_vertices: int, prims) -> Poses:
         frame = np.concatenate(frame)
         if frame.shape != (n_vertices, 3):
             raise BindingError(f"{path}: the frame at time {t:g} has {len(frame)} points, the bound mesh {n_vertices}")
+        if not np.isfinite(frame).all():
+            raise BindingError(f"{path}: the frame at time {t:g} has points that are not finite")
         positions.append(frame)
-    return Poses(np.stack(positions), np.asarray(times, dtype=np.float64), path,
-                 float(stage.GetTimeCodesPerSecond()))
+    return Poses(np.stack(positions), np.asarray(times, dtype=np.float64), path, time_codes_per_second(stage, path))
 
 
 def load_mesh_frames(source, faces: np.ndarray, n_vertices: int, prims=None) -> Poses:

@@ -7,7 +7,7 @@ import warnings
 
 import numpy as np
 
-from ...errors import BindingError, CageError, MeshError
+from ...errors import BindingError, CageError, MeshError, WarpStokesError
 from ..load import Surface, fan_triangles, load_surface
 from ..scene import MeshPart, Scene
 
@@ -29,6 +29,15 @@ def open_stage(path: str, error=MeshError):
     if stage is None:
         raise error(f"{path}: cannot open it as a USD stage")
     return stage
+
+
+def time_codes_per_second(stage, path, error=BindingError) -> float:
+    """The stage's time codes per second, refused unless a positive finite number (a stage with -24 or nan wrote a
+    file that USD would not open again)."""
+    rate = float(stage.GetTimeCodesPerSecond())
+    if not (np.isfinite(rate) and rate > 0):
+        raise error(f"{path}: timeCodesPerSecond is {rate:g}, not a positive number of time codes per second")
+    return rate
 
 
 def layer_files(path) -> list[str]:
@@ -147,7 +156,7 @@ def stage_metadata(stage) -> dict:
         "up_axis": str(UsdGeom.GetStageUpAxis(stage)),
         "meters_per_unit": float(UsdGeom.GetStageMetersPerUnit(stage)),
         "default_prim": default.GetName() if default else None,
-        "time_codes_per_second": float(stage.GetTimeCodesPerSecond()),
+        "time_codes_per_second": time_codes_per_second(stage, stage.GetRootLayer().identifier, WarpStokesError),
     }
 
 
@@ -245,4 +254,6 @@ def cage_animation(path: str, prim_path: str, n_handles: int):
             raise BindingError(f"{path}: {prim_path} has {0 if value is None else len(value)} points at time {t:g}, "
                                f"{len(surface.vertices)} at {times[0]:g}")
         positions.append(to_world(np.asarray(value), world_matrix(mesh.GetPrim(), t)))
-    return np.stack(positions), np.asarray(times, dtype=np.float64), float(stage.GetTimeCodesPerSecond()), surface
+        if not np.isfinite(positions[-1]).all():
+            raise BindingError(f"{path}: {prim_path} has points that are not finite at time {t:g}")
+    return np.stack(positions), np.asarray(times, dtype=np.float64), time_codes_per_second(stage, path), surface

@@ -33,8 +33,8 @@ def _check(path: str, binding, poses: Poses, fps) -> tuple[str, np.ndarray, np.n
     ext = os.path.splitext(path)[1].lower()
     if ext not in (".usd", ".usdc", ".usda"):
         raise WarpStokesError(f"{path}: the output must end in .usd, .usdc or .usda")
-    if fps is not None and not fps > 0:
-        raise WarpStokesError(f"fps must be positive, got {fps!r}")
+    if fps is not None and not (isinstance(fps, (int, float, np.number)) and np.isfinite(fps) and fps > 0):
+        raise WarpStokesError(f"fps must be a positive number, got {fps!r}")
     positions = np.asarray(poses.positions, dtype=np.float64)
     if positions.ndim != 3 or positions.shape[1:] != (binding.n_handles, 3):
         raise WarpStokesError(f"{poses.name}: poses of shape {positions.shape} do not fit a cage of "
