@@ -126,3 +126,118 @@ def test_a_manifest_is_checked_whole_before_any_work(tmp_path, text, message):
     proc = warp_stokes("batch", str(manifest), "-o", str(out), "--device", "cpu")
     assert proc.returncode == 2 and not out.exists()
     assert one_error_line(proc) == f"warp-stokes: error: {manifest}: {message}"
+
+
+@pytest.mark.parametrize("kind", ["strings", "records", "objects in an archive", "string frame numbers"])
+def test_arrays_that_hold_no_numbers_are_refused(tmp_path, binding, kind):
+    # strings, a structured dtype, an object array inside .npz (it would need unpickling): tracebacks before
+    path = tmp_path / ("p.npz" if "archive" in kind or "frame" in kind else "p.npy")
+    if kind == "strings":
+        np.save(path, np.array([["a", "b", "c"]] * 58))
+    elif kind == "records":
+        np.save(path, np.zeros((58,), dtype=[("x", "f8"), ("y", "f8"), ("z", "f8")]))
+    elif kind == "objects in an archive":
+        np.savez(path, poses=np.array([[1, "a", None]] * 58, dtype=object))
+    else:
+        np.savez(path, poses=np.load(EXAMPLE / "bend_poses.npy")[:2], frames=np.array(["one", "two"]))
+    out = tmp_path / "o.usda"
+    for command in (("animate", str(binding), str(path), "-o", str(out)),
+                    ("deform", str(binding), str(path), "-o", str(tmp_path / "d.obj")),
+                    ("encode", str(binding), str(path), "-o", str(tmp_path / "e.npy"))):
+        if command[0] == "deform" and path.suffix == ".npz":
+            continue  # deform takes one pose: a cage file or a .npy
+        proc = warp_stokes(*command, "--device", "cpu")
+        line = one_error_line(proc)
+        assert proc.returncode == 2 and line.startswith(f"warp-stokes: error: {path}: "), (command, proc.stderr)
+        assert "must be numbers, not an array of" in line or "cannot read it as a numpy array" in line, line
+        assert sorted(os.listdir(tmp_path)) == [path.name]
+
+
+@pytest.mark.parametrize("record, message", [
+    ("vn x y z", "line 2090: unreadable normal 'vn x y z'"),
+    ("vn 1 2", "line 2090: unreadable normal 'vn 1 2'"),
+    ("f 1 2 99999999999999999999999", "line 2090: unreadable face 'f 1 2 99999999999999999999999' (three or more "
+                                      "vertex indices within the file's 2089 vertices)"),
+])
+def test_obj_records_that_cannot_be_read_are_named(tmp_path, record, message):
+    # a ValueError and an OverflowError traceback before: now the file and the line
+    vertices = [line for line in open(MESH) if line.startswith("v ")]
+    faces = [line for line in open(MESH) if line.startswith("f ")]
+    if record.startswith("vn"):
+        faces = [" ".join(f"{c}//1" for c in line.split()[1:]) for line in faces]
+        faces = [f"f {line}\n" for line in faces]
+    mesh = tmp_path / "m.obj"
+    mesh.write_text("".join(vertices) + record + "\n" + "".join(faces))
+    proc = warp_stokes("bind", str(mesh), CAGE, "-o", str(tmp_path / "b.npz"), "--resolution", "16", "--device", "cpu")
+    assert proc.returncode == 2 and not (tmp_path / "b.npz").exists()
+    assert one_error_line(proc) == f"warp-stokes: error: {mesh}: {message}"
+
+
+def test_tab_separated_records_are_read_beside_texture_coordinates(tmp_path):
+    # "v<TAB>x y z" in a file with vt records took the slow path, which knew only spaces: "no vertices"
+    lines = [line for line in open(MESH) if line.startswith(("v ", "f "))]
+    text = "".join(line.replace("v ", "v\t", 1) if line.startswith("v ") else line for line in lines)
+    mesh = tmp_path / "tabs.obj"
+    mesh.write_text("vt 0 0\n" + text)
+    out = tmp_path / "b.npz"
+    proc = warp_stokes("bind", str(mesh), CAGE, "-o", str(out), "--resolution", "16", "--device", "cpu")
+    assert proc.returncode == 0, proc.stderr
+    import warp_stokes as ws
+
+    assert ws.load_binding(out).n_vertices == 2089
+
+
+def tampered(source, target, change):
+    """A copy of the binding ``source`` at ``target`` with ``change(arrays, meta)`` applied (its result, where not
+    None, is the new metadata) and the fingerprints recomputed (what a careless tool, or an attacker, writes)."""
+    from warp_stokes.binding.store import fingerprint
+
+    with np.load(source, allow_pickle=False) as data:
+        arrays = {k: data[k] for k in data.files}
+    meta = json.loads(str(arrays.pop("meta")))
+    meta = change(arrays, meta) or meta
+    if isinstance(meta, dict):
+        try:
+            meta["cage_fingerprint"] = fingerprint(arrays["cage_vertices"], arrays["cage_faces"])
+            meta["mesh_fingerprint"] = fingerprint(arrays["mesh_vertices"], arrays["mesh_faces"])
+        except (ValueError, TypeError):  # arrays of strings: no fingerprint to recompute
+            pass
+    np.savez(target, meta=np.array(json.dumps(meta)), **arrays)
+    return target
+
+
+def _set(arrays, key, value):
+    arrays[key] = value
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda a, m: m.pop("settings") and None, "the binding's metadata has no settings record"),
+    (lambda a, m: [1, 2], "the binding's metadata is not a record (a list)"),
+    (lambda a, m: m["parts"].__setitem__(0, {"path": "/x", "vertices": "abc"}) if m.get("parts") else
+     m.__setitem__("parts", [{"path": "/x", "vertices": "abc"}]),
+     "the binding's parts must be records of a path and a vertex count"),
+    (lambda a, m: m.__setitem__("asset", "hero.usd"), "the binding's asset must be a record with the asset's path"),
+    (lambda a, m: _set(a, "weights", a["weights"].astype(str)), "the binding's weights must be numbers in 2089 rows "
+                                                                 "of 58; got <U"),
+    (lambda a, m: _set(a, "mesh_normals", np.zeros((5, 3))), "the binding's mesh_normals must be numbers in 2089 "
+                                                              "rows of 3; got float64 of shape (5, 3)"),
+    (lambda a, m: _set(a, "mesh_faces", a["mesh_faces"] + 10**6), "the binding's mesh_faces run from 1000000 to"),
+    (lambda a, m: _set(a, "mesh_faces", -a["mesh_faces"]), "the binding's mesh_faces run from -2088 to 0, outside "
+                                                           "[0, 2089)"),
+    (lambda a, m: a["weights"].__setitem__((3, 4), np.nan), "the binding's weights are not all finite"),
+    (lambda a, m: _set(a, "mesh_face_indices", a["mesh_face_indices"] + 5000),
+     "the binding's mesh_face_indices run from"),
+])
+def test_a_malformed_binding_is_one_error_and_writes_nothing(tmp_path, binding, change, message):
+    # KeyError / TypeError / ValueError tracebacks before, or (with the fingerprints recomputed) an OBJ with
+    # out-of-range faces, a USD with negative indices, NaN points
+    bad = tampered(binding, tmp_path / "bad.npz", change)
+    pose = tmp_path / "pose.npy"
+    np.save(pose, np.load(EXAMPLE / "bend_poses.npy")[-1])
+    for command in (("deform", str(bad), str(pose), "-o", str(tmp_path / "x.obj")),
+                    ("animate", str(bad), str(EXAMPLE / "bend_poses.npy"), "-o", str(tmp_path / "x.usda"))):
+        proc = warp_stokes(*command, "--device", "cpu")
+        assert proc.returncode == 2, proc.stderr
+        line = one_error_line(proc)
+        assert line.startswith(f"warp-stokes: error: {bad}: {message}"), line
+        assert sorted(os.listdir(tmp_path)) == ["bad.npz", "pose.npy"]

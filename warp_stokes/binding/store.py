@@ -213,11 +213,12 @@ def load_binding(path, device=None) -> Binding:
         meta = json.loads(str(arrays["meta"]))
     except json.JSONDecodeError:
         raise BindingError(f"{path}: the binding's metadata is corrupt") from None
+    if not isinstance(meta, dict):
+        raise BindingError(f"{path}: the binding's metadata is not a record (a {type(meta).__name__})")
     if meta.get("format") != FORMAT:
         raise BindingError(f"{path}: unsupported binding format {meta.get('format')!r} (this version reads {FORMAT})")
+    _check_contents(path, arrays, meta)
     w = arrays["weights"]
-    if w.ndim != 2 or w.shape != (len(arrays["mesh_vertices"]), len(arrays["cage_vertices"])):
-        raise BindingError(f"{path}: weights of shape {w.shape} do not match the stored mesh and cage")
     if fingerprint(arrays["cage_vertices"], arrays["cage_faces"]) != meta.get("cage_fingerprint") or fingerprint(
         arrays["mesh_vertices"], arrays["mesh_faces"]
     ) != meta.get("mesh_fingerprint"):
@@ -225,16 +226,73 @@ def load_binding(path, device=None) -> Binding:
     polygons = uvs = None
     if "mesh_face_counts" in arrays and "mesh_face_indices" in arrays:
         polygons = arrays["mesh_face_counts"], arrays["mesh_face_indices"]
-        if polygons[0].sum() != len(polygons[1]) or (len(polygons[1]) and polygons[1].max() >= len(w)):
-            raise BindingError(f"{path}: the stored polygons do not match the mesh")
     if "mesh_st" in arrays and "mesh_st_indices" in arrays:
         uvs = arrays["mesh_st"], arrays["mesh_st_indices"]
     parts = meta.get("parts")
-    if parts is not None and sum(int(p["vertices"]) for p in parts) != len(w):
-        raise BindingError(f"{path}: the stored parts' vertex counts do not add up to the mesh's")
     return Binding(
         w, arrays["cage_vertices"], arrays["cage_faces"], arrays["mesh_vertices"], arrays["mesh_faces"],
         meta["settings"], meta["stats"], device=device, mesh_normals=arrays.get("mesh_normals"),
         cage_source_index=arrays.get("cage_source_index"), mesh_polygons=polygons, mesh_uvs=uvs, parts=parts,
         asset=meta.get("asset"),
     )
+
+
+def _array(path: str, arrays: dict, name: str, kind: str, columns: int | None, rows: int | None = None,
+           below: int | None = None) -> None:
+    """One stored array checked: its dtype kind ("f" numbers, finite; "i" integers within [0, below)), its columns
+    and rows; a BindingError naming the file and the array otherwise."""
+    a = arrays[name]
+    numbers = a.dtype.kind in ("biuf" if kind == "f" else "iu")
+    if not numbers or (columns is not None and (a.ndim != 2 or a.shape[1] != columns)) or (
+            columns is None and a.ndim != 1) or (rows is not None and len(a) != rows):
+        shape = "rows" if columns is None else f"rows of {columns}"
+        raise BindingError(f"{path}: the binding's {name} must be {'numbers' if kind == 'f' else 'integers'} in "
+                           f"{rows if rows is not None else 'any number of'} {shape}; got {a.dtype} of shape {a.shape}")
+    if kind == "f" and not np.isfinite(a).all():
+        raise BindingError(f"{path}: the binding's {name} are not all finite")
+    if kind == "i" and a.size and (a.min() < 0 or (below is not None and a.max() >= below)):
+        raise BindingError(f"{path}: the binding's {name} run from {a.min()} to {a.max()}, outside [0, {below})")
+
+
+def _check_contents(path: str, arrays: dict, meta: dict) -> None:
+    """Every array and record a binding holds, checked before any of it is used: a file written by hand or by
+    another tool gets one error naming what is wrong, never a traceback or an output with out-of-range faces or NaN
+    points."""
+    for key, kind in (("settings", dict), ("stats", dict)):
+        if not isinstance(meta.get(key), kind):
+            raise BindingError(f"{path}: the binding's metadata has no {key} record")
+    n_cage = len(arrays["cage_vertices"])
+    _array(path, arrays, "cage_vertices", "f", 3)
+    _array(path, arrays, "cage_faces", "i", 3, below=n_cage)
+    _array(path, arrays, "mesh_vertices", "f", 3)
+    n_mesh = len(arrays["mesh_vertices"])
+    _array(path, arrays, "mesh_faces", "i", 3, below=n_mesh)
+    _array(path, arrays, "weights", "f", n_cage, rows=n_mesh)
+    if "mesh_normals" in arrays:
+        _array(path, arrays, "mesh_normals", "f", 3, rows=n_mesh)
+    if "cage_source_index" in arrays:
+        _array(path, arrays, "cage_source_index", "i", None, below=n_cage)
+    if "mesh_face_counts" in arrays and "mesh_face_indices" in arrays:
+        _array(path, arrays, "mesh_face_counts", "i", None)
+        _array(path, arrays, "mesh_face_indices", "i", None, below=n_mesh)
+        if arrays["mesh_face_counts"].sum() != len(arrays["mesh_face_indices"]):
+            raise BindingError(f"{path}: the stored polygons do not match the mesh")
+    if "mesh_st" in arrays and "mesh_st_indices" in arrays:
+        _array(path, arrays, "mesh_st", "f", 2)
+        _array(path, arrays, "mesh_st_indices", "i", None, below=len(arrays["mesh_st"]))
+        corners = len(arrays["mesh_face_indices"]) if "mesh_face_indices" in arrays else 3 * len(arrays["mesh_faces"])
+        if len(arrays["mesh_st_indices"]) != corners:
+            raise BindingError(f"{path}: the binding's mesh_st_indices name {len(arrays['mesh_st_indices'])} face "
+                               f"corners; the mesh has {corners}")
+    parts = meta.get("parts")
+    if parts is not None:
+        if not isinstance(parts, list) or not all(
+                isinstance(p, dict) and isinstance(p.get("path"), str) and isinstance(p.get("vertices"), int)
+                and not isinstance(p.get("vertices"), bool) and p["vertices"] >= 0 for p in parts):
+            raise BindingError(f"{path}: the binding's parts must be records of a path and a vertex count")
+        if sum(p["vertices"] for p in parts) != n_mesh:
+            raise BindingError(f"{path}: the stored parts' vertex counts do not add up to the mesh's")
+    asset = meta.get("asset")
+    if asset is not None and not (isinstance(asset, dict) and isinstance(asset.get("path"), str)):
+        raise BindingError(f"{path}: the binding's asset must be a record with the asset's path")
+

@@ -145,6 +145,7 @@ def pose_argument(source: str, n_handles: int):
     import numpy as np
 
     from warp_stokes.errors import BindingError
+    from warp_stokes.io.poses import numeric
 
     if not source.lower().endswith(".npy"):
         return source
@@ -152,6 +153,7 @@ def pose_argument(source: str, n_handles: int):
         positions = np.load(source, allow_pickle=False)
     except (OSError, ValueError) as exc:
         raise BindingError(f"{source}: not a readable .npy array ({exc})") from None
+    positions = numeric(positions, source, "the positions")
     if positions.shape != (n_handles, 3):
         raise BindingError(f"{source}: positions of shape {positions.shape}; the bound cage needs ({n_handles}, 3)")
     if not np.isfinite(positions).all():

@@ -7,7 +7,7 @@ import os
 import numpy as np
 
 from ..errors import BindingError
-from .poses import Poses, obj_sequence, same_triangles
+from .poses import Poses, numeric, obj_sequence, read_positions, same_triangles
 
 __all__ = ["load_mesh_frames"]
 
@@ -21,35 +21,6 @@ def _from_folder(path: str, faces: np.ndarray, n_vertices: int) -> Poses:
         return surface.vertices
 
     return obj_sequence(path, positions_of)
-
-
-def _from_array(path: str, n_vertices: int) -> Poses:
-    try:
-        data = np.load(path, allow_pickle=False)
-    except Exception as exc:
-        raise BindingError(f"{path}: cannot read it as a numpy array ({type(exc).__name__}: {exc})") from None
-    numbers = None
-    if isinstance(data, np.lib.npyio.NpzFile):
-        with data:
-            key = next((k for k in ("frames", "positions", "vertices") if k in data.files), None)
-            key = key or (data.files[0] if data.files else None)
-            if key is None:
-                raise BindingError(f"{path}: the archive is empty")
-            array = data[key]
-            if "times" in data.files:
-                numbers = np.asarray(data["times"], dtype=np.float64)
-    else:
-        array = data
-    array = np.asarray(array, dtype=np.float64)
-    if array.ndim == 2:
-        array = array[None]
-    if array.ndim != 3 or array.shape[1:] != (n_vertices, 3):
-        raise BindingError(f"{path}: frames must have shape (frames, {n_vertices}, 3) for this mesh, got {array.shape}")
-    if not np.isfinite(array).all():
-        raise BindingError(f"{path}: the frames contain NaN or infinite values")
-    if numbers is None or numbers.shape != (len(array),):
-        numbers = np.arange(1, len(array) + 1, dtype=np.float64)
-    return Poses(array, numbers, path)
 
 
 def _from_usd(path: str, n_vertices: int, prims) -> Poses:
@@ -118,10 +89,11 @@ def load_mesh_frames(source, faces: np.ndarray, n_vertices: int, prims=None) -> 
     >>> frames = load_mesh_frames("capture/", binding.mesh_faces, binding.n_vertices)   # doctest: +SKIP
     """
     if isinstance(source, np.ndarray):
-        array = source[None] if source.ndim == 2 else source
+        array = numeric(source, "<array>", "frames")
+        array = array[None] if array.ndim == 2 else array
         if array.ndim != 3 or array.shape[1:] != (n_vertices, 3):
             raise BindingError(f"frames must have shape (frames, {n_vertices}, 3), got {source.shape}")
-        return Poses(array.astype(np.float64), np.arange(1, len(array) + 1, dtype=np.float64), "<array>")
+        return Poses(array, np.arange(1, len(array) + 1, dtype=np.float64), "<array>")
     path = os.fspath(source)
     if not os.path.exists(path):
         raise BindingError(f"{path}: no such file or folder")
@@ -129,7 +101,8 @@ def load_mesh_frames(source, faces: np.ndarray, n_vertices: int, prims=None) -> 
         return _from_folder(path, np.asarray(faces), n_vertices)
     ext = os.path.splitext(path)[1].lower()
     if ext in (".npy", ".npz"):
-        return _from_array(path, n_vertices)
+        return read_positions(path, n_vertices, keys=("frames", "positions", "vertices"), numbers_key="times",
+                              what="frames", of="mesh")
     if ext in (".usd", ".usda", ".usdc", ".usdz"):
         return _from_usd(path, n_vertices, prims)
     raise BindingError(f"{path}: frames must be a folder of OBJ files, a .npy/.npz array or a USD file")

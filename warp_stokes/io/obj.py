@@ -43,8 +43,8 @@ def _read_obj_triangles(text: str):
             warnings.simplefilter("error")  # numpy warns, not raises, on some malformed input: take the slow path
             verts = np.loadtxt(vertices, dtype=np.float64, ndmin=2)
             faces = np.loadtxt(triangles, dtype=np.int64, ndmin=2)
-    except (ValueError, UserWarning):  # ragged rows (polygons of other sizes), v/vt/vn corners, unreadable numbers
-        return None
+    except (ValueError, OverflowError, UserWarning):  # ragged rows (polygons of other sizes), v/vt/vn corners,
+        return None  # unreadable numbers, indices beyond 64 bits: the slow path finds them
     # loadtxt skips empty and comment-only records ("v # ..."): every record must have given one row
     if len(verts) != len(vertices) or len(faces) != len(triangles):
         return None
@@ -75,7 +75,7 @@ def read_obj(path: str) -> tuple[np.ndarray, np.ndarray | list, np.ndarray | Non
     fast = _read_obj_triangles(text)
     if fast is not None:
         return fast
-    lines = text.splitlines()
+    lines = text.replace("\t", " ").splitlines()  # tabs separate tokens as spaces do (read so on the fast path too)
     tokens, counts = _records(lines, "v")
     if len(counts) == 0:
         return np.zeros((0, 3)), [], None, None
@@ -95,20 +95,25 @@ def read_obj(path: str) -> tuple[np.ndarray, np.ndarray | list, np.ndarray | Non
         raise
     normals = None
     if any(ln.startswith("vn ") for ln in lines):
-        normals = _obj_normals(lines, [(0, ln) for ln in lines if ln.startswith("f ")], len(verts))
+        try:
+            normals = _obj_normals(lines, [(0, ln) for ln in lines if ln.startswith("f ")], len(verts))
+        except MeshError as exc:
+            raise MeshError(f"{path}: {exc}") from None
     tokens, counts = _records(lines, "f")
     try:
         indices = np.char.partition(tokens, "/")[:, 0].astype(np.int64) if len(tokens) else np.zeros(0, np.int64)
         if (counts < 3).any():
             raise ValueError
-    except ValueError:
+    except (ValueError, OverflowError):
         for line_no, ln in enumerate(lines, 1):
             if ln.startswith("f "):
                 try:
-                    if len([int(tok.split("/", 1)[0]) for tok in ln.split()[1:]]) < 3:
+                    corners = [int(tok.split("/", 1)[0]) for tok in ln.split()[1:]]
+                    if len(corners) < 3 or max(abs(c) for c in corners) > len(verts):
                         raise ValueError
                 except ValueError:
-                    raise MeshError(f"{path}: line {line_no}: unreadable face {ln.strip()!r}") from None
+                    raise MeshError(f"{path}: line {line_no}: unreadable face {ln.strip()!r} (three or more vertex "
+                                    f"indices within the file's {len(verts)} vertices)") from None
         raise
     uvs = None
     if any(ln.startswith("vt ") for ln in lines):
@@ -149,9 +154,22 @@ def _obj_uvs(lines: list, face_tokens: np.ndarray) -> tuple | None:
     return st, st_indices
 
 
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
 def _obj_normals(lines: list, face_lines: list, n_vertices: int) -> np.ndarray | None:
     """Per-vertex normals from `vn` records and the `v//vn` or `v/vt/vn` face tokens (None if incomplete)."""
-    table = np.array([ln.split()[1:4] for ln in lines if ln.startswith("vn ")], dtype=np.float64).reshape(-1, 3)
+    records = [(n, ln.split()[1:4]) for n, ln in enumerate(lines, 1) if ln.startswith("vn ")]
+    try:
+        table = np.array([r for _, r in records], dtype=np.float64).reshape(-1, 3)
+    except ValueError:  # a record with fewer than three numbers, or words
+        line_no, bad = next((n, r) for n, r in records if len(r) != 3 or not all(_is_number(x) for x in r))
+        raise MeshError(f"line {line_no}: unreadable normal 'vn {' '.join(bad)}'") from None
     sums = np.zeros((n_vertices, 3))
     for _, ln in face_lines:
         for tok in ln.split()[1:]:

@@ -11,7 +11,8 @@ import numpy as np
 from ..errors import BindingError
 from .load import load_surface
 
-__all__ = ["Poses", "load_poses", "natural_key", "obj_sequence", "pose_vertices", "same_triangles"]
+__all__ = ["Poses", "load_poses", "natural_key", "numeric", "obj_sequence", "pose_vertices", "read_positions",
+           "same_triangles"]
 
 
 @dataclass
@@ -133,36 +134,63 @@ def _from_folder(path: str, cage_faces: np.ndarray, n_handles: int, source_index
                                                                     source_index, frame))
 
 
-def _from_array(path: str, n_handles: int) -> Poses:
+def numeric(value, name: str, what: str) -> np.ndarray:
+    """``value`` as float64, or a BindingError naming ``name`` when it holds no numbers (strings, records, objects).
+
+    Examples
+    --------
+    >>> numeric(np.array([["a", "b", "c"]]), "s.npy", "poses").dtype
+    Traceback (most recent call last):
+    ...
+    warp_stokes.errors.BindingError: s.npy: poses must be numbers, not an array of <U1
+    """
+    array = np.asarray(value)
+    if array.dtype.kind not in "biuf":
+        raise BindingError(f"{name}: {what} must be numbers, not an array of {array.dtype}")
+    return array.astype(np.float64)
+
+
+def read_positions(path: str, n_points: int, keys=("poses",), numbers_key: str = "frames", what: str = "poses",
+                   of: str = "cage") -> Poses:
+    """Positions (F, n_points, 3) from a ``.npy`` array or a ``.npz`` archive (the first of ``keys`` it has, else its
+    first array; frame numbers from ``numbers_key`` where it has them, else 1, 2, ...), every entry checked: numbers
+    (no strings, records or objects), the shape, finite.
+
+    Raises
+    ------
+    BindingError, naming the file and the problem
+    """
     try:
         data = np.load(path, allow_pickle=False)
-    except Exception as exc:
+        numbers = None
+        if isinstance(data, np.lib.npyio.NpzFile):
+            with data:
+                key = next((k for k in keys if k in data.files), data.files[0] if data.files else None)
+                if key is None:
+                    raise BindingError(f"{path}: the archive is empty")
+                array = data[key]
+                if numbers_key in data.files:
+                    numbers = numeric(data[numbers_key], path, f"'{numbers_key}'")
+        else:
+            array = data
+    except BindingError:
+        raise
+    except Exception as exc:  # unreadable, or an object array (it would need unpickling)
         raise BindingError(f"{path}: cannot read it as a numpy array ({type(exc).__name__}: {exc})") from None
-    frames = None
-    if isinstance(data, np.lib.npyio.NpzFile):
-        with data:
-            keys = data.files
-            key = "poses" if "poses" in keys else (keys[0] if keys else None)
-            if key is None:
-                raise BindingError(f"{path}: the archive is empty")
-            array = data[key]
-            if "frames" in keys:
-                frames = np.asarray(data["frames"], dtype=np.float64)
-    else:
-        array = data
-    array = np.asarray(array, dtype=np.float64)
+    array = numeric(array, path, what)
     if array.ndim == 2:
         array = array[None]
-    if array.ndim != 3 or array.shape[1:] != (n_handles, 3):
-        raise BindingError(f"{path}: poses must have shape (frames, {n_handles}, 3) for this cage, got {array.shape}")
+    if array.ndim != 3 or array.shape[1:] != (n_points, 3):
+        raise BindingError(f"{path}: {what} must have shape (frames, {n_points}, 3) for this {of}, got {array.shape}")
     if not np.all(np.isfinite(array)):
         bad = int(np.flatnonzero(~np.isfinite(array).all(axis=(1, 2)))[0])
         raise BindingError(f"{path}: frame {bad} has non-finite coordinates")
-    if frames is None:
-        frames = np.arange(1, len(array) + 1, dtype=np.float64)
-    elif frames.shape != (len(array),):
-        raise BindingError(f"{path}: 'frames' has shape {frames.shape}, expected ({len(array)},) for {len(array)} poses")
-    return Poses(array, frames, path)
+    if numbers is None:
+        numbers = np.arange(1, len(array) + 1, dtype=np.float64)
+    elif numbers.shape != (len(array),):
+        raise BindingError(f"{path}: '{numbers_key}' has shape {numbers.shape}, expected ({len(array)},) for "
+                           f"{len(array)} {what}")
+    return Poses(array, numbers, path)
 
 
 def _from_usd(path: str, cage_faces: np.ndarray, n_handles: int, source_index=None,
@@ -241,10 +269,11 @@ def load_poses(source, cage_faces: np.ndarray, n_handles: int | None = None, sou
     if isinstance(source, Poses):
         return _checked(source)
     if isinstance(source, np.ndarray):
-        array = source[None] if source.ndim == 2 else source
+        array = numeric(source, "<array>", "poses")
+        array = array[None] if array.ndim == 2 else array
         if array.ndim != 3 or array.shape[1:] != (n_handles, 3):
             raise BindingError(f"poses must have shape (frames, {n_handles}, 3) for this cage, got {source.shape}")
-        return _checked(Poses(array.astype(np.float64), np.arange(1, len(array) + 1, dtype=np.float64), "<array>"))
+        return _checked(Poses(array, np.arange(1, len(array) + 1, dtype=np.float64), "<array>"))
     path = os.fspath(source)
     if not os.path.exists(path):
         raise BindingError(f"{path}: no such file or folder")
@@ -252,7 +281,7 @@ def load_poses(source, cage_faces: np.ndarray, n_handles: int | None = None, sou
         return _checked(_from_folder(path, cage_faces, n_handles, source_index))
     ext = os.path.splitext(path)[1].lower()
     if ext in (".npy", ".npz"):
-        return _checked(_from_array(path, n_handles))
+        return _checked(read_positions(path, n_handles))
     if ext in (".usd", ".usda", ".usdc", ".usdz"):
         return _checked(_from_usd(path, cage_faces, n_handles, source_index, cage_prim))
     if cage_prim is not None:
