@@ -4,6 +4,9 @@ example and small cages built in code.
 Test modules import helpers from here (``from conftest import ...``), never from one another."""
 
 import os
+import shutil
+import subprocess
+import sys
 import warnings
 from pathlib import Path
 
@@ -89,6 +92,20 @@ def bindings():
         return cache[name]
 
     return get
+
+
+def warp_stokes(*args, timeout=300):
+    """The ``warp-stokes`` command as a user runs it: a subprocess (the installed script, else ``python -m``)."""
+    exe = shutil.which("warp-stokes")
+    command = [exe, *args] if exe else [sys.executable, "-m", "warp_stokes.cli", *args]
+    return subprocess.run(command, capture_output=True, text=True, timeout=timeout)
+
+
+def one_error_line(proc) -> str:
+    """The command's stderr, asserted to be one line."""
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1, proc.stderr
+    return lines[0]
 
 
 def write_obj(path, vertices, faces):

@@ -5,28 +5,13 @@ written where a format needs triangles, a manifest with a mistyped table or a va
 
 import json
 import os
-import shutil
-import subprocess
-import sys
 
 import numpy as np
 import pytest
 
-from conftest import EXAMPLE
+from conftest import EXAMPLE, one_error_line, warp_stokes
 
 MESH, CAGE = str(EXAMPLE / "arm.obj"), str(EXAMPLE / "arm_cage.obj")
-
-
-def warp_stokes(*args, timeout=300):
-    exe = shutil.which("warp-stokes")
-    command = [exe, *args] if exe else [sys.executable, "-m", "warp_stokes.cli", *args]
-    return subprocess.run(command, capture_output=True, text=True, timeout=timeout)
-
-
-def one_error_line(proc) -> str:
-    lines = proc.stderr.strip().splitlines()
-    assert len(lines) == 1, proc.stderr
-    return lines[0]
 
 
 @pytest.fixture(scope="module")

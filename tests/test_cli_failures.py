@@ -14,21 +14,9 @@ import numpy as np
 import pytest
 
 import warp_stokes as ws
-from conftest import EXAMPLE, cuda_available, write_obj
+from conftest import EXAMPLE, cuda_available, one_error_line, warp_stokes, write_obj
 
 MESH, CAGE = str(EXAMPLE / "arm.obj"), str(EXAMPLE / "arm_cage.obj")
-
-
-def warp_stokes(*args, timeout=300):
-    exe = shutil.which("warp-stokes") or sys.executable
-    command = [exe, *args] if exe != sys.executable else [exe, "-m", "warp_stokes.cli", *args]
-    return subprocess.run(command, capture_output=True, text=True, timeout=timeout)
-
-
-def one_error_line(proc) -> str:
-    lines = proc.stderr.strip().splitlines()
-    assert len(lines) == 1, proc.stderr
-    return lines[0]
 
 
 @pytest.fixture(scope="module")

@@ -6,20 +6,11 @@ import contextlib
 import os
 
 from ..errors import WarpStokesError
+from ..io.files import process_alive
 
 __all__ = ["LOCK_NAME", "folder_lock"]
 
 LOCK_NAME = ".warp-stokes.lock"
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # another user's live process
-        return True
-    return True
 
 
 @contextlib.contextmanager
@@ -36,7 +27,7 @@ def folder_lock(outdir: str):
                     owner = int(fh.read().strip() or 0)
             except (OSError, ValueError):
                 owner = 0
-            if owner and owner != os.getpid() and _alive(owner):
+            if owner and owner != os.getpid() and process_alive(owner):
                 raise WarpStokesError(
                     f"{outdir}: another batch (pid {owner}) is writing to this folder; wait for it to finish "
                     f"(or remove {path} if that process is not a warp-stokes batch)") from None

@@ -12,7 +12,7 @@ import tempfile
 
 from ..errors import WarpStokesError
 
-__all__ = ["atomic_output", "same_file", "check_output_target", "remove_stale_temporaries"]
+__all__ = ["atomic_output", "same_file", "check_output_target", "remove_stale_temporaries", "process_alive"]
 
 
 def _umask() -> int:
@@ -76,7 +76,8 @@ def _prefix(path: str) -> str:
     return f".tmp-{socket.gethostname()}-{os.getpid()}-{os.path.basename(path)}-"
 
 
-def _alive(pid: int) -> bool:
+def process_alive(pid: int) -> bool:
+    """Whether process ``pid`` runs on this host (another user's included)."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -102,7 +103,7 @@ def remove_stale_temporaries(path) -> list[str]:
     pattern = os.path.join(glob.escape(folder), f".tmp-{glob.escape(host)}-*-{glob.escape(os.path.basename(path))}-*")
     for candidate in glob.glob(pattern):
         pid = os.path.basename(candidate)[len(f".tmp-{host}-"):].split("-", 1)[0]
-        if pid.isdigit() and not _alive(int(pid)):
+        if pid.isdigit() and not process_alive(int(pid)):
             with contextlib.suppress(OSError):
                 os.unlink(candidate)
                 removed.append(candidate)
