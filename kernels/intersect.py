@@ -25,12 +25,28 @@ def segment_crosses_triangle(p: wp.vec3d, q: wp.vec3d, a: wp.vec3d, b: wp.vec3d,
 
 
 @wp.func
-def triangles_cross(a: wp.vec3d, b: wp.vec3d, c: wp.vec3d, x: wp.vec3d, y: wp.vec3d, z: wp.vec3d,
-                    eps: wp.float64):
-    """Whether two triangles cross: an edge of one passes through the other (the non-coplanar cases)."""
-    return (segment_crosses_triangle(a, b, x, y, z, eps) or segment_crosses_triangle(b, c, x, y, z, eps)
-            or segment_crosses_triangle(c, a, x, y, z, eps) or segment_crosses_triangle(x, y, a, b, c, eps)
-            or segment_crosses_triangle(y, z, a, b, c, eps) or segment_crosses_triangle(z, x, a, b, c, eps))
+def edge_crosses_triangle(p: wp.vec3d, q: wp.vec3d, ip: int, iq: int, a: wp.vec3d, b: wp.vec3d, c: wp.vec3d,
+                          g: wp.vec3i, eps: wp.float64):
+    """Whether edge ip-iq crosses triangle g = abc. An edge with an end at one of the triangle's corners can meet it
+    there only (anywhere else it would lie in the triangle's plane, which is not detected): it is not tested, as
+    rounding would place that end at t = 1 - 2e-9 when the two faces are nearly coplanar (a fine UV sphere's
+    slivers near a pole)."""
+    if ip == g[0] or ip == g[1] or ip == g[2] or iq == g[0] or iq == g[1] or iq == g[2]:
+        return False
+    return segment_crosses_triangle(p, q, a, b, c, eps)
+
+
+@wp.func
+def triangles_cross(a: wp.vec3d, b: wp.vec3d, c: wp.vec3d, f: wp.vec3i, x: wp.vec3d, y: wp.vec3d, z: wp.vec3d,
+                    g: wp.vec3i, eps: wp.float64):
+    """Whether triangles f = abc and g = xyz cross: an edge of one passes through the other (the non-coplanar
+    cases)."""
+    return (edge_crosses_triangle(a, b, f[0], f[1], x, y, z, g, eps)
+            or edge_crosses_triangle(b, c, f[1], f[2], x, y, z, g, eps)
+            or edge_crosses_triangle(c, a, f[2], f[0], x, y, z, g, eps)
+            or edge_crosses_triangle(x, y, g[0], g[1], a, b, c, f, eps)
+            or edge_crosses_triangle(y, z, g[1], g[2], a, b, c, f, eps)
+            or edge_crosses_triangle(z, x, g[2], g[0], a, b, c, f, eps))
 
 
 @wp.kernel
@@ -66,6 +82,6 @@ def crossing_faces(
                     if f[k] == g[m]:
                         shared += 1
             if shared < 2:
-                if triangles_cross(a, b, c, vertices[g[0]], vertices[g[1]], vertices[g[2]], eps):
+                if triangles_cross(a, b, c, f, vertices[g[0]], vertices[g[1]], vertices[g[2]], g, eps):
                     found = j
     first_crossing[i] = found

@@ -153,3 +153,21 @@ def slit_cage(half_width: float = 0.09, depth: float = 1.2):
     cage = ws.check_cage((vertices @ rotation.T, faces), name="slit")
     lip = np.flatnonzero(np.isclose(vertices[:, 0], half_width) & np.isclose(vertices[:, 2], 1.0))
     return cage, rotation, lip
+
+
+def latitude_longitude_sphere(rings: int, sections: int):
+    """A unit sphere of ``rings`` bands from pole to pole and ``sections`` around, quads split along one diagonal,
+    outward."""
+    theta = np.linspace(0.0, np.pi, rings + 1)[1:-1]
+    phi = np.linspace(0.0, 2 * np.pi, sections, endpoint=False)
+    t, p = np.meshgrid(theta, phi, indexing="ij")
+    band = np.column_stack([np.sin(t.ravel()) * np.cos(p.ravel()), np.sin(t.ravel()) * np.sin(p.ravel()),
+                            np.cos(t.ravel())])
+    vertices = np.vstack([[0, 0, 1], band, [0, 0, -1]])
+    ring = lambda i, j: 1 + i * sections + j % sections  # noqa: E731
+    faces = [[0, ring(0, j), ring(0, j + 1)] for j in range(sections)]
+    for i in range(rings - 2):
+        for j in range(sections):
+            faces += [[ring(i, j), ring(i + 1, j), ring(i + 1, j + 1)], [ring(i, j), ring(i + 1, j + 1), ring(i, j + 1)]]
+    faces += [[len(vertices) - 1, ring(rings - 2, j + 1), ring(rings - 2, j)] for j in range(sections)]
+    return vertices, np.array(faces)

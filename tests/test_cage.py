@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 import warp_stokes as ws
-from conftest import EXAMPLE, PAIRS, box_cage, pair
+from conftest import EXAMPLE, PAIRS, box_cage, latitude_longitude_sphere, pair
 
 
 @pytest.mark.parametrize("name", sorted(PAIRS))
@@ -136,6 +136,18 @@ def test_crossing_faces_finds_self_intersections_and_only_them():
         assert len(crossing_faces(mesh.vertices, mesh.faces)) == 0
     cage = ws.load_surface(EXAMPLE / "arm_cage.obj")
     assert len(crossing_faces(cage.vertices, cage.faces)) == 0
+    # fine latitude-longitude spheres as an OBJ file holds them (8 or 6 decimals): faces that share a corner lie
+    # almost in one plane, where rounding put the corner at 1 - 2e-9 along the other face's edge (580 "crossings"
+    # at 1,682 handles, 5,610 at 23,702)
+    for rings, sections in ((29, 60), (49, 102), (80, 300)):
+        vertices, faces = latitude_longitude_sphere(rings, sections)
+        for decimals, radius in ((8, 1.0), (8, 1.2), (6, 1.0)):
+            rounded = np.round(radius * vertices, decimals)
+            assert len(crossing_faces(rounded, faces)) == 0, (rings, sections, decimals, radius)
+    # faces that share a corner and cross away from it (the edge opposite the corner passes through the other)
+    v = np.array([[0, 0, 0], [2, 0, 0], [0, 2, 0], [0.5, 0.5, -1], [0.5, 0.5, 1]], float)
+    assert crossing_faces(v, np.array([[0, 1, 2], [0, 3, 4]])).tolist() == [[0, 1]]
+    assert crossing_faces(v + [0, 0, 1e-3], np.array([[0, 1, 2], [0, 3, 4]])).tolist() == [[0, 1]]
     # a vertex pushed through the far side of a sphere
     sphere = trimesh.creation.icosphere(2)
     poked = sphere.vertices.copy()

@@ -10,7 +10,7 @@ import trimesh
 
 import warp_stokes as ws
 from conftest import EXAMPLE, box_cage, u_cage
-from warp_stokes.geometry.cage import folded_edges, unit_normals
+from warp_stokes.geometry.cage import Cage, folded_edges, unit_normals
 from warp_stokes.geometry.local_boundary import cage_graph_distances, normal_derivatives
 
 SETTINGS = [ws.LocalData(), ws.LocalData(fold_radius=0.0), ws.LocalData(model="least-norm"),
@@ -28,6 +28,38 @@ def test_graph_distances_follow_the_cage_not_space():
     assert np.isclose(d[left, right], 4.2)
 
 
+@pytest.mark.parametrize("name", ["ellipsoid", "star", "torus", "two_boxes"])
+def test_graph_distances_match_scipys_dijkstra_in_groups(name, device, monkeypatch):
+    """Against scipy's shortest paths, on cages with uneven edges, a cage in two pieces (inf between them) and
+    scratch groups of 7 searches (several launches, a short last one)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import shortest_path
+
+    from warp_stokes.geometry import local_boundary, shapes
+    from warp_stokes.geometry.cage import face_edges
+
+    if name == "two_boxes":
+        box = shapes.box_pair(extents=(1.0, 2.0, 0.5))
+        vertices = np.concatenate([box.cage_vertices, box.cage_vertices + [5.0, 0.0, 0.0]])
+        faces = np.concatenate([box.cage_faces, box.cage_faces + len(box.cage_vertices)])
+    else:
+        pair = {"ellipsoid": lambda: shapes.ellipsoid_pair((1.0, 2.0, 0.5), noise=0.05, subdivisions=3, seed=2),
+                "star": lambda: shapes.star_pair(seed=3), "torus": lambda: shapes.torus_pair(seed=1)}[name]()
+        vertices, faces = pair.cage
+    cage = Cage(vertices, faces, name)
+    monkeypatch.setattr(local_boundary, "GRAPH_SCRATCH_BYTES", 16 * 7 * cage.n_handles)
+    d = cage_graph_distances(cage, device=device)
+    e = face_edges(cage.faces)
+    length = np.linalg.norm(cage.vertices[e[:, 0]] - cage.vertices[e[:, 1]], axis=1)
+    graph = coo_matrix((length, (e[:, 0], e[:, 1])), shape=(cage.n_handles,) * 2)
+    expected = shortest_path(graph.tocsr(), directed=False)
+    assert np.array_equal(np.isinf(d), np.isinf(expected))
+    finite = np.isfinite(expected)
+    # sums of the same lengths in possibly another order: float64 rounding of a path of < 100 edges
+    assert np.abs(d[finite] - expected[finite]).max() <= 1e-13 * expected[finite].max()
+    assert (np.isinf(d).any()) == (name == "two_boxes")
+
+
 @pytest.mark.parametrize("settings", SETTINGS, ids=str)
 def test_normal_derivatives_reproduce_zero_and_the_normal(arm_cage, settings, device):
     g = normal_derivatives(arm_cage, settings, device=device)
@@ -43,7 +75,8 @@ def test_normal_derivatives_are_computed_once_per_cage_and_settings(arm_cage, de
     monkeypatch.setattr(local_boundary, "_normal_derivatives", lambda *a: calls.append(a) or compute(*a))
     monkeypatch.setattr(local_boundary, "_KEPT_DERIVATIVES", type(local_boundary._KEPT_DERIVATIVES)())
     first = normal_derivatives(arm_cage, ws.LocalData(), device=device)
-    first[:] = 0.0  # the caller's copy: the kept one is not changed
+    with pytest.raises(ValueError):  # read-only: a caller cannot change the kept array
+        first[:] = 0.0
     again = normal_derivatives(arm_cage, ws.LocalData(), device=device)
     assert len(calls) == 1 and np.abs(again.sum(axis=1)).max() < 1e-12 and np.abs(again).max() > 0
     other = normal_derivatives(arm_cage, ws.LocalData(model="least-norm"), device=device)
@@ -58,6 +91,25 @@ def test_normal_derivatives_are_computed_once_per_cage_and_settings(arm_cage, de
         normal_derivatives(ws.geometry.cage.Cage(arm_cage.vertices + shift, arm_cage.faces, "moved"), device=device)
     normal_derivatives(arm_cage, ws.LocalData(), device=device)
     assert len(calls) == 3 + (local_boundary.KEPT_CAGES - 1) + 1
+    # and no more than KEPT_BYTES past the newest (a cage of thousands of handles holds hundreds of MB)
+    monkeypatch.setattr(local_boundary, "KEPT_BYTES", 0)
+    normal_derivatives(ws.geometry.cage.Cage(arm_cage.vertices - 1.0, arm_cage.faces, "moved"), device=device)
+    assert len(local_boundary._KEPT_DERIVATIVES) == 1
+
+
+@pytest.mark.parametrize("settings", SETTINGS[:2], ids=str)
+def test_normal_derivatives_and_slopes_are_the_same_in_groups_of_faces(arm_cage, settings, device, monkeypatch):
+    """Thousands of handles are formed a group of faces at a time: the same numbers as all faces at once."""
+    from warp_stokes.geometry import local_boundary
+
+    monkeypatch.setattr(local_boundary, "_KEPT_DERIVATIVES", type(local_boundary._KEPT_DERIVATIVES)())
+    whole = local_boundary._normal_derivatives(arm_cage, settings, ws.device.resolve_device(device))
+    slopes = local_boundary.data_slopes(arm_cage, settings, device)
+    monkeypatch.setattr(local_boundary, "_KEPT_DERIVATIVES", type(local_boundary._KEPT_DERIVATIVES)())
+    monkeypatch.setattr(local_boundary, "FACE_GROUP_HANDLES", 7 * arm_cage.n_handles)  # groups of 7 faces
+    grouped = local_boundary._normal_derivatives(arm_cage, settings, ws.device.resolve_device(device))
+    assert np.allclose(grouped, whole, rtol=0, atol=1e-13 * np.abs(whole).max())
+    assert np.allclose(local_boundary.data_slopes(arm_cage, settings, device), slopes, rtol=1e-13, atol=0)
 
 
 def test_normal_derivatives_stay_on_handles_near_the_face_along_the_cage(device):

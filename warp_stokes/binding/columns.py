@@ -15,6 +15,7 @@ import numpy as np
 import warp as wp
 
 from ..geometry.boundary import COMPLEMENT_COLUMNS, boundary_field
+from ..geometry.local_boundary import boundary_settings, local_data_bytes
 from ..geometry.cage import Cage
 from ..geometry.grid import voxelize
 from ..solver.budget import available_memory, chunk_columns, estimate_memory, plan_chunks
@@ -101,7 +102,8 @@ def grid_columns(checked: Cage, points: np.ndarray, resolution: int, device, han
     # the levels' sizes first (cheap), so that the plan counts the hierarchy before it is formed
     levels = coarsen(grid, device) if solver == "multigrid" else None
     estimate = estimate_memory(grid, len(points), preconditioner=solver, levels=levels, device=device,
-                               n_handles=n_range)
+                               n_handles=n_range,
+                               boundary_bytes=(0, 0) if boundary_settings(boundary) == "mvc" else local_data_bytes(checked))
     budget = available_memory(device) if memory_budget is None else int(memory_budget)
     # a partial range always carries the rest-of-the-cage column: plan room for it
     planned = plan_chunks(estimate, n_range + (COMPLEMENT_COLUMNS if partial else 0), budget, resolution,

@@ -33,7 +33,7 @@ from ..errors import WarpStokesError
 from .grid import Grid
 from ..kernels import local_boundary
 
-__all__ = ["LocalData", "boundary_settings", "cage_graph_distances", "normal_derivatives", "data_slopes", "local_field", "local_values"]
+__all__ = ["LocalData", "boundary_settings", "cage_graph_distances", "local_data_bytes", "normal_derivatives", "data_slopes", "local_field", "local_values"]
 
 #: a node blends the data of the faces whose distance is within this many grid spacings of the nearest face's, so
 #: that the data is continuous where the nearest face changes (and the same on every device: a float32 nearest-face
@@ -102,16 +102,20 @@ def boundary_settings(boundary) -> "str | LocalData":
     raise WarpStokesError(f"boundary must be 'mvc', 'local' or a LocalData, got {boundary!r}")
 
 
-def cage_graph_distances(cage: Cage) -> np.ndarray:
+def cage_graph_distances(cage: Cage, device=None) -> np.ndarray:
     """Shortest-path distances between the handles along the cage's edges (edge length weights).
+
+    One Dijkstra search per handle in a Warp kernel (O(L E log L) in all; Floyd-Warshall's O(L^3) took 140 s at
+    4,898 handles), over the handles in groups whose scratch heaps stay within :data:`GRAPH_SCRATCH_BYTES`.
 
     Parameters
     ----------
     cage : Cage
+    device : None | str
 
     Returns
     -------
-    (L, L) float64, symmetric, zero diagonal
+    (L, L) float64, symmetric, zero diagonal; inf between handles that no path joins
 
     Examples
     --------
@@ -121,33 +125,74 @@ def cage_graph_distances(cage: Cage) -> np.ndarray:
     >>> bool(np.isclose(d[1, 2], np.sqrt(2)))
     True
     """
-    v, f = cage.vertices, cage.faces
+    device = resolve_device(device)
+    v = np.asarray(cage.vertices, dtype=np.float64)
     n = len(v)
-    d = np.full((n, n), np.inf)
-    np.fill_diagonal(d, 0.0)
-    edges = face_edges(f)
+    edges = face_edges(cage.faces)
+    edges = np.concatenate([edges, edges[:, ::-1]])
+    edges = edges[np.lexsort((edges[:, 1], edges[:, 0]))]
     lengths = np.linalg.norm(v[edges[:, 0]] - v[edges[:, 1]], axis=1)
-    d[edges[:, 0], edges[:, 1]] = lengths
-    d[edges[:, 1], edges[:, 0]] = lengths
-    for k in range(n):  # Floyd-Warshall, one vectorised relaxation per intermediate handle
-        np.minimum(d, d[:, k : k + 1] + d[k : k + 1, :], out=d)
-    return d
+    offsets = np.zeros(n + 1, dtype=np.int32)
+    np.cumsum(np.bincount(edges[:, 0], minlength=n), out=offsets[1:])
+    distances = np.empty((n, n))
+    per_group = max(1, min(n, GRAPH_SCRATCH_BYTES // (16 * max(n, 1))))
+    with wp.ScopedDevice(device):
+        graph = [wp.array(offsets, dtype=wp.int32), wp.array(edges[:, 1].astype(np.int32), dtype=wp.int32),
+                 wp.array(lengths, dtype=wp.float64)]
+        heap = wp.empty((per_group, n), dtype=wp.int32)
+        position = wp.empty((per_group, n), dtype=wp.int32)
+        group = wp.empty((per_group, n), dtype=wp.float64)
+        for first in range(0, n, per_group):
+            rows = min(per_group, n - first)
+            wp.launch(local_boundary.graph_distances, dim=rows, inputs=[*graph, first],
+                      outputs=[heap, position, group])
+            distances[first:first + rows] = group.numpy()[:rows]
+    return distances
 
 
-#: normal derivatives of the last KEPT_CAGES cages, by cage arrays, settings and device (a cage of 400 handles:
-#: 800 x 400 float64, 2.6 MB each)
+#: bytes of a group of Dijkstra searches' scratch and distance rows (16 per handle and search)
+GRAPH_SCRATCH_BYTES = 64 << 20
+
+
+#: normal derivatives of the last cages, by cage arrays, settings and device: at most KEPT_CAGES of them and, past
+#: the newest, KEPT_BYTES in all (a cage of 400 handles: 800 x 400 float64, 2.6 MB; of 4,898: 384 MB)
 KEPT_CAGES = 4
+KEPT_BYTES = 256 << 20
 _KEPT_DERIVATIVES: collections.OrderedDict = collections.OrderedDict()
 _KEPT_LOCK = threading.Lock()
-#: faces per batch of the 4 x 4 systems: the batch's (faces, handles, 4) float64 arrays stay near 8 MB
-FACES_PER_BATCH_HANDLES = 1 << 18
+#: faces x handles per group of faces whose (faces, handles) arrays are formed at once (2 MB per float64 array;
+#: the 4 x 4 systems' (faces, handles, 4) arrays 8 MB)
+FACE_GROUP_HANDLES = 1 << 18
+
+
+def local_data_bytes(cage: Cage) -> tuple[int, int]:
+    """Host bytes of the local data: its per-face normal derivatives, (F, L) float64, held once computed (and as
+    large again on the device while a boundary field is formed), and what computing them adds for a while: the
+    handles' graph distances (L, L) float64 and a group of faces' arrays (measured: 38 MB at 1,250 and 4,898
+    handles).
+
+    Returns
+    -------
+    kept : int
+    work : int
+
+    Examples
+    --------
+    >>> from warp_stokes.geometry.cage import Cage
+    >>> local_data_bytes(Cage(np.zeros((4, 3)), np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]), "tet"))[0]
+    128
+    """
+    n_faces, n_handles = len(cage.faces), cage.n_handles
+    group = min(n_faces, max(1, FACE_GROUP_HANDLES // max(n_handles, 1))) * n_handles
+    return 8 * n_faces * n_handles, 8 * n_handles**2 + 20 * 8 * group
 
 
 def normal_derivatives(cage: Cage, settings: LocalData = LocalData(), device=None) -> np.ndarray:
     """Per-face normal derivatives g of the handles' data, with sum_l g_l = 0 and sum_l g_l c_l = n_f.
 
     A bind needs them three times (the folded-edge cut-off, its resolution check and the ring data): those of the
-    last :data:`KEPT_CAGES` cages are kept, keyed by the cage's arrays, the settings and the device.
+    last cages are kept (:data:`KEPT_CAGES`, :data:`KEPT_BYTES`), keyed by the cage's arrays, the settings and the
+    device, and returned read-only.
 
     Parameters
     ----------
@@ -157,7 +202,7 @@ def normal_derivatives(cage: Cage, settings: LocalData = LocalData(), device=Non
 
     Returns
     -------
-    (F, L) float64, row f holds g_l for face f
+    (F, L) float64, read-only, row f holds g_l for face f
 
     Examples
     --------
@@ -178,47 +223,57 @@ def normal_derivatives(cage: Cage, settings: LocalData = LocalData(), device=Non
             _KEPT_DERIVATIVES.move_to_end(key)
     if kept is None:
         kept = _normal_derivatives(cage, settings, device)
+        kept.flags.writeable = False
         with _KEPT_LOCK:
             _KEPT_DERIVATIVES[key] = kept
-            while len(_KEPT_DERIVATIVES) > KEPT_CAGES:
+            while len(_KEPT_DERIVATIVES) > 1 and (
+                    len(_KEPT_DERIVATIVES) > KEPT_CAGES
+                    or sum(g.nbytes for g in _KEPT_DERIVATIVES.values()) > KEPT_BYTES):
                 _KEPT_DERIVATIVES.popitem(last=False)
-    return kept.copy()
+    return kept
+
+
+def _face_groups(cage: Cage):
+    per_group = max(1, FACE_GROUP_HANDLES // max(cage.n_handles, 1))
+    for first in range(0, len(cage.faces), per_group):
+        yield slice(first, min(first + per_group, len(cage.faces)))
 
 
 def _normal_derivatives(cage: Cage, settings: LocalData, device) -> np.ndarray:
     v, f = cage.vertices, cage.faces
     mean_edge = float(np.linalg.norm(np.subtract(*v[face_edges(f)].transpose(1, 0, 2)), axis=1).mean())
-    graph = cage_graph_distances(cage)
-    distance = graph[f].min(axis=1)  # (F, L): from the nearest corner of each face
-    # inverse weights exp(-d / scale), shifted per face (only their ratios matter) so that none underflows to 0
-    # on the near handles
-    inverse_weight = np.exp(-(distance - distance.min(axis=1, keepdims=True)) / (settings.falloff * mean_edge))
+    graph = cage_graph_distances(cage, device)
     normals = unit_normals(cage)
-    start = np.zeros((len(f), len(v)))
-    if settings.model == "mvc-cut":
-        start = _mvc_normal_derivatives(cage, mean_edge, device) * (distance <= settings.radius * mean_edge)
-    # per face, the least weighted change to `start` that meets the constraints, on (1, c - centroid) for
-    # conditioning: a (4, 4) system each, solved for batches of faces at once
-    target = np.concatenate([np.zeros((len(f), 1)), normals], axis=1)  # (F, 4)
-    out = np.empty_like(start)
-    least = np.empty_like(start)
-    per_batch = max(1, FACES_PER_BATCH_HANDLES // max(len(v), 1))
-    for first in range(0, len(f), per_batch):
-        batch = slice(first, first + per_batch)
-        a = np.concatenate([np.ones((len(f[batch]), len(v), 1)), v[None] - v[f[batch]].mean(axis=1)[:, None]],
-                           axis=2)  # (faces, L, 4)
-        aw = a * inverse_weight[batch, :, None]
-        solve = np.linalg.inv(np.einsum("fla,flb->fab", aw, a))
-        change = np.einsum("fab,fb->fa", solve, target[batch] - np.einsum("fla,fl->fa", a, start[batch]))
-        out[batch] = start[batch] + np.einsum("fla,fa->fl", aw, change)
-        least[batch] = np.einsum("fla,fa->fl", aw, np.einsum("fab,fb->fa", solve, target[batch]))
-    share = np.full((len(f), 1), settings.least_norm_share if settings.model == "mvc-cut" else 1.0)
+    fold_ends = np.zeros(0, dtype=np.int64)
     if settings.model == "mvc-cut" and settings.fold_radius > 0:
-        ends = np.unique(folded_edges(cage, settings.fold_degrees))
-        if len(ends):
-            to_fold = graph[f][:, :, ends].min(axis=(1, 2)) / (settings.fold_radius * mean_edge)  # (F,)
+        fold_ends = np.unique(folded_edges(cage, settings.fold_degrees))
+    out = np.empty((len(f), len(v)))
+    for group in _face_groups(cage):  # (faces, handles) arrays of a group at a time: thousands of handles fit
+        corners = f[group]
+        distance = np.minimum(np.minimum(graph[corners[:, 0]], graph[corners[:, 1]]), graph[corners[:, 2]])
+        # inverse weights exp(-d / scale), shifted per face (only their ratios matter) so that none underflows to
+        # 0 on the near handles
+        inverse_weight = np.exp(-(distance - distance.min(axis=1, keepdims=True)) / (settings.falloff * mean_edge))
+        start = np.zeros_like(distance)
+        if settings.model == "mvc-cut":
+            start = _mvc_normal_derivatives(cage, group, mean_edge, device)
+            start *= distance <= settings.radius * mean_edge
+        # per face, the least weighted change to `start` that meets the constraints, on (1, c - centroid) for
+        # conditioning: a (4, 4) system each, solved for the group's faces at once
+        target = np.concatenate([np.zeros((len(corners), 1)), normals[group]], axis=1)  # (faces, 4)
+        a = np.concatenate([np.ones((len(corners), len(v), 1)), v[None] - v[corners].mean(axis=1)[:, None]],
+                           axis=2)  # (faces, L, 4)
+        aw = a * inverse_weight[:, :, None]
+        solve = np.linalg.inv(np.einsum("fla,flb->fab", aw, a))
+        change = np.einsum("fab,fb->fa", solve, target - np.einsum("fla,fl->fa", a, start))
+        least = np.einsum("fla,fa->fl", aw, np.einsum("fab,fb->fa", solve, target))
+        start += np.einsum("fla,fa->fl", aw, change)
+        share = np.full((len(corners), 1), settings.least_norm_share if settings.model == "mvc-cut" else 1.0)
+        if len(fold_ends):
+            to_fold = distance[:, fold_ends].min(axis=1) / (settings.fold_radius * mean_edge)
             share = np.maximum(share, np.clip(2.0 - to_fold, 0.0, 1.0)[:, None])
-    return (1.0 - share) * out + share * least
+        out[group] = (1.0 - share) * start + share * least
+    return out
 
 
 def data_slopes(cage: Cage, settings: LocalData = LocalData(), device=None) -> np.ndarray:
@@ -245,30 +300,34 @@ def data_slopes(cage: Cage, settings: LocalData = LocalData(), device=None) -> n
     >>> slopes.shape, bool((slopes >= 1 / np.sqrt(2)).all())  # a hat falls from 1 to 0 over a height of sqrt(2)
     ((8,), True)
     """
-    gradient = normal_derivatives(cage, settings, device)[:, :, None] * unit_normals(cage)[:, None, :]  # (F, L, 3)
-    faces = np.arange(len(cage.faces))
+    derivatives = normal_derivatives(cage, settings, device)
+    normals = unit_normals(cage)
     tangent = _tangent_gradients(cage)
-    for corner in range(3):
-        gradient[faces, cage.faces[:, corner]] += tangent[:, corner]
-    face_slope = np.linalg.norm(gradient, axis=2).max(axis=1)
+    face_slope = np.empty(len(cage.faces))
+    for group in _face_groups(cage):
+        gradient = derivatives[group, :, None] * normals[group, None, :]  # (faces, L, 3)
+        faces = np.arange(group.stop - group.start)
+        for corner in range(3):
+            gradient[faces, cage.faces[group, corner]] += tangent[group, corner]
+        face_slope[group] = np.sqrt(np.einsum("flk,flk->fl", gradient, gradient).max(axis=1))
     slope = np.zeros(cage.n_handles)
     for corner in range(3):
         np.maximum.at(slope, cage.faces[:, corner], face_slope)
     return slope
 
 
-def _mvc_normal_derivatives(cage: Cage, mean_edge: float, device) -> np.ndarray:
-    """(F, L): MVC's outward normal derivative at each face's centroid, by a one-sided difference (MVC reproduces
-    constants and linear functions, so the constraints hold up to the difference's rounding)."""
+def _mvc_normal_derivatives(cage: Cage, faces: slice, mean_edge: float, device) -> np.ndarray:
+    """(faces, L): MVC's outward normal derivative at the centroids of ``faces``, by a one-sided difference (MVC
+    reproduces constants and linear functions, so the constraints hold up to the difference's rounding)."""
     from .boundary import mean_value_coordinates
 
-    f = cage.faces
+    f = cage.faces[faces]
     step = 1e-4 * mean_edge
     centroid = cage.vertices[f].mean(axis=1)
-    w = mean_value_coordinates(cage, centroid + step * unit_normals(cage), device=device)
-    hat = np.zeros_like(w)
-    np.put_along_axis(hat, f, 1.0 / 3.0, axis=1)
-    return (w - hat) / step
+    w = mean_value_coordinates(cage, centroid + step * unit_normals(cage)[faces], device=device)
+    np.put_along_axis(w, f, np.take_along_axis(w, f, axis=1) - 1.0 / 3.0, axis=1)
+    w /= step
+    return w
 
 
 def _tangent_gradients(cage: Cage) -> np.ndarray:

@@ -14,10 +14,12 @@ mesh vertices:
 Shared by all columns: the grid's node index (4 per lattice node), node coordinates (12 N_a) and stencil work
 items (16 per patch), the multigrid hierarchy (27 blocks of 64 B per coarse node, its diagonal, coordinates and
 lattice indices: :func:`warp_stokes.solver.multigrid.hierarchy_bytes`), and per stage the node positions for the MVC
-(24 N_a) or the sampling's per-vertex arrays (80 V). On the CPU the host arrays live in the same memory and are
+(24 N_a) or the sampling's per-vertex arrays (80 V). The local boundary data's normal derivatives (8 bytes per cage
+face and handle: :func:`warp_stokes.geometry.local_boundary.local_data_bytes`, 384 MB for a cage of 4,898 handles)
+are on the device while the boundary data is formed. On the CPU the host arrays live in the same memory and are
 counted too: the grid's (labels and index, 5 per lattice node, and 12 N_a), the weights of all handles (4 V per
-handle), the mesh as loaded and its per-vertex checks (about 120 V), and the sampled columns' host copy (4 V per
-column).
+handle), the mesh as loaded and its per-vertex checks (about 120 V), the sampled columns' host copy (4 V per
+column), and the host's copy of the local data's normal derivatives, kept throughout.
 """
 
 from __future__ import annotations
@@ -58,7 +60,8 @@ class MemoryEstimate:
         What each stage adds to the arrays that live throughout; when given, :meth:`total` is exact: the largest
         stage, rather than the larger share plus the larger per-column cost.
     base : int, bytes that live throughout (only used with ``stages``)
-    fixed : int, bytes that a smaller resolution need not save (the largest dense inverse of a coarsest level)
+    fixed : int, bytes that a smaller resolution need not save (the largest dense inverse of a coarsest level, the
+        local boundary data's arrays)
     """
 
     per_handle: int
@@ -75,7 +78,7 @@ class MemoryEstimate:
 
 
 def estimate_memory(grid: Grid, n_vertices: int = 0, preconditioner: str = "multigrid", levels=None,
-                    device=None, n_handles: int = 0) -> MemoryEstimate:
+                    device=None, n_handles: int = 0, boundary_bytes: tuple = (0, 0)) -> MemoryEstimate:
     """Estimate the memory of solving and sampling on ``grid``, before allocating it.
 
     Parameters
@@ -89,6 +92,10 @@ def estimate_memory(grid: Grid, n_vertices: int = 0, preconditioner: str = "mult
     device : None | str, where the bind runs; on the CPU the grid's host arrays count too, and so do the mesh's
     n_handles : int, all the cage's handles: on the CPU the bind's weights (4 bytes per vertex and handle) live in
         the same memory throughout
+    boundary_bytes : (kept, work), the boundary data's arrays of the whole cage
+        (:func:`warp_stokes.geometry.local_boundary.local_data_bytes`; zeros for MVC): ``kept`` on the device while
+        the boundary data is formed, and on the CPU also held by the host throughout, ``work`` on the host while
+        they are computed. They do not shrink with the resolution.
 
     Returns
     -------
@@ -101,6 +108,7 @@ def estimate_memory(grid: Grid, n_vertices: int = 0, preconditioner: str = "mult
     1.9
     """
     n_int, n_act, n_v = grid.n_interior, grid.n_active, int(n_vertices)
+    kept, local_work = (int(b) for b in boundary_bytes)
     nodes = int(np.prod(grid.shape))
     multigrid = preconditioner == "multigrid"
     if not multigrid:
@@ -125,21 +133,24 @@ def estimate_memory(grid: Grid, n_vertices: int = 0, preconditioner: str = "mult
     if on_cpu:
         # the grid's host arrays; the weights of all handles; the mesh as loaded (float64 vertices, about two
         # int64 triangles per vertex), its classification and the vertex-sized arrays of the checks
-        base += HOST_NODE_BYTES * nodes + 12 * n_act + 4 * n_v * int(n_handles) + 120 * n_v
+        base += HOST_NODE_BYTES * nodes + 12 * n_act + 4 * n_v * int(n_handles) + 120 * n_v + kept
     field_bytes = VEC4 * n_act
     stages = [
-        (24 * n_act, field_bytes + work + 8 * n_act),  # boundary data: positions, MVC values in float64
+        # boundary data: positions, MVC values in float64, the local data's normal derivatives
+        (24 * n_act + kept, field_bytes + work + 8 * n_act),
         (0, field_bytes + work + 3 * VEC4 * n_int),  # solve: CG vectors
         # sampling: per-vertex cells and weights (on the CPU also their host copy)
         (80 * n_v, field_bytes + work + (8 if on_cpu else 4) * n_v),
     ]
+    if on_cpu:
+        stages.append((local_work, 0))  # the local data computed (while voxelising): the graph, a group's arrays
     stages = [(int(math.ceil(s)), int(math.ceil(c))) for s, c in stages]
     return MemoryEstimate(
         per_handle=max(c for _, c in stages),
         shared=int(math.ceil(base)) + max(s for s, _ in stages),
         stages=stages,
         base=int(math.ceil(base)),
-        fixed=int(dense),
+        fixed=int(dense + kept * (2 if on_cpu else 1)),
     )
 
 
@@ -173,6 +184,12 @@ def plan_chunks(estimate: MemoryEstimate, n_handles: int, budget: int, resolutio
         need = estimate.total(1 + COMPLEMENT_COLUMNS)
         # what grows with the resolution grows with its cube (interior) or square (ring, band, vertices' cells):
         # scaling by the square root of the excess is safe for both
+        if budget <= estimate.fixed:
+            raise ResolutionError(
+                f"{name}: the cage's boundary data and the coarsest level need {estimate.fixed / 2**30:.2f} GiB at "
+                f"any resolution (they grow with the cage's faces times its handles), but the memory budget is "
+                f"{budget / 2**30:.2f} GiB; raise the budget, or use a cage with fewer handles or boundary 'mvc'"
+            )
         ratio = max(budget - estimate.fixed, 0) / max(need - estimate.fixed, 1)
         fits = int(resolution * ratio ** 0.5)
         raise ResolutionError(
