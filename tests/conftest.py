@@ -171,3 +171,20 @@ def latitude_longitude_sphere(rings: int, sections: int):
             faces += [[ring(i, j), ring(i + 1, j), ring(i + 1, j + 1)], [ring(i, j), ring(i + 1, j + 1), ring(i, j + 1)]]
     faces += [[len(vertices) - 1, ring(rings - 2, j + 1), ring(rings - 2, j)] for j in range(sections)]
     return vertices, np.array(faces)
+
+
+F32_EPS = float(np.finfo(np.float32).eps)  # 1.19e-7
+F64_EPS = float(np.finfo(np.float64).eps)  # 2.2e-16
+
+
+def float32_rounding(scale, factor=8.0):
+    """A tolerance for float32 results of magnitude ``scale`` computed in another order (another BLAS, a kernel
+    against numpy, another process): ``factor`` float32 epsilons of it. ``scale`` is the magnitude of the values
+    compared, or of the terms they sum (``(|w| @ |x|).max()``), taken from the data in the test; ``factor`` is
+    said where it is used (8 covers sums in another order; 1 a single rounding to float32)."""
+    return factor * F32_EPS * float(scale)
+
+
+def float64_rounding(scale, factor=8.0):
+    """:func:`float32_rounding` for float64 results."""
+    return factor * F64_EPS * float(scale)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import warp_stokes as ws
-from conftest import EXAMPLE, write_obj
+from conftest import EXAMPLE, float32_rounding, write_obj
 from warp_stokes.binding.encode import encode_poses
 from warp_stokes.io.frames import load_mesh_frames
 
@@ -33,7 +33,9 @@ def test_frames_made_by_the_binding_give_back_their_poses(arm):
     encoded, rms = encode_poses(arm, frames)
     diagonal = np.linalg.norm(np.ptp(arm.cage_vertices, axis=0))
     assert np.abs(encoded.positions - poses).max() <= 1e-5 * diagonal
-    assert rms.max() <= 1e-6 and encoded.frames.tolist() == [3, 4, 5, 9]
+    # the frames are float32 deformations: the fit's residual is their rounding, relative to the diagonal
+    assert rms.max() <= float32_rounding(np.abs(frames.positions).max() / diagonal)
+    assert encoded.frames.tolist() == [3, 4, 5, 9]
 
 
 def test_smoothness_is_the_regularised_least_squares_solution(arm):
@@ -98,7 +100,8 @@ def test_frames_from_arrays_and_usd(arm, tmp_path):
     stage.GetRootLayer().Save()
     loaded = load_mesh_frames(tmp_path / "f.usda", arm.mesh_faces, arm.n_vertices)
     assert loaded.frames.tolist() == [7.0, 8.0]
-    np.testing.assert_allclose(loaded.positions, frames, atol=1e-4)
+    np.testing.assert_allclose(loaded.positions, frames, rtol=0,  # USD points are float32: one rounding
+                               atol=float32_rounding(np.abs(frames).max(), 1))
     with pytest.raises(ws.BindingError, match=r"f.npy: frames must have shape \(frames, 58, 3\)"):
         load_mesh_frames(tmp_path / "f.npy", arm.mesh_faces, 58)
 

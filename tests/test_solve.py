@@ -8,6 +8,7 @@ import pytest
 import warp as wp
 
 import warp_stokes as ws
+from conftest import float32_rounding
 from reference import reference_solve, residual
 
 
@@ -211,7 +212,8 @@ def test_stokes_weights_match_direct_solve_on_a_real_cage(arm_cage, precondition
     assert report.converged
     assert err <= 1e-5, f"max weight error {err:.2e} against the direct solve"
     # the reference reproduces constants from our (float32-rounded) boundary data: the data is right
-    assert np.abs(ref[inside][..., 0].sum(-1) - 1).max() < 1e-6
+    # (each boundary value rounded once to float32: 8 eps of the boundary's sums of magnitudes)
+    assert np.abs(ref[inside][..., 0].sum(-1) - 1).max() < float32_rounding(np.abs(known[..., 0]).sum(-1).max())
     print(f"arm, resolution 18, {preconditioner}: {report.iterations} iterations, max weight error {err:.2e} "
           "against the direct solve")
 

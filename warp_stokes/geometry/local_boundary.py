@@ -264,10 +264,11 @@ def _normal_derivatives(cage: Cage, settings: LocalData, device) -> np.ndarray:
         a = np.concatenate([np.ones((len(corners), len(v), 1)), v[None] - v[corners].mean(axis=1)[:, None]],
                            axis=2)  # (faces, L, 4)
         aw = a * inverse_weight[:, :, None]
-        solve = np.linalg.inv(np.einsum("fla,flb->fab", aw, a))
-        change = np.einsum("fab,fb->fa", solve, target - np.einsum("fla,fl->fa", a, start))
-        least = np.einsum("fla,fa->fl", aw, np.einsum("fab,fb->fa", solve, target))
-        start += np.einsum("fla,fa->fl", aw, change)
+        # stacked matrix products (BLAS): einsum's loops took half of the time at thousands of handles
+        solve = np.linalg.inv(np.matmul(aw.transpose(0, 2, 1), a))
+        change = np.matmul(solve, (target - np.matmul(start[:, None, :], a)[:, 0])[:, :, None])
+        least = np.matmul(aw, np.matmul(solve, target[:, :, None]))[:, :, 0]
+        start += np.matmul(aw, change)[:, :, 0]
         share = np.full((len(corners), 1), settings.least_norm_share if settings.model == "mvc-cut" else 1.0)
         if len(fold_ends):
             to_fold = distance[:, fold_ends].min(axis=1) / (settings.fold_radius * mean_edge)
