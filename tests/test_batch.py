@@ -74,8 +74,8 @@ def test_batch_keeps_going_and_reports(manifest, tmp_path, capsys, device):
     document = json.loads((out / "summary.json").read_text())
     assert document["warp_stokes_version"] == ws.__version__
     summary = {r["name"]: r for r in document["assets"]}
-    # what each asset warned of is kept with it (the arm's cage folds back on itself at four edges)
-    assert any("folds back on itself" in w for w in summary["arm_a"]["warnings"])
+    # what each asset warned of is kept with it (resolution 16 is too coarse for the arm's folded edges)
+    assert any("does not yet cut off the thin wedges" in w for w in summary["arm_a"]["warnings"])
     assert [summary[n]["status"] for n in ("arm_a", "arm_b", "open", "arm_c", "short_pose")] == [
         "ok", "ok", "failed", "ok", "failed"]
     assert "open_cage.obj: the cage is not closed" in summary["open"]["error"]
@@ -88,9 +88,10 @@ def test_batch_keeps_going_and_reports(manifest, tmp_path, capsys, device):
     # the table and the progress lines
     assert "open" in captured.out and "failed" in captured.out and "3 of 5 assets done, 2 failed" in captured.out
     assert "arm_b: binding at resolution 20" in captured.err
-    # the warnings at the end name their asset, once per asset (a failed one's too: its cage was checked)
-    warned = [line for line in captured.err.splitlines() if "folds back on itself" in line]
-    assert sorted(line.split(": ")[1] for line in warned) == ["arm_a", "arm_b", "arm_c", "short_pose"], warned
+    # the warnings at the end name their asset, once per asset (the resolutions 16 and 20 are too coarse for the
+    # arm's folded edges; the cage's note on the folds is recorded, not warned of)
+    warned = [line for line in captured.err.splitlines() if "does not yet cut off the thin wedges" in line]
+    assert sorted(line.split(": ")[1] for line in warned) == ["arm_a", "arm_b", "arm_c"], warned
     # what was written is whole: the bindings load and the USD files hold every frame
     from pxr import Usd, UsdGeom
 

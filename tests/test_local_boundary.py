@@ -1,5 +1,6 @@
 """Local boundary data: exact partition of unity and linear precision, locality along the cage, folded edges."""
 
+import re
 import subprocess
 import sys
 import warnings
@@ -194,14 +195,19 @@ def test_the_boundary_data_is_a_bind_and_cli_choice(tmp_path):
         ws.LocalData(model="nearest")
 
 
-def test_the_cage_check_names_folded_edges_and_the_binding_keeps_the_warning(device):
-    with pytest.warns(UserWarning, match=r"folds back on itself at 4 edge\(s\).*36-37 \(173 deg\)"):
-        cage = ws.check_cage(EXAMPLE / "arm_cage.obj")
-    assert any("folds back" in note for note in cage.notes)
+def test_the_cage_check_notes_folded_edges_and_a_coarse_bind_warns_of_them(device):
+    """A folded edge is a note (nothing to do where the grid cuts its wedge off); a bind too coarse for it warns
+    once, saying what to do, and both are kept in the stats."""
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
+        warnings.simplefilter("error")  # no warning from the check itself
+        cage = ws.check_cage(EXAMPLE / "arm_cage.obj")
+    assert any(re.search(r"folds back on itself at 4 edge\(s\).*36-37 \(173 deg\)", note) for note in cage.notes)
+    with pytest.warns(UserWarning) as caught:
         b = ws.bind(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", resolution=16, device=device)
-    assert any("folds back" in w for w in b.stats["warnings"])
+    texts = [str(w.message) for w in caught if "folded edges" in str(w.message)]  # (and thin parts at 16)
+    assert len(texts) == 1 and re.search(r"at resolution 16 the grid does not yet cut off .* from resolution (\d+) on"
+                                         r".*give --resolution auto \(the default\) or more", texts[0]), texts
+    assert any("folds back" in w for w in b.stats["warnings"]) and texts[0] in b.stats["warnings"]
 
 
 def test_a_chunks_local_field_and_its_complement_sum_to_one(arm_cage, device):

@@ -25,7 +25,7 @@ class Asset:
     mesh: str
     cage: str | None = None
     poses: str | None = None
-    resolution: int = 64
+    resolution: int | str = "auto"
     fps: float | None = None
     cage_prim: str | None = None
     mesh_prims: list | None = None
@@ -84,13 +84,14 @@ def _checked_entry(merged: dict, where: str) -> None:
         raise ManifestError(f"{where}: 'method' must be \"stokes\", \"harmonic\" or \"mvc\"")
     if merged.get("sampling", "hermite") not in ("hermite", "trilinear"):
         raise ManifestError(f"{where}: 'sampling' must be \"hermite\" or \"trilinear\"")
-    for key, kind in (("resolution", int), ("fps", (int, float)), ("tol", (int, float)),
+    for key, kind in (("resolution", (int, str)), ("fps", (int, float)), ("tol", (int, float)),
                       ("with_cage", bool), ("with_weights", bool), ("rest_time", (int, float))):
         value = merged.get(key)
         if key in merged and (not isinstance(value, kind) or (kind is not bool and isinstance(value, bool))):
             raise ManifestError(f"{where}: '{key}' has the wrong type ({type(merged[key]).__name__})")
     # the ranges the command line takes, checked before any work (not found per asset after others were bound)
-    for key, ok, expected in (("resolution", lambda v: 8 <= v <= 2048, "an integer from 8 to 2048"),
+    for key, ok, expected in (("resolution", lambda v: v == "auto" if isinstance(v, str) else 8 <= v <= 2048,
+                               "\"auto\" or an integer from 8 to 2048"),
                               ("tol", lambda v: 0 < v <= 0.1, "in (0, 0.1]"),
                               ("fps", lambda v: math.isfinite(v) and v > 0, "a positive number"),
                               ("rest_time", math.isfinite, "a finite time code")):

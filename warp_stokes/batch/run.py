@@ -290,6 +290,7 @@ def _bind_asset(asset, pending: dict, device, progress, k: int, total: int, resu
                    boundary=asset.boundary, sampling=asset.sampling, method=asset.method, cage_prim=asset.cage_prim,
                    mesh_prims=asset.mesh_prims, rest_time=asset.rest_time)
     result.vertices, result.handles = binding.n_vertices, binding.n_handles
+    result.resolution = binding.settings["resolution"]  # the number "auto" chose
     result.device = binding.stats["device"]
     if not binding.stats["converged"]:  # exact weights (bind raises otherwise), a residual short of tol: written
         stats = binding.stats

@@ -17,7 +17,7 @@ from ..device import resolve_device
 from ..errors import CageError, ConvergenceError, MeshError, WarpStokesError
 from ..geometry.boundary import mean_value_coordinates
 from ..geometry.cage import Cage, check_cage
-from ..geometry.grid import check_resolution, wedge_resolution
+from ..geometry.grid import AUTO_RESOLUTION, auto_resolution, check_resolution, wedge_resolution
 from ..geometry.inside import classify_points
 from ..geometry.local_boundary import boundary_settings, local_values
 from ..io.scene import is_usd, load_scene
@@ -43,7 +43,7 @@ def _suggest_resolution(resolution: int, spacing: float, distances: np.ndarray) 
     return int(min(2048, max(2 * resolution, math.ceil(resolution * 3.0 * spacing / thickness))))
 
 
-def bind(mesh, cage=None, resolution: int = 64, device=None, tol: float = 1e-6, max_iterations: int | None = None,
+def bind(mesh, cage=None, resolution="auto", device=None, tol: float = 1e-6, max_iterations: int | None = None,
          solver: str = "multigrid", memory_budget: int | None = None, boundary="local",
          sampling: str = "hermite", cage_prim: str | None = None, mesh_prims=None, rest_time=None,
          method: str = "stokes") -> Binding:
@@ -63,8 +63,10 @@ def bind(mesh, cage=None, resolution: int = 64, device=None, tol: float = 1e-6, 
     cage : path | trimesh.Trimesh | (vertices, faces), optional
         A closed, consistently oriented cage (quads and polygons are triangulated). May be left out when
         ``cage_prim`` names the cage in the mesh's USD stage.
-    resolution : int
-        Grid cells along the cage's longest axis.
+    resolution : "auto" | int
+        Grid cells along the cage's longest axis. "auto": 64, or more where the cage's folded edges need a finer
+        grid to cut off the thin wedges of outside space there, at most 96 on a CPU and 256 on a GPU
+        (:func:`warp_stokes.geometry.grid.auto_resolution`); the choice is in ``stats["resolution"]``.
     device : None | str | list of str
         ``"cpu"``, ``"cuda"`` or ``"cuda:N"``; default CUDA when present, else CPU. Several devices (a list,
         ``"cuda:0,cuda:1"``, or ``"cuda:all"`` for every GPU of the Ray cluster) spread the handles' solves over
@@ -133,6 +135,11 @@ def bind(mesh, cage=None, resolution: int = 64, device=None, tol: float = 1e-6, 
     inside, distance = classify_points(checked, points, device=device)
     _refuse_mesh_outside(surface, checked, inside, distance)
     seconds["load"] = time.perf_counter() - t
+    choice = {"requested": resolution}
+    if resolution == "auto":
+        resolution, needed, cap = ((AUTO_RESOLUTION,) * 2 + (None,) if method == "mvc"
+                                   else auto_resolution(checked, boundary, device))
+        choice.update(chosen=resolution, needed=needed, cap=cap)
     settings = settings_record(resolution, tol, max_iterations, solver, boundary, sampling, surface, checked, scene,
                                cage_prim, method)
     if method == "mvc":
@@ -158,7 +165,7 @@ def bind(mesh, cage=None, resolution: int = 64, device=None, tol: float = 1e-6, 
     grid, weights, corners = part.grid, part.weights, part.corners
     t = time.perf_counter()
     notes, beyond, thin = _vertices_off_the_grid(surface, checked, grid, resolution, weights, corners, inside,
-                                                 distance, device, boundary)
+                                                 distance, device, boundary, choice)
     seconds["sample"] += time.perf_counter() - t
     seconds["total"] = sum(seconds.values())
 
@@ -172,6 +179,7 @@ def bind(mesh, cage=None, resolution: int = 64, device=None, tol: float = 1e-6, 
         "multigrid_seconds": part.multigrid_seconds,
         "chunks": part.chunks,
         "memory_estimate_bytes": part.memory_estimate,
+        "resolution": choice,
         **({} if devices is None else {"devices": part.devices}),
         **solver_stats(part.reports, part.coarsest),
         "partition_of_unity_error": pu_error,
@@ -256,7 +264,7 @@ def _refuse_mesh_outside(surface, checked: Cage, inside: np.ndarray, distance: n
 
 
 def _vertices_off_the_grid(surface, checked: Cage, grid, resolution: int, weights: np.ndarray, corners: np.ndarray,
-                           inside: np.ndarray, distance: np.ndarray, device, boundary="local"):
+                           inside: np.ndarray, distance: np.ndarray, device, boundary="local", choice=None):
     """Vertices beyond the grid's band get the boundary data at their own position (in ``weights``): the data
     their neighbours within the band are interpolated from, so that a vertex's weights do not jump when a finer
     grid's band no longer reaches it (MVC there against the local data within the band changed a weight of the
@@ -289,11 +297,15 @@ def _vertices_off_the_grid(surface, checked: Cage, grid, resolution: int, weight
         warnings.warn(notes[-1], stacklevel=3)
     below = wedge_resolution(checked, boundary, device)
     if below is not None and resolution < below:
+        capped = (choice or {}).get("cap")
+        advice = (f"resolution 'auto' stops at {capped} on this device; give --resolution {min(below, 2048)} "
+                  "(resolution= in Python) for weights that converge there" if capped else
+                  "give --resolution auto (the default) or more")
         notes.append(
             f"{checked.name}: at resolution {resolution} the grid does not yet cut off the thin wedges of outside "
             f"space at the cage's folded edges (it does from resolution {below} on"
             f"{', beyond the largest grid' if below > 2048 else ''}); weights within a few cells of those edges "
-            "converge slowly below it")
+            f"converge slowly below it: {advice}")
         warnings.warn(notes[-1], stacklevel=3)
     return notes, beyond, thin
 

@@ -43,6 +43,20 @@ def _number(kind, low=None, high=None, low_open=False):
     return parse
 
 
+def _resolution(text: str):
+    """An argparse type: "auto", or an integer >= 1 (bind names the range it takes)."""
+    if text == "auto":
+        return text
+    try:
+        int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is neither auto nor an integer") from None
+    return _number(int, 1)(text)
+
+
+_resolution.__name__ = "resolution"
+
+
 def _resolutions(text: str) -> list:
     try:
         values = [int(v) for v in text.split(",") if v.strip()]
@@ -115,7 +129,9 @@ def _add_bind(sub) -> None:
     p.add_argument("--rest-time", type=_number(float), default=None,
                    help="USD time code of the rest pose (default: the cage prim's first time sample)")
     p.add_argument("-o", "--output", required=True, help="binding file to write (.npz)")
-    p.add_argument("--resolution", type=_number(int, 1), default=64, help="grid cells along the cage's longest axis (64)")
+    p.add_argument("--resolution", type=_resolution, default="auto",
+                   help="grid cells along the cage's longest axis, or auto (the default): 64, more where the cage's "
+                        "folded edges need it, at most 96 on a CPU and 256 on a GPU")
     p.add_argument("--device", default=None,
                    help="cpu, cuda or cuda:N (default: CUDA when present, else CPU); several (cuda:0,cuda:1, or cuda:all "
                         "for every GPU) solve shares of the handles at once, as Ray tasks (the ray extra)")

@@ -11,6 +11,16 @@ __all__ = ["format_stats", "check_output", "announce_compilation", "bind_command
            "animate_command", "encode_command", "sweep_command", "show_command", "batch_command"]
 
 
+def _resolution_choice(choice) -> str:
+    """"; resolution 70, auto: ..." for the bind's table; nothing for a number the user gave."""
+    if not isinstance(choice, dict) or choice.get("requested") != "auto" or "chosen" not in choice:
+        return ""
+    why = ("" if choice["needed"] <= choice["chosen"] and choice["chosen"] == 64 else
+           f": the cage's folded edges need {choice['needed']}"
+           + (f", capped at {choice['cap']} on this device" if choice["needed"] > choice["chosen"] else ""))
+    return f"; resolution {choice['chosen']}, auto{why}"
+
+
 def format_stats(stats: dict) -> str:
     """The stats of a binding as a short two-column table."""
     sec = stats["seconds"]
@@ -30,7 +40,8 @@ def format_stats(stats: dict) -> str:
         ("device", stats["device"]),
         ("method", {"harmonic": "harmonic coordinates (7-point Laplace)"}.get(stats.get("method"),
                                                                               "Stokes coordinates (biharmonic)")),
-        ("grid", " x ".join(str(s) for s in stats["grid_shape"]) + f"  (h = {stats['spacing']:.4g})"),
+        ("grid", " x ".join(str(s) for s in stats["grid_shape"]) + f"  (h = {stats['spacing']:.4g}"
+                 + _resolution_choice(stats.get("resolution")) + ")"),
         ("nodes", f"{stats['interior_nodes']} interior, {stats['ring_nodes']} ring"
                   + (f" ({stats['cut_off_nodes']} inside, cut off by thin wedges of the cage)"
                      if stats.get("cut_off_nodes") else "") + f", {stats['band_nodes']} band"),

@@ -87,7 +87,8 @@ def check_cage(source, name: str | None = None) -> Cage:
     Checks, in order: at least 4 vertices, finite coordinates, no degenerate or duplicate faces, closed
     (every edge shared by exactly two faces), consistent orientation (the two faces at an edge traverse it in
     opposite directions), outward orientation (an inward cage is flipped, with a warning). Edges where the cage
-    folds back on itself (:func:`folded_edges`) are named in a warning.
+    folds back on itself (:func:`folded_edges`) are named in a note (``Cage.notes``, kept in a binding's stats);
+    bind warns where its resolution is too coarse for them.
 
     Parameters
     ----------
@@ -152,7 +153,7 @@ def check_cage(source, name: str | None = None) -> Cage:
         notes.append(f"{name}: the cage folds back on itself at {len(folds)} edge(s) whose faces' normals are more "
                      f"than {FOLD_DEGREES:.0f} degrees apart, e.g. {listed}; the wedges of outside space there are thinner "
                      "than a grid cell near the edge; bind warns where its resolution is too coarse to cut them off")
-        warnings.warn(notes[-1], stacklevel=2)
+        # a note, not a warning: where the grid cuts the wedges off (resolution "auto" does), nothing is to be done
     return cage
 
 

@@ -17,7 +17,7 @@ from ..kernels import voxel
 
 __all__ = ["Grid", "voxelize", "wedge_resolution", "check_resolution", "grid_from_mask", "MARGIN", "BAND_WIDTH",
            "PATCH_LENGTH", "WEDGE_FACING", "CUT_OFF_MAX_CHANGE", "MAX_ROWS", "VOXELIZE_NODE_BYTES", "DEVICE_NODE_BYTES",
-           "HOST_NODE_BYTES"]
+           "HOST_NODE_BYTES", "AUTO_RESOLUTION", "AUTO_RESOLUTION_CAP", "auto_resolution"]
 
 #: nodes of known data kept outside the interior (max-norm distance): the ring plus a sampling band, so that
 #: trilinear sampling of vertices slightly outside the cage reads only known corners
@@ -175,19 +175,58 @@ class Grid:
         return arrays
 
 
-def check_resolution(resolution) -> int:
-    """The resolution as an int, or a ResolutionError when it is not an integer in [8, 2048].
+#: ``resolution="auto"`` picks at least this many cells, more where the cage's folded edges need them
+#: (:func:`wedge_resolution`), and at most the cap of the device's kind: a CPU bind stays within tens of seconds
+AUTO_RESOLUTION = 64
+AUTO_RESOLUTION_CAP = {"cpu": 96, "cuda": 256}
+
+
+def check_resolution(resolution) -> "int | str":
+    """The resolution as an int, or "auto"; a ResolutionError when it is neither "auto" nor an integer in [8, 2048].
 
     Examples
     --------
-    >>> check_resolution(64)
-    64
+    >>> check_resolution(64), check_resolution("auto")
+    (64, 'auto')
     """
+    if isinstance(resolution, str) and resolution == "auto":
+        return resolution
     if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)):
-        raise ResolutionError(f"resolution must be an integer number of cells, got {resolution!r}")
+        raise ResolutionError(f"resolution must be 'auto' or an integer number of cells, got {resolution!r}")
     if not 8 <= int(resolution) <= 2048:
         raise ResolutionError(f"resolution must be between 8 and 2048 cells, got {resolution}")
     return int(resolution)
+
+
+def auto_resolution(cage: Cage, boundary="local", device=None) -> tuple[int, int, int]:
+    """The resolution ``"auto"`` stands for: :data:`AUTO_RESOLUTION`, or the resolution from which the grid cuts off
+    the thin wedges at the cage's folded edges where that is more, capped per device kind
+    (:data:`AUTO_RESOLUTION_CAP`).
+
+    Parameters
+    ----------
+    cage : Cage
+    boundary : "local" | LocalData | "mvc"
+    device : None | str
+
+    Returns
+    -------
+    chosen : int
+    needed : int, what the cage asks for (more than ``chosen`` where the cap stopped it)
+    cap : int
+
+    Examples
+    --------
+    >>> import trimesh
+    >>> from warp_stokes.geometry.cage import check_cage
+    >>> box = trimesh.creation.box(extents=[2, 2, 2])
+    >>> auto_resolution(check_cage((box.vertices, box.faces)), device="cpu")
+    (64, 64, 96)
+    """
+    device = resolve_device(device)
+    cap = AUTO_RESOLUTION_CAP["cpu" if device.is_cpu else "cuda"]
+    needed = max(AUTO_RESOLUTION, wedge_resolution(cage, boundary, device) or 0)
+    return min(needed, cap), needed, cap
 
 
 def voxelize(cage: Cage, resolution: int = 64, device=None, max_rows: int = MAX_ROWS, memory_budget: int | None = None,

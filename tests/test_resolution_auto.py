@@ -1,0 +1,75 @@
+"""resolution="auto" (the default): a grid that fits the cage, capped per device, said in the stats and the table."""
+
+import json
+import warnings
+
+import pytest
+
+import warp_stokes as ws
+from conftest import EXAMPLE, one_error_line, warp_stokes
+from warp_stokes.geometry import grid as grid_module
+
+
+def test_auto_resolution_resolves_the_arms_folded_edges_within_the_cap():
+    cage = ws.check_cage(EXAMPLE / "arm_cage.obj")
+    needed = grid_module.wedge_resolution(cage, device="cpu")
+    assert needed is not None and needed > grid_module.AUTO_RESOLUTION  # the arm's cage folds back at 4 edges
+    assert grid_module.auto_resolution(cage, device="cpu") == (needed, needed, grid_module.AUTO_RESOLUTION_CAP["cpu"])
+    import trimesh
+
+    box = trimesh.creation.box(extents=[1.0, 2.0, 3.0])  # no folded edge: the least resolution
+    assert grid_module.auto_resolution(ws.check_cage((box.vertices, box.faces)), device="cpu")[0] == 64
+    assert grid_module.auto_resolution(cage, boundary="mvc", device="cpu")[0] == 64  # MVC cuts nothing off
+    for bad in ("fine", 4, 4096, 64.0, True):
+        with pytest.raises(ws.ResolutionError, match="resolution must be"):
+            grid_module.check_resolution(bad)
+
+
+def test_the_bundled_example_binds_by_default_without_a_warning(tmp_path):
+    """The README's command, as a subprocess: no warning, and the table says which resolution auto chose."""
+    proc = warp_stokes("bind", str(EXAMPLE / "arm.obj"), str(EXAMPLE / "arm_cage.obj"), "-o", str(tmp_path / "arm.npz"),
+                       "--device", "cpu")
+    assert proc.returncode == 0, proc.stderr
+    assert "warning" not in proc.stderr.lower(), proc.stderr
+    needed = grid_module.wedge_resolution(ws.check_cage(EXAMPLE / "arm_cage.obj"), device="cpu")
+    assert f"resolution {needed}, auto: the cage's folded edges need {needed}" in proc.stdout
+    b = ws.load_binding(tmp_path / "arm.npz", device="cpu")
+    assert b.settings["resolution"] == needed
+    assert b.stats["resolution"] == {"requested": "auto", "chosen": needed, "needed": needed,
+                                     "cap": grid_module.AUTO_RESOLUTION_CAP["cpu"]}
+    # the fold is recorded as a note, not warned of
+    assert any("folds back on itself" in note for note in b.stats["warnings"])
+
+
+def test_a_capped_auto_resolution_warns_once_saying_what_to_give(monkeypatch):
+    monkeypatch.setattr(grid_module, "AUTO_RESOLUTION", 16)
+    monkeypatch.setattr(grid_module, "AUTO_RESOLUTION_CAP", {"cpu": 24, "cuda": 24})
+    needed = grid_module.wedge_resolution(ws.check_cage(EXAMPLE / "arm_cage.obj"), device="cpu")
+    with pytest.warns(UserWarning) as caught:
+        b = ws.bind(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", device="cpu")
+    folded = [str(w.message) for w in caught if "folded edges" in str(w.message)]
+    assert len(folded) == 1
+    assert f"resolution 'auto' stops at 24 on this device; give --resolution {needed}" in folded[0]
+    assert b.settings["resolution"] == 24 and b.stats["resolution"]["needed"] == needed
+
+
+def test_a_manifest_takes_auto_and_refuses_other_words(tmp_path):
+    for value, ok in (('"auto"', True), ('"fine"', False), ("64", True)):
+        manifest = tmp_path / "m.toml"
+        manifest.write_text(f'[defaults]\nresolution = {value}\n\n[[assets]]\nmesh = "{EXAMPLE / "arm.obj"}"\n'
+                            f'cage = "{EXAMPLE / "arm_cage.obj"}"\n')
+        if ok:
+            assets = ws.batch.read_manifest(manifest)
+            assert assets[0].resolution == json.loads(value)
+        else:
+            with pytest.raises(ws.batch.ManifestError, match=r"'resolution' must be \"auto\" or an integer"):
+                ws.batch.read_manifest(manifest)
+
+
+def test_the_command_line_takes_auto_or_a_number(tmp_path):
+    proc = warp_stokes("bind", str(EXAMPLE / "arm.obj"), str(EXAMPLE / "arm_cage.obj"), "-o", str(tmp_path / "a.npz"),
+                       "--resolution", "fine")
+    assert proc.returncode == 2 and "--resolution: 'fine' is neither auto nor an integer" in one_error_line(proc)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert "auto" in warp_stokes("bind", "--help").stdout
