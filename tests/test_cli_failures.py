@@ -37,7 +37,7 @@ def test_version():
     (["--max-iterations", "-1"], "argument --max-iterations: must be >= 1, got -1"),
     (["--tol", "0"], "argument --tol: must be > 0 and <= 0.1, got 0"),
     (["--tol", "nan"], "argument --tol: must be > 0 and <= 0.1, got nan"),
-    (["--resolution", "abc"], "argument --resolution: 'abc' is not an integer"),
+    (["--resolution", "abc"], "argument --resolution: 'abc' is neither auto nor an integer"),
     (["--memory-gb", "0"], "argument --memory-gb: must be > 0, got 0"),
 ])
 def test_numbers_out_of_range_are_one_line_errors(tmp_path, args, message):
@@ -200,3 +200,14 @@ def test_a_full_disk_during_animate_in_a_subprocess(tmp_path, bound):
     assert one_error_line(proc) == f"warp-stokes: error: {out}: could not write the USD file (is the disk full or " \
                                    "the folder gone?)"
     assert os.listdir(tmp_path) == []
+
+
+def test_a_mesh_and_cage_the_other_way_round_get_a_hint(tmp_path):
+    proc = warp_stokes("bind", CAGE, MESH, "-o", str(tmp_path / "b.npz"), "--device", "cpu")
+    line = one_error_line(proc)
+    assert proc.returncode == 2 and "arm.obj: the cage is not closed" in line
+    assert "the cage has more vertices (2089) than the mesh (58): are the mesh and the cage the other way round?" in line
+    # a cage that is merely bad gets no such guess
+    proc = warp_stokes("bind", MESH, MESH, "-o", str(tmp_path / "b.npz"), "--device", "cpu")
+    assert proc.returncode == 2 and "other way round" not in one_error_line(proc)
+    assert not (tmp_path / "b.npz").exists()

@@ -59,6 +59,24 @@ def test_round_trip_points_topology_time_codes_and_extents(arm, tmp_path):
     assert stage.GetPrimAtPath("/Root/Cage").IsValid() is False
 
 
+def test_write_animation_takes_what_load_poses_reads(arm, tmp_path):
+    """An array (frames 1, 2, ...), a single pose, or a file of poses, as users have them; a wrong shape is one error."""
+    positions = cage_poses(arm, 3)
+    np.save(tmp_path / "p.npy", positions)
+    cases = ((positions, [1.0, 2.0, 3.0]), (positions[1], [1.0]), (tmp_path / "p.npy", [1.0, 2.0, 3.0]))
+    for k, (poses, frames) in enumerate(cases):
+        stage = Usd.Stage.Open(ws.write_animation(tmp_path / f"a{k}.usda", arm, poses))
+        points = UsdGeom.Mesh(stage.GetPrimAtPath("/Root/Mesh")).GetPointsAttr()
+        assert points.GetTimeSamples() == frames
+        last = positions[1] if len(frames) == 1 else positions[-1]
+        # a batch of frames against one frame: float32 sums in another order
+        np.testing.assert_allclose(np.asarray(points.Get(frames[-1])), arm.deform(last), rtol=0,
+                                   atol=float32_rounding((np.abs(arm.weights) @ np.abs(last)).max()))
+    with pytest.raises(ws.BindingError, match=r"poses must have shape \(frames, 58, 3\)"):
+        ws.write_animation(tmp_path / "b.usda", arm, positions[:, :10])
+    assert not (tmp_path / "b.usda").exists()
+
+
 def test_stage_passes_all_registered_validators(arm, tmp_path):
     path = ws.write_animation(tmp_path / "arm.usda", arm, ws.Poses(cage_poses(arm, 3), np.arange(1.0, 4.0), "g"),
                               with_cage=True, with_weights=True)

@@ -20,6 +20,7 @@ from ..geometry.cage import Cage, check_cage
 from ..geometry.grid import AUTO_RESOLUTION, auto_resolution, check_resolution, wedge_resolution
 from ..geometry.inside import classify_points
 from ..geometry.local_boundary import boundary_settings, local_values
+from ..io.load import load_surface
 from ..io.scene import is_usd, load_scene
 from ..solver.solve import ACCEPTABLE
 from .columns import grid_columns
@@ -130,7 +131,10 @@ def bind(mesh, cage=None, resolution="auto", device=None, tol: float = 1e-6, max
         or os.path.abspath(os.fspath(cage_argument)) == os.path.abspath(os.fspath(mesh)))
     scene = load_scene(mesh, mesh_prims=mesh_prims, cage_prim=cage_prim if in_stage else None, rest_time=rest_time)
     surface = scene.surface()
-    checked: Cage = check_cage(cage)
+    try:
+        checked: Cage = check_cage(cage)
+    except CageError as error:
+        raise _swapped_hint(error, cage, surface) from None
     points = surface.vertices
     inside, distance = classify_points(checked, points, device=device)
     _refuse_mesh_outside(surface, checked, inside, distance)
@@ -190,6 +194,19 @@ def bind(mesh, cage=None, resolution="auto", device=None, tol: float = 1e-6, max
     return Binding(weights, checked.vertices, checked.faces, points, surface.faces, settings, stats, device=device,
                    mesh_normals=surface.normals, cage_source_index=checked.source_index,
                    mesh_polygons=surface.polygons(), mesh_uvs=surface.uvs, parts=parts_record(scene), asset=asset_record(scene))
+
+
+def _swapped_hint(error: CageError, cage, surface) -> CageError:
+    """``error`` with a hint where the cage has more vertices than the mesh: the arguments may be the wrong way
+    round (the mesh, open or dense, is refused as a cage first)."""
+    try:
+        n_cage = len(load_surface(cage).vertices) if not hasattr(cage, "vertices") else len(cage.vertices)
+    except Exception:  # the error says what is wrong with the cage; the hint is only a guess
+        return error
+    if n_cage <= len(surface.vertices):
+        return error
+    return CageError(f"{error}; the cage has more vertices ({n_cage}) than the mesh ({len(surface.vertices)}): are "
+                     "the mesh and the cage the other way round? (bind MESH CAGE)")
 
 
 def _cage_source(mesh, cage, cage_prim, rest_time):

@@ -21,7 +21,7 @@ import os
 import numpy as np
 
 from ...errors import WarpStokesError
-from ..poses import Poses
+from ..poses import Poses, load_poses
 from .layer import write_layer
 from .standalone import write_standalone
 
@@ -47,7 +47,7 @@ def _check(path: str, binding, poses: Poses, fps) -> tuple[str, np.ndarray, np.n
     return ext, positions, frames
 
 
-def write_animation(path, binding, poses: Poses, fps: float | None = None, with_cage: bool = False,
+def write_animation(path, binding, poses, fps: float | None = None, with_cage: bool = False,
                     with_weights: bool = False, up_axis: str | None = None, meters_per_unit: float | None = None,
                     normals: np.ndarray | None = None, asset=None) -> str:
     """Write the bound mesh, deformed by every cage pose, as animated USD.
@@ -62,7 +62,8 @@ def write_animation(path, binding, poses: Poses, fps: float | None = None, with_
     ----------
     path : str | os.PathLike, ``.usd`` or ``.usdc`` (binary crate) or ``.usda`` (text)
     binding : Binding
-    poses : Poses, e.g. from :func:`warp_stokes.load_poses`
+    poses : Poses (e.g. from :func:`warp_stokes.load_poses`), or what it reads: an (F, L, 3) or (L, 3) array
+        (frames 1, 2, ...), a folder of OBJ frames, a .npy/.npz or USD file
     fps : float, optional, time codes per second (default: the poses' own rate when they came from a USD stage,
         else the asset's, else 24)
     with_cage : bool, also write the animated cage: ``/Root/Cage`` (purpose guide) in a standalone stage; over
@@ -83,6 +84,8 @@ def write_animation(path, binding, poses: Poses, fps: float | None = None, with_
     --------
     >>> write_animation("walk.usd", binding, load_poses("walk/", binding.cage_faces))  # doctest: +SKIP
     """
+    if not isinstance(poses, Poses):
+        poses = load_poses(poses, binding.cage_faces, binding.n_handles, binding.cage_source_index)
     ext, positions, frames = _check(path, binding, poses, fps)
     path = os.fspath(path)
     if binding.asset is None and asset is not None:

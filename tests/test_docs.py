@@ -1,0 +1,126 @@
+"""The README and the guides in docs/ stay true: every shell and Python block runs as written, from a copy of the
+repository root, in order (the README first: the guides go on from what its tour wrote), and the README's own
+commands print no warning.
+
+A block is skipped only where the line before its fence says ``<!-- docs-test: skip (reason) -->`` (a running Ray
+cluster, a GPU, large data). In a shell block the set-up steps (a virtual environment, ``pip install``, ``pytest``)
+are left out: the tests run inside the installed package already.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+GUIDES = ["usd.md", "batch.md", "methods.md", "resolution.md", "reference.md", "troubleshooting.md", "performance.md"]
+SETUP = re.compile(r"^(python3 -m venv\b|\. \.venv/bin/activate$|pip install\b|pytest$)")
+SKIP = re.compile(r"<!-- docs-test: skip \((.+)\) -->")
+
+
+def blocks(path: Path) -> list[tuple[str, str, str | None]]:
+    """(language, code, reason to skip or None) of every fenced block, in order."""
+    lines = path.read_text().splitlines()
+    found, k = [], 0
+    while k < len(lines):
+        fence = re.match(r"^```(\w*)\s*$", lines[k])
+        if fence and fence.group(1):
+            end = next(j for j in range(k + 1, len(lines)) if lines[j].startswith("```"))
+            skip = SKIP.match(lines[k - 1]) if k else None
+            found.append((fence.group(1), "\n".join(lines[k + 1:end]), skip.group(1) if skip else None))
+            k = end
+        k += 1
+    return found
+
+
+def shell_commands(code: str) -> list[str]:
+    """The block's commands, continuation lines joined and set-up steps left out."""
+    joined = re.sub(r"\s*\\\n\s*", " ", code)
+    commands = []
+    for line in joined.splitlines():
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        kept = [part for part in line.split(" && ") if not SETUP.match(part.strip())]
+        if kept:
+            commands.append(" && ".join(kept))
+    return commands
+
+
+def run_document(path: Path, workdir: Path) -> list[str]:
+    """Run the document's blocks in ``workdir``; returns the stderr of every command (for warnings)."""
+    env = dict(os.environ, PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}",
+               MPLBACKEND="Agg")
+    errors = []
+    for language, code, skip in blocks(path):
+        if skip or language not in ("bash", "python"):
+            continue
+        runs = ([["bash", "-c", c] for c in shell_commands(code)] if language == "bash"
+                else [[sys.executable, "-c", code]])
+        for command in runs:
+            proc = subprocess.run(command, cwd=workdir, env=env, capture_output=True, text=True, timeout=600)
+            assert proc.returncode == 0, (f"{path.name}: {command[-1][:200]!r} exited {proc.returncode}\n"
+                                          f"{proc.stdout[-2000:]}\n{proc.stderr[-3000:]}")
+            errors.append(proc.stderr)
+    return errors
+
+
+@pytest.fixture(scope="module")
+def tour(tmp_path_factory):
+    """A copy of what the commands read (examples/, pyproject.toml) with the README's blocks run in it."""
+    workdir = tmp_path_factory.mktemp("docs")
+    shutil.copytree(ROOT / "examples", workdir / "examples")
+    stderr = run_document(ROOT / "README.md", workdir)
+    return workdir, stderr
+
+
+def test_the_readmes_commands_run_as_written_without_a_warning(tour):
+    workdir, stderr = tour
+    warned = [line for err in stderr for line in err.splitlines() if "warning" in line.lower()]
+    assert not warned, warned
+    for written in ("arm.npz", "bent_arm.obj", "arm_bend.usd", "arm_usd.npz", "arm_bend_layer.usda",
+                    "out/summary.json", "weights.png", "deformed.png", "arm_bend_py.usda", "arm_py.npz"):
+        assert (workdir / written).is_file(), written
+
+
+@pytest.mark.parametrize("guide", GUIDES)
+def test_every_block_of_the_guides_runs_as_written(tour, guide):
+    workdir, _ = tour
+    run_document(ROOT / "docs" / guide, workdir)
+
+
+def test_the_readme_is_short_and_the_docs_carry_no_history():
+    readme = (ROOT / "README.md").read_text()
+    assert len(readme.splitlines()) <= 200
+    for path in [ROOT / "README.md", *(ROOT / "docs" / g for g in GUIDES)]:
+        text = path.read_text()
+        assert not re.search(r"\b20\d\d-\d\d-\d\d\b", text), f"{path.name}: a date"
+        assert not re.search(r"\bissue \d+|\bsession\b", text, re.IGNORECASE), f"{path.name}: project history"
+        # every relative link reaches a file of the repository
+        for target in re.findall(r"\]\(([^)#]+)\)", text):
+            if not target.startswith("http"):
+                assert (path.parent / target).exists(), f"{path.name}: a link to {target}"
+    # every guide is linked from the README, and every block is one the test knows how to run or show
+    for guide in GUIDES:
+        assert f"(docs/{guide})" in readme, guide
+    for path in [ROOT / "README.md", *(ROOT / "docs" / g for g in GUIDES)]:
+        assert {language for language, _, _ in blocks(path)} <= {"bash", "python", "text", "toml"}, path.name
+
+
+def test_the_block_reader_skips_only_what_is_marked(tmp_path):
+    doc = tmp_path / "d.md"
+    doc.write_text("x\n```bash\npython3 -m venv .venv && . .venv/bin/activate && pip install . && echo hi \\\n"
+                   "  there\n```\n<!-- docs-test: skip (needs a GPU) -->\n```bash\nexit 3\n```\n```text\nexit 4\n```\n")
+    assert [(lang, skip) for lang, _, skip in blocks(doc)] == [("bash", None), ("bash", "needs a GPU"),
+                                                                ("text", None)]
+    assert shell_commands(blocks(doc)[0][1]) == ["echo hi there"]
+    assert run_document(doc, tmp_path) == [""]
+    doc.write_text("```bash\nexit 3\n```\n")
+    with pytest.raises(AssertionError, match="exited 3"):
+        run_document(doc, tmp_path)
