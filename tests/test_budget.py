@@ -75,7 +75,9 @@ def test_chunked_and_unchunked_solves_give_the_same_weights(arm_cage, device):
         # room for 24 columns: 20 of the 58 handles at a time and the 4 columns of the rest of the cage
         budget = estimate.total(24)
         chunked = ws.bind(EXAMPLE / "arm.obj", arm_cage, resolution=24, device=device, memory_budget=budget)
-    assert whole.stats["chunks"] == 1 and chunked.stats["chunks"] == 3
+    # (on a CPU the multigrid's setup, a constant, may set the peak below 30 columns: the plan then fits more)
+    planned = ws.plan_chunks(estimate, 58, budget, 24)
+    assert whole.stats["chunks"] == 1 and chunked.stats["chunks"] == len(planned) >= 2
     assert chunked.stats["memory_estimate_bytes"] <= budget < whole.stats["memory_estimate_bytes"]
     np.testing.assert_allclose(chunked.weights, whole.weights, atol=1e-5)
     assert chunked.stats["partition_of_unity_error"] <= 1e-5
@@ -100,11 +102,13 @@ def test_plan_chunks_balances_and_covers_all_handles():
 
 
 def test_an_impossible_budget_fails_at_once_naming_a_resolution_that_fits(arm_cage, device):
-    budget = 24 * 2**20
-    with pytest.raises(ws.ResolutionError, match=r"resolution 96 needs .* GiB .* resolution (\d+) or less would fit") as e:
-        ws.bind(EXAMPLE / "arm.obj", arm_cage, resolution=96, device=device, memory_budget=budget)
+    # (on a CPU the multigrid's setup forms the coarsest inverse on the host, up to 82 MB at any resolution: a
+    # budget below that may fit no resolution)
+    budget = (24 if ws.device.resolve_device(device).is_cuda else 60) * 2**20
+    with pytest.raises(ws.ResolutionError, match=r"resolution 128 needs .* GiB .* resolution (\d+) or less would fit") as e:
+        ws.bind(EXAMPLE / "arm.obj", arm_cage, resolution=128, device=device, memory_budget=budget)
     suggested = int(str(e.value).split("resolution ")[-1].split(" or less")[0])
-    assert 8 <= suggested < 96
+    assert 8 <= suggested < 128
     grid = ws.voxelize(arm_cage, suggested, device=device)
     # the suggestion does fit: one handle with the complement columns of a chunked solve
     estimate = ws.estimate_memory(grid, 2089, levels=ws.coarsen(grid, device), device=device)
@@ -119,7 +123,8 @@ def test_a_budget_below_what_no_resolution_saves_says_so(arm_cage):
     plain = ws.estimate_memory(grid, 2089, device="cpu", n_handles=58)
     local = ws.estimate_memory(grid, 2089, device="cpu", n_handles=58, boundary_bytes=(kept, work))
     assert local.fixed - plain.fixed == 2 * kept  # the host's copy and the device's, in one memory on a CPU
-    assert local.total(58) - plain.total(58) >= kept + min(kept, work)
+    assert local.base - plain.base == kept  # the host's copy, throughout
+    assert local.stages[0][0] - plain.stages[0][0] == kept and (work, 0) in local.stages  # the device's; forming it
     big = ws.solver.budget.MemoryEstimate(per_handle=100, shared=6000, fixed=5000)
     with pytest.raises(ws.ResolutionError, match=r"need 0.00 GiB at any resolution .* fewer handles or boundary 'mvc'"):
         ws.plan_chunks(big, 10, budget=4000, resolution=64, name="big.obj")

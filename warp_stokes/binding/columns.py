@@ -76,7 +76,7 @@ class GridColumns:
 def grid_columns(checked: Cage, points: np.ndarray, resolution: int, device, handles: slice = slice(None),
                  solver: str = "multigrid", tol: float = 1e-6, max_iterations: int | None = None, boundary="local",
                  sampling: str = "hermite", memory_budget: int | None = None,
-                 equation: str = "biharmonic") -> GridColumns:
+                 equation: str = "biharmonic", progress=None) -> GridColumns:
     """Solve the handles ``handles`` of a checked cage on a grid at ``resolution`` on ``device`` and sample them at
     ``points`` (arguments as in :func:`warp_stokes.bind`, the device resolved).
 
@@ -97,7 +97,9 @@ def grid_columns(checked: Cage, points: np.ndarray, resolution: int, device, han
     n_range = stop - first
     partial = n_range < checked.n_handles
     seconds = {}
+    tell = progress or (lambda stage, **info: None)
     t = time.perf_counter()
+    tell("voxelising", resolution=resolution)
     grid = voxelize(checked, resolution, device=device, memory_budget=memory_budget, boundary=boundary)
     # the levels' sizes first (cheap), so that the plan counts the hierarchy before it is formed
     levels = coarsen(grid, device) if solver == "multigrid" else None
@@ -112,6 +114,7 @@ def grid_columns(checked: Cage, points: np.ndarray, resolution: int, device, han
     seconds["voxelize"] = time.perf_counter() - t
 
     t = time.perf_counter()
+    tell("multigrid", levels=len(levels) if levels is not None else 0)
     preconditioner = (Multigrid(grid, device=device, levels=levels, equation=equation) if solver == "multigrid"
                       else "jacobi")
     wp.synchronize_device(device)
@@ -121,8 +124,10 @@ def grid_columns(checked: Cage, points: np.ndarray, resolution: int, device, han
     weights = np.empty((len(points), n_range), dtype=np.float32)
     reports = []
     complement = partial or len(chunks) > 1
-    for chunk in chunks:
+    for k, chunk in enumerate(chunks):
         t = time.perf_counter()
+        part = {"chunk": k + 1, "chunks": len(chunks)} if len(chunks) > 1 else {}
+        tell("boundary data", **part)
         # a chunk carries the rest of the cage in one more column, so that its solve checks partition of unity
         field_ = boundary_field(grid, checked, device=device, handles=chunk, complement=complement, data=boundary)
         wp.synchronize_device(device)
@@ -130,10 +135,12 @@ def grid_columns(checked: Cage, points: np.ndarray, resolution: int, device, han
         report = solve_biharmonic(
             grid, field_, tol=tol, max_iterations=max_iterations, handles=checked.vertices,
             chunk=chunk if complement else None, preconditioner=preconditioner, device=device, equation=equation,
+            progress=lambda iteration, residual: tell("solving", iteration=iteration, residual=residual, **part),
         )
         reports.append(report)
         seconds["solve"] += report.seconds
         t = time.perf_counter()
+        tell("sampling", **part)
         sampled_columns, corners = sample_weights(grid, field_, points, device=device, method=sampling)
         weights[:, chunk.start - first: chunk.stop - first] = sampled_columns[:, : chunk.stop - chunk.start]
         seconds["sample"] += time.perf_counter() - t

@@ -47,7 +47,7 @@ def _suggest_resolution(resolution: int, spacing: float, distances: np.ndarray) 
 def bind(mesh, cage=None, resolution="auto", device=None, tol: float = 1e-6, max_iterations: int | None = None,
          solver: str = "multigrid", memory_budget: int | None = None, boundary="local",
          sampling: str = "hermite", cage_prim: str | None = None, mesh_prims=None, rest_time=None,
-         method: str = "stokes") -> Binding:
+         method: str = "stokes", progress=None) -> Binding:
     """Compute Stokes cage coordinates (or harmonic or mean value coordinates) of a mesh's vertices with respect to a
     cage.
 
@@ -99,6 +99,11 @@ def bind(mesh, cage=None, resolution="auto", device=None, tol: float = 1e-6, max
         Stokes coordinates (default); harmonic coordinates: the 7-point Laplace equation on the same grid, with the
         same boundary data, solver and sampling; or mean value coordinates evaluated at the vertices (no grid: the
         grid and solver arguments are not used).
+    progress : callable, optional
+        ``progress(stage, **info)`` as the bind goes: "voxelising" (resolution), "multigrid" (levels), "boundary
+        data", "solving" (iteration, residual: the largest relative residual still iterating) and "sampling", the
+        last three with chunk and chunks when the handles are solved in chunks; "spreading" (devices) for a bind
+        over several devices. The command line draws it as one line on a terminal.
 
     Returns
     -------
@@ -160,10 +165,12 @@ def bind(mesh, cage=None, resolution="auto", device=None, tol: float = 1e-6, max
     options = dict(solver=solver, tol=tol, max_iterations=max_iterations, boundary=boundary, sampling=sampling,
                    memory_budget=memory_budget, equation=equation)
     if devices is None:
-        part = grid_columns(checked, points, resolution, device, **options)
+        part = grid_columns(checked, points, resolution, device, progress=progress, **options)
     else:
         from .spread import spread_columns
 
+        if progress is not None:
+            progress("spreading", devices=len(devices))
         part = spread_columns(checked, points, resolution, devices, **options)
     seconds.update(part.seconds)
     grid, weights, corners = part.grid, part.weights, part.corners

@@ -129,6 +129,8 @@ def _add_bind(sub) -> None:
     p.add_argument("--rest-time", type=_number(float), default=None,
                    help="USD time code of the rest pose (default: the cage prim's first time sample)")
     p.add_argument("-o", "--output", required=True, help="binding file to write (.npz)")
+    p.add_argument("--quiet", action="store_true",
+                   help="no progress line (it is drawn on stderr only when stderr is a terminal)")
     p.add_argument("--resolution", type=_resolution, default="auto",
                    help="grid cells along the cage's longest axis, or auto (the default): 64, more where the cage's "
                         "folded edges need it, at most 96 on a CPU and 256 on a GPU")

@@ -109,10 +109,14 @@ def bind_command(args) -> int:
     if spread_devices(args.device) is None:  # spread: the Ray workers compile, on their devices
         announce_compilation(args.device, harmonic=args.method == "harmonic")
     budget = None if args.memory_gb is None else args.memory_gb * 2**30
-    binding = ws.bind(args.mesh, args.cage, resolution=args.resolution, device=args.device, tol=args.tol,
-                      max_iterations=args.max_iterations, solver=args.solver, memory_budget=budget,
-                      boundary=args.boundary, sampling=args.sampling, cage_prim=args.cage_prim,
-                      mesh_prims=args.mesh_prim, rest_time=args.rest_time, method=args.method)
+    from .progress import ProgressLine
+
+    with ProgressLine(os.path.basename(args.mesh), enabled=False if args.quiet else None) as progress:
+        binding = ws.bind(args.mesh, args.cage, resolution=args.resolution, device=args.device, tol=args.tol,
+                          max_iterations=args.max_iterations, solver=args.solver, memory_budget=budget,
+                          boundary=args.boundary, sampling=args.sampling, cage_prim=args.cage_prim,
+                          mesh_prims=args.mesh_prim, rest_time=args.rest_time, method=args.method,
+                          progress=progress)
     binding.save(args.output)
     print(format_stats(binding.stats))
     if len(binding.parts) > 1:

@@ -14,7 +14,8 @@ mesh vertices:
 Shared by all columns: the grid's node index (4 per lattice node), node coordinates (12 N_a) and stencil work
 items (16 per patch), the multigrid hierarchy (27 blocks of 64 B per coarse node, its diagonal, coordinates and
 lattice indices: :func:`warp_stokes.solver.multigrid.hierarchy_bytes`), and per stage the node positions for the MVC
-(24 N_a) or the sampling's per-vertex arrays (80 V). The local boundary data's normal derivatives (8 bytes per cage
+(24 N_a) or the sampling's per-vertex arrays (80 V); on the CPU, the multigrid's setup, which forms the coarsest
+level's inverse on the host (4 float64 copies of its dense operator: 36 MB for 267 nodes). The local boundary data's normal derivatives (8 bytes per cage
 face and handle: :func:`warp_stokes.geometry.local_boundary.local_data_bytes`, 384 MB for a cage of 4,898 handles)
 are on the device while the boundary data is formed. On the CPU the host arrays live in the same memory and are
 counted too: the grid's (labels and index, 5 per lattice node, and 12 N_a), the weights of all handles (4 V per
@@ -144,6 +145,11 @@ def estimate_memory(grid: Grid, n_vertices: int = 0, preconditioner: str = "mult
     ]
     if on_cpu:
         stages.append((local_work, 0))  # the local data computed (while voxelising): the graph, a group's arrays
+        if multigrid:
+            # the coarsest inverse formed on the host (the multigrid's setup): the float64 operator, LAPACK's copy
+            # of it and the inverse it writes, and the Cholesky factor that proves it positive definite
+            unknowns = 4 * sizes[-1]
+            stages.append((4 * 8 * unknowns**2, 0))
     stages = [(int(math.ceil(s)), int(math.ceil(c))) for s, c in stages]
     return MemoryEstimate(
         per_handle=max(c for _, c in stages),

@@ -168,11 +168,13 @@ class Watchdog:
 
 
 def cg_round(solver: BatchedCG, rel: np.ndarray, tol_cg: float, deviation, identity_tol: float, iterations: int,
-              max_iterations: int, callback, field, watchdog: Watchdog | None = None) -> tuple[int, str | None]:
+              max_iterations: int, callback, field, watchdog: Watchdog | None = None,
+              progress=None) -> tuple[int, str | None]:
     """One round of CG from the current residual: the handles above ``tol_cg`` iterate until the recurrence puts
     them below it; then, while partition of unity and linear precision (``deviation()``) exceed ``identity_tol``,
     every handle goes on, the check running after each iteration, until it passes or stalls (the float32 floor).
-    A ``watchdog`` ends the round at the first sign of a broken preconditioner.
+    A ``watchdog`` ends the round at the first sign of a broken preconditioner; ``progress(iteration, residual)``
+    is told the largest residual of the running handles after each iteration.
     Returns (the iteration count so far, the watchdog's fault or None)."""
     running_np = (rel > tol_cg).astype(np.int32)
     if running_np.any():
@@ -184,6 +186,8 @@ def cg_round(solver: BatchedCG, rel: np.ndarray, tol_cg: float, deviation, ident
         iterations += 1
         if callback is not None:
             callback(iterations, field)
+        if progress is not None:
+            progress(iterations, float(rel_cg[running_np == 1].max(initial=0.0)))
         if watchdog is not None:
             # every handle's residual counts while the identity check drives them all (stagnation excepted: there
             # slow progress is the float32 floor)

@@ -121,6 +121,7 @@ def solve_biharmonic(
     callback=None,
     chunk: slice | None = None,
     equation: str = "biharmonic",
+    progress=None,
 ) -> SolveReport:
     """Solve the compact 19-point coupled scheme (or the 7-point Laplace equation) in place, for all handles in one
     batched CG.
@@ -151,6 +152,9 @@ def solve_biharmonic(
         ``callback(iteration, field)`` is called with the starting field (iteration 0) and after every CG
         iteration, with ``field`` holding the current iterate: to record convergence histories. It must not
         modify the field.
+    progress : callable, optional
+        ``progress(iteration, residual)`` after every CG iteration, with the largest relative residual of the handles
+        still iterating (cheap: for a progress display).
     chunk : slice, optional
         With ``handles``, when the columns are a chunk of the cage coordinates, ``handles[chunk]``, followed by
         the column of the rest of the cage (``boundary_field(..., handles=chunk, complement=True)``): the
@@ -209,7 +213,7 @@ def solve_biharmonic(
                     solver.clear(worse)
                     rel = solver.start()
             rel, identity, fault = _attempt(solver, rel, tol, identity_tol, deviation, totals, limit, callback,
-                                            field, stagnation=name != "jacobi")
+                                            field, stagnation=name != "jacobi", progress=progress)
             if fault is None:
                 break
             recoveries.append({"iteration": totals["iterations"], "fault": fault, "preconditioner": name})
@@ -257,7 +261,7 @@ def solve_biharmonic(
 
 
 def _attempt(solver: BatchedCG, rel: np.ndarray, tol: float, identity_tol: float, deviation, totals: dict,
-             max_iterations: int, callback, field, stagnation: bool):
+             max_iterations: int, callback, field, stagnation: bool, progress=None):
     """Rounds of CG with one preconditioner until the stopping rule is met, the iteration limit is reached, restarts
     run out, or a watchdog sees a fault. Adds to ``totals`` (iterations, restarts, rounds, whether the limit was
     reached, and ``progress``: the residual's fall over the last rounds). Returns (relative residuals, identity
@@ -271,9 +275,10 @@ def _attempt(solver: BatchedCG, rel: np.ndarray, tol: float, identity_tol: float
         return rel, deviation(), "the preconditioner is not positive definite (b^T M b < 0)"
     before = totals["iterations"]  # the callback counts the iterations of the whole solve
     numbered = None if callback is None else (lambda iteration, current: callback(before + iteration, current))
+    shown = None if progress is None else (lambda iteration, residual: progress(before + iteration, residual))
     while True:
         iterations, fault = cg_round(solver, rel, tol_cg, deviation, identity_tol, used, max_iterations, numbered,
-                                     field, Watchdog(stagnation))
+                                     field, Watchdog(stagnation), shown)
         totals["iterations"] += iterations - used
         used = iterations
         # the CG recurrence drifts from the true residual in float32: check it from scratch
