@@ -280,3 +280,32 @@ def test_a_slice_draws_the_nodes_cut_off_by_a_thin_wedge():
     assert np.isclose(s.position, position)
     inside = (grid.labels[:, :, k] == L.INTERIOR) | cut_off[:, :, k]
     assert np.isfinite(s.image).sum() == inside.sum() and cut_off[:, :, k].sum() > 0
+
+
+def test_the_colour_scale_is_symmetric_and_the_slice_shows_the_mesh_and_the_handle(arm, tmp_path):
+    """Pale blue means as small as pale red (a scale stretched 100x on its negative half said otherwise), and the
+    picture carries the mesh's cross-section and where the handle is."""
+    from warp_stokes.show import show_weights, symmetric_scale
+
+    path, binding = arm
+    s = weight_slice(binding, 19, "z", 0.3, device="cpu")
+    low, high = symmetric_scale(s.image)
+    assert low == -high == -np.nanmax(np.abs(s.image)) and np.nanmin(s.image) < 0.01 * high  # a tiny negative lobe
+    assert symmetric_scale(np.full((2, 2), np.nan)) == (-1.0, 1.0)
+    # the mesh's outline: points on the mesh's surface on the plane, inside the cage's outline's box
+    assert len(s.mesh_outline) > 10
+    assert np.allclose(s.mesh_outline.reshape(-1, 2).min(axis=0) >= s.outline.reshape(-1, 2).min(axis=0), True)
+    corner = binding.cage_vertices[19]
+    assert np.allclose(s.handle, [corner[0], corner[1], corner[2] - s.position])
+    from warp_stokes import show as show_module
+
+    scales = []
+    spy = lambda image: scales.append(symmetric_scale(image)) or scales[-1]  # noqa: E731
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(show_module, "symmetric_scale", spy)
+        show_weights(binding, 19, tmp_path / "w.png", "z", 0.3, device="cpu")
+    assert scales == [(low, high)]  # the picture's scale is this one
+    assert_drawn(tmp_path / "w.png")
+    help_text = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "show", "--help"], capture_output=True,
+                               text=True).stdout
+    assert "handles count from 0" in help_text

@@ -29,7 +29,7 @@ from .io.load import load_surface
 from .quality import conformal_distortion
 from .solver.solve import solve_biharmonic
 
-__all__ = ["WeightSlice", "MeshColours", "weight_slice", "cross_section", "show_weights", "mesh_colours",
+__all__ = ["WeightSlice", "MeshColours", "weight_slice", "symmetric_scale", "cross_section", "show_weights", "mesh_colours",
            "view_frame", "show_mesh", "binding_method", "AXES", "VIEWS"]
 
 AXES = "xyz"
@@ -55,6 +55,8 @@ class WeightSlice(NamedTuple):
     position : float, the plane's world coordinate along the slice's axis (the lattice plane nearest the fraction)
     method : "stokes" | "harmonic" | "mvc"
     resolution : int or None (mvc)
+    mesh_outline : (S, 2, 2) float64, the bound mesh's cross-section (empty for a point set)
+    handle : (3,) float64, the handle's position: (u, v) on the plane and its distance off it
     """
 
     image: np.ndarray
@@ -64,6 +66,8 @@ class WeightSlice(NamedTuple):
     position: float
     method: str
     resolution: int | None
+    mesh_outline: np.ndarray = np.zeros((0, 2, 2))
+    handle: tuple = (0.0, 0.0, 0.0)
 
 
 class MeshColours(NamedTuple):
@@ -186,8 +190,28 @@ def weight_slice(binding, handle: int, axis="z", fraction: float = 0.5, device=N
         resolution = int(binding.settings["resolution"])
         image, extent, position = _grid_slice(binding.settings, cage, handle, a, position, lo, hi, device,
                                               method == "harmonic")
-    return WeightSlice(image, extent, cross_section(cage.vertices, cage.faces, a, position),
-                       tuple(x for x in range(3) if x != a), position, method, resolution)
+    plane = tuple(x for x in range(3) if x != a)
+    mesh_outline = (cross_section(binding.mesh_vertices, binding.mesh_faces, a, position)
+                    if len(binding.mesh_faces) else np.zeros((0, 2, 2)))
+    corner = cage.vertices[handle]
+    return WeightSlice(image, extent, cross_section(cage.vertices, cage.faces, a, position), plane, position, method,
+                       resolution, mesh_outline, (float(corner[plane[0]]), float(corner[plane[1]]),
+                                              float(corner[a] - position)))
+
+
+def symmetric_scale(image: np.ndarray) -> tuple[float, float]:
+    """The colour scale of a weight slice: symmetric about 0, up to the largest |weight| (a weight and its
+    negative get colours equally far from white: a stretched negative half made pale blue look as large as pale
+    red).
+
+    Examples
+    --------
+    >>> symmetric_scale(np.array([[0.593, -0.006], [np.nan, 0.1]]))
+    (-0.593, 0.593)
+    """
+    finite = np.abs(image[np.isfinite(image)])
+    largest = float(finite.max()) if finite.size and finite.max() > 0 else 1.0
+    return -largest, largest
 
 
 def _boundary_data(settings: dict):
@@ -264,9 +288,10 @@ def _save(figure, path) -> None:
 
 
 def show_weights(binding, handle: int, path, axis="z", fraction: float = 0.5, device=None) -> WeightSlice:
-    """Draw :func:`weight_slice` to ``path`` (PNG): the weight in a diverging colour map centred on 0 (negative
-    weights blue, positive red, outside the cage blank), the cage's cross-section, a colour bar and a title; axes in
-    world units, equal aspect. Written under a temporary name, renamed when complete. Needs matplotlib.
+    """Draw :func:`weight_slice` to ``path`` (PNG): the weight in a diverging colour map symmetric about 0
+    (:func:`symmetric_scale`: negative weights blue, positive red, outside the cage blank), the cage's cross-section
+    (black), the mesh's (dashed grey), the handle's position on the plane (a star), a colour bar and a title; axes
+    in world units, equal aspect. Written under a temporary name, renamed when complete. Needs matplotlib.
 
     Parameters
     ----------
@@ -285,13 +310,12 @@ def show_weights(binding, handle: int, path, axis="z", fraction: float = 0.5, de
     """
     plt = _pyplot()
     from matplotlib.collections import LineCollection
-    from matplotlib.colors import TwoSlopeNorm
+    from matplotlib.colors import Normalize
 
     s = weight_slice(binding, handle, axis, fraction, device=device)
     finite = s.image[np.isfinite(s.image)]
     low, high = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0)
-    spread = max(high, -low, 1e-12)  # weights within 1% of the largest around 0 stay pale
-    norm = TwoSlopeNorm(0.0, vmin=min(low, -0.01 * spread), vmax=max(high, 0.01 * spread))
+    norm = Normalize(*symmetric_scale(s.image))
     u, v = (AXES[x] for x in s.plane_axes)
     a = AXES[_axis(axis)]
     grid = f"resolution {s.resolution}" if s.resolution is not None else "no grid"
@@ -299,16 +323,21 @@ def show_weights(binding, handle: int, path, axis="z", fraction: float = 0.5, de
         figure, axes = plt.subplots(figsize=(6.4, 5.2))
         picture = axes.imshow(np.ma.masked_invalid(s.image), origin="lower", extent=s.extent, cmap="RdBu_r", norm=norm,
                               interpolation="nearest")
-        axes.add_collection(LineCollection(s.outline, colors="black", linewidths=1.0))
+        axes.add_collection(LineCollection(s.outline, colors="black", linewidths=1.0, label="cage"))
+        if len(s.mesh_outline):
+            axes.add_collection(LineCollection(s.mesh_outline, colors="0.35", linewidths=0.6, linestyles="dashed",
+                                               label="mesh"))
+        axes.plot(s.handle[0], s.handle[1], marker="*", markersize=11, color="gold", markeredgecolor="black",
+                  linestyle="none", label=f"handle {handle} ({s.handle[2]:+.3g} off the plane)")
+        axes.legend(loc="best", fontsize=7, framealpha=0.8)
         pad = 0.04 * max(s.extent[1] - s.extent[0], s.extent[3] - s.extent[2])
         axes.set_xlim(s.extent[0] - pad, s.extent[1] + pad)
         axes.set_ylim(s.extent[2] - pad, s.extent[3] + pad)
         axes.set_aspect("equal")
         axes.set_xlabel(u)
         axes.set_ylabel(v)
-        # ticks on both sides of 0: the two halves of the bar have different scales
-        ticks = np.unique(np.r_[np.linspace(norm.vmin, 0.0, 3), np.linspace(0.0, norm.vmax, 6)])
-        figure.colorbar(picture, ax=axes, label=f"weight of handle {handle}", ticks=ticks, format="%.3g")
+        figure.colorbar(picture, ax=axes, label=f"weight of handle {handle} (scale symmetric about 0)",
+                        ticks=np.linspace(norm.vmin, norm.vmax, 9), format="%.3g")
         axes.set_title(f"handle {handle}, {s.method} ({grid})\nslice {a} = {float(fraction):g} of the cage "
                        f"({a} = {s.position:.4g}); weights {low:.3g} to {high:.3g}", fontsize=9)
         figure.tight_layout()

@@ -228,7 +228,8 @@ def _add_show(sub) -> None:
     p = sub.add_parser("show", help="draw a handle's weight on a slice, or the deformed mesh's distortion (PNG)")
     p.add_argument("binding", help="binding file written by 'warp-stokes bind'")
     p.add_argument("--handle", type=_number(int, 0), default=None, metavar="L",
-                   help="draw handle L's weight on a slice through the cage")
+                   help="draw handle L's weight on a slice through the cage; handles count from 0 in the cage's "
+                        "vertex order (0 to handles - 1)")
     p.add_argument("--slice", type=_slice, default=None, metavar="AXIS=F",
                    help="with --handle: the plane at fraction F of the cage's box along x, y or z (default z=0.5)")
     p.add_argument("--pose", default=None, help="draw the mesh deformed by this cage (file or .npy (L, 3)), coloured "
