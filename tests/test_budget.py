@@ -119,9 +119,9 @@ def test_a_budget_below_what_no_resolution_saves_says_so(arm_cage):
     """The local data of a cage of thousands of handles (faces x handles float64) does not shrink with the
     resolution: the error says so instead of naming a resolution that would not fit either."""
     grid = ws.voxelize(arm_cage, 16, device="cpu")
-    kept, work = ws.geometry.local_boundary.local_data_bytes(arm_cage)
+    kept, work, device_work = ws.geometry.local_boundary.local_data_bytes(arm_cage)
     plain = ws.estimate_memory(grid, 2089, device="cpu", n_handles=58)
-    local = ws.estimate_memory(grid, 2089, device="cpu", n_handles=58, boundary_bytes=(kept, work))
+    local = ws.estimate_memory(grid, 2089, device="cpu", n_handles=58, boundary_bytes=(kept, work, device_work))
     assert local.fixed - plain.fixed == 2 * kept  # the host's copy and the device's, in one memory on a CPU
     assert local.base - plain.base == kept  # the host's copy, throughout
     assert local.stages[0][0] - plain.stages[0][0] == kept and (work, 0) in local.stages  # the device's; forming it

@@ -53,6 +53,35 @@ def test_a_capped_auto_resolution_warns_once_saying_what_to_give(monkeypatch):
     assert b.settings["resolution"] == 24 and b.stats["resolution"]["needed"] == needed
 
 
+def test_the_cap_is_the_solving_devices_and_advice_names_what_auto_cannot_reach(monkeypatch):
+    cage = ws.check_cage(EXAMPLE / "arm_cage.obj")
+    monkeypatch.setattr(grid_module, "AUTO_RESOLUTION_CAP", {"cpu": 24, "cuda": 256})
+    needed = grid_module.wedge_resolution(cage, device="cpu")
+    # a bind spread over GPUs from a host without one: the GPUs' cap
+    assert grid_module.auto_resolution(cage, device="cpu", kind="cuda") == (needed, needed, 256)
+    assert grid_module.auto_resolution(cage, device="cpu")[0] == 24
+    # a number below what the folds need, on a device whose auto cannot reach it either: the number to give
+    with pytest.warns(UserWarning) as caught:
+        ws.bind(EXAMPLE / "arm.obj", cage, resolution=16, device="cpu")
+    folded = [str(w.message) for w in caught if "folded edges" in str(w.message)]
+    assert len(folded) == 1 and folded[0].endswith(f"give --resolution {needed} (resolution= in Python)")
+
+
+def test_a_skipped_asset_keeps_the_resolution_auto_chose(tmp_path, monkeypatch):
+    from warp_stokes.cli import main
+
+    monkeypatch.setattr(grid_module, "AUTO_RESOLUTION", 16)
+    monkeypatch.setattr(grid_module, "AUTO_RESOLUTION_CAP", {"cpu": 16, "cuda": 16})
+    manifest = tmp_path / "m.toml"
+    manifest.write_text(f'[[assets]]\nname = "arm"\nmesh = "{EXAMPLE / "arm.obj"}"\ncage = "{EXAMPLE / "arm_cage.obj"}"\n')
+    for status in ("ok", "skipped"):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            assert main(["batch", str(manifest), "-o", str(tmp_path / "out"), "--device", "cpu"]) == 0
+        record = json.loads((tmp_path / "out" / "summary.json").read_text())["assets"][0]
+        assert (record["status"], record["resolution"]) == (status, 16)
+
+
 def test_a_manifest_takes_auto_and_refuses_other_words(tmp_path):
     for value, ok in (('"auto"', True), ('"fine"', False), ("64", True)):
         manifest = tmp_path / "m.toml"

@@ -181,15 +181,15 @@ def earlier_records(outdir: str) -> dict:
 
 def skipped(asset: Asset, outdir: str, manifest, force: bool, earlier: dict | None = None) -> Result | None:
     """The asset's result when its outputs are newer than its inputs (and not ``force``), else None: status
-    "skipped", with the record of the run that wrote its outputs (vertices, handles, seconds, warnings, where it was
-    bound) from ``earlier`` (:func:`earlier_records`) where it has one."""
+    "skipped", with the record of the run that wrote its outputs (resolution, vertices, handles, seconds, warnings,
+    where it was bound) from ``earlier`` (:func:`earlier_records`) where it has one."""
     outputs = outputs_of(asset, outdir)
     if force or not _up_to_date(asset, outputs, os.fspath(manifest)):
         return None
     result = Result(asset.name, "skipped", resolution=_grid_resolution(asset), outputs=outputs)
     record = (earlier or {}).get(asset.name, {})
-    for key in ("vertices", "handles", "seconds", "warnings", "host", "pid", "device"):
-        if record.get(key) is not None:
+    for key in ("resolution", "vertices", "handles", "seconds", "warnings", "host", "pid", "device"):
+        if record.get(key) is not None:  # (the resolution "auto" chose, too)
             setattr(result, key, record[key])
     return result
 

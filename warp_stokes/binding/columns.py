@@ -105,7 +105,7 @@ def grid_columns(checked: Cage, points: np.ndarray, resolution: int, device, han
     levels = coarsen(grid, device) if solver == "multigrid" else None
     estimate = estimate_memory(grid, len(points), preconditioner=solver, levels=levels, device=device,
                                n_handles=n_range,
-                               boundary_bytes=(0, 0) if boundary_settings(boundary) == "mvc" else local_data_bytes(checked))
+                               boundary_bytes=(0, 0, 0) if boundary_settings(boundary) == "mvc" else local_data_bytes(checked))
     budget = available_memory(device) if memory_budget is None else int(memory_budget)
     # a partial range always carries the rest-of-the-cage column: plan room for it
     planned = plan_chunks(estimate, n_range + (COMPLEMENT_COLUMNS if partial else 0), budget, resolution,
@@ -114,7 +114,8 @@ def grid_columns(checked: Cage, points: np.ndarray, resolution: int, device, han
     seconds["voxelize"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    tell("multigrid", levels=len(levels) if levels is not None else 0)
+    if solver == "multigrid":
+        tell("multigrid", levels=len(levels))
     preconditioner = (Multigrid(grid, device=device, levels=levels, equation=equation) if solver == "multigrid"
                       else "jacobi")
     wp.synchronize_device(device)

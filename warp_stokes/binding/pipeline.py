@@ -17,6 +17,7 @@ from ..device import resolve_device
 from ..errors import CageError, ConvergenceError, MeshError, WarpStokesError
 from ..geometry.boundary import mean_value_coordinates
 from ..geometry.cage import Cage, check_cage
+from ..geometry import grid as grid_module
 from ..geometry.grid import AUTO_RESOLUTION, auto_resolution, check_resolution, wedge_resolution
 from ..geometry.inside import classify_points
 from ..geometry.local_boundary import boundary_settings, local_values
@@ -146,8 +147,11 @@ def bind(mesh, cage=None, resolution="auto", device=None, tol: float = 1e-6, max
     seconds["load"] = time.perf_counter() - t
     choice = {"requested": resolution}
     if resolution == "auto":
+        if progress is not None and method != "mvc":
+            progress("choosing the resolution")  # the local data, formed here first: seconds for thousands of handles
+        kind = None if devices is None else "cpu" if devices[0] == "cpu" else "cuda"
         resolution, needed, cap = ((AUTO_RESOLUTION,) * 2 + (None,) if method == "mvc"
-                                   else auto_resolution(checked, boundary, device))
+                                   else auto_resolution(checked, boundary, device, kind))
         choice.update(chosen=resolution, needed=needed, cap=cap)
     settings = settings_record(resolution, tol, max_iterations, solver, boundary, sampling, surface, checked, scene,
                                cage_prim, method)
@@ -322,9 +326,12 @@ def _vertices_off_the_grid(surface, checked: Cage, grid, resolution: int, weight
     below = wedge_resolution(checked, boundary, device)
     if below is not None and resolution < below:
         capped = (choice or {}).get("cap")
+        caps = grid_module.AUTO_RESOLUTION_CAP
+        reachable = below <= caps["cpu" if resolve_device(device).is_cpu else "cuda"]
         advice = (f"resolution 'auto' stops at {capped} on this device; give --resolution {min(below, 2048)} "
                   "(resolution= in Python) for weights that converge there" if capped else
-                  "give --resolution auto (the default) or more")
+                  "give --resolution auto (the default) or more" if reachable else
+                  f"give --resolution {min(below, 2048)} (resolution= in Python)")
         notes.append(
             f"{checked.name}: at resolution {resolution} the grid does not yet cut off the thin wedges of outside "
             f"space at the cage's folded edges (it does from resolution {below} on"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shutil
 import sys
 import time
 
@@ -52,6 +53,8 @@ class ProgressLine:
         if "iteration" in info:
             text += f", iteration {info['iteration']}, residual {info['residual']:.1e}"
         text += f"  {now - self.start:.1f} s"
+        # a line wider than the terminal wraps, and a carriage return no longer reaches its start
+        text = text[: max(20, shutil.get_terminal_size().columns - 1)]
         self.stream.write("\r" + text.ljust(self.width))
         self.stream.flush()
         self.width = len(text)

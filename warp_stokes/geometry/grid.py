@@ -198,7 +198,7 @@ def check_resolution(resolution) -> "int | str":
     return int(resolution)
 
 
-def auto_resolution(cage: Cage, boundary="local", device=None) -> tuple[int, int, int]:
+def auto_resolution(cage: Cage, boundary="local", device=None, kind: str | None = None) -> tuple[int, int, int]:
     """The resolution ``"auto"`` stands for: :data:`AUTO_RESOLUTION`, or the resolution from which the grid cuts off
     the thin wedges at the cage's folded edges where that is more, capped per device kind
     (:data:`AUTO_RESOLUTION_CAP`).
@@ -207,7 +207,9 @@ def auto_resolution(cage: Cage, boundary="local", device=None) -> tuple[int, int
     ----------
     cage : Cage
     boundary : "local" | LocalData | "mvc"
-    device : None | str
+    device : None | str, where the local data is evaluated
+    kind : "cpu" | "cuda", optional: the kind of the devices that solve, when it is not ``device``'s (a bind spread
+        over GPUs from a host without one)
 
     Returns
     -------
@@ -224,7 +226,7 @@ def auto_resolution(cage: Cage, boundary="local", device=None) -> tuple[int, int
     (64, 64, 96)
     """
     device = resolve_device(device)
-    cap = AUTO_RESOLUTION_CAP["cpu" if device.is_cpu else "cuda"]
+    cap = AUTO_RESOLUTION_CAP[kind or ("cpu" if device.is_cpu else "cuda")]
     needed = max(AUTO_RESOLUTION, wedge_resolution(cage, boundary, device) or 0)
     return min(needed, cap), needed, cap
 

@@ -129,8 +129,8 @@ def cage_graph_distances(cage: Cage, device=None) -> np.ndarray:
     v = np.asarray(cage.vertices, dtype=np.float64)
     n = len(v)
     edges = face_edges(cage.faces)
-    edges = np.concatenate([edges, edges[:, ::-1]])
-    edges = edges[np.lexsort((edges[:, 1], edges[:, 0]))]
+    # both directions of every edge, once each (face_edges holds an interior edge once per face, one way each)
+    edges = np.unique(np.concatenate([edges, edges[:, ::-1]]), axis=0)
     lengths = np.linalg.norm(v[edges[:, 0]] - v[edges[:, 1]], axis=1)
     offsets = np.zeros(n + 1, dtype=np.int32)
     np.cumsum(np.bincount(edges[:, 0], minlength=n), out=offsets[1:])
@@ -165,16 +165,17 @@ _KEPT_LOCK = threading.Lock()
 FACE_GROUP_HANDLES = 1 << 18
 
 
-def local_data_bytes(cage: Cage) -> tuple[int, int]:
-    """Host bytes of the local data: its per-face normal derivatives, (F, L) float64, held once computed (and as
-    large again on the device while a boundary field is formed), and what computing them adds for a while: the
-    handles' graph distances (L, L) float64 and a group of faces' arrays (measured: 38 MB at 1,250 and 4,898
-    handles).
+def local_data_bytes(cage: Cage) -> tuple[int, int, int]:
+    """Bytes of the local data: its per-face normal derivatives, (F, L) float64, held on the host once computed (and
+    as large again on the device while a boundary field is formed), and what computing them adds for a while: on the
+    host the handles' graph distances (L, L) float64 and a group of faces' arrays (measured: 38 MB at 1,250 and 4,898
+    handles), on the device the Dijkstra searches' scratch and a group's mean value coordinates.
 
     Returns
     -------
     kept : int
-    work : int
+    work : int, on the host
+    device_work : int
 
     Examples
     --------
@@ -184,7 +185,8 @@ def local_data_bytes(cage: Cage) -> tuple[int, int]:
     """
     n_faces, n_handles = len(cage.faces), cage.n_handles
     group = min(n_faces, max(1, FACE_GROUP_HANDLES // max(n_handles, 1))) * n_handles
-    return 8 * n_faces * n_handles, 8 * n_handles**2 + 20 * 8 * group
+    searches = min(n_handles, max(1, GRAPH_SCRATCH_BYTES // (16 * max(n_handles, 1))))
+    return 8 * n_faces * n_handles, 8 * n_handles**2 + 20 * 8 * group, 16 * searches * n_handles + 8 * group
 
 
 def normal_derivatives(cage: Cage, settings: LocalData = LocalData(), device=None) -> np.ndarray:

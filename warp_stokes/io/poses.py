@@ -268,6 +268,12 @@ def load_poses(source, cage_faces: np.ndarray, n_handles: int | None = None, sou
     n_handles = int(cage_faces.max()) + 1 if n_handles is None else int(n_handles)
     if isinstance(source, Poses):
         return _checked(source)
+    if isinstance(source, (list, tuple)):  # a list of (L, 3) poses, as a user collects them
+        try:
+            source = np.asarray(source, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise BindingError(f"poses: a list of {len(source)} poses that are not all ({n_handles}, 3) arrays of "
+                               "numbers") from None
     if isinstance(source, np.ndarray):
         array = numeric(source, "<array>", "poses")
         array = array[None] if array.ndim == 2 else array

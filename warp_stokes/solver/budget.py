@@ -79,7 +79,7 @@ class MemoryEstimate:
 
 
 def estimate_memory(grid: Grid, n_vertices: int = 0, preconditioner: str = "multigrid", levels=None,
-                    device=None, n_handles: int = 0, boundary_bytes: tuple = (0, 0)) -> MemoryEstimate:
+                    device=None, n_handles: int = 0, boundary_bytes: tuple = (0, 0, 0)) -> MemoryEstimate:
     """Estimate the memory of solving and sampling on ``grid``, before allocating it.
 
     Parameters
@@ -93,10 +93,10 @@ def estimate_memory(grid: Grid, n_vertices: int = 0, preconditioner: str = "mult
     device : None | str, where the bind runs; on the CPU the grid's host arrays count too, and so do the mesh's
     n_handles : int, all the cage's handles: on the CPU the bind's weights (4 bytes per vertex and handle) live in
         the same memory throughout
-    boundary_bytes : (kept, work), the boundary data's arrays of the whole cage
+    boundary_bytes : (kept, work, device_work), the boundary data's arrays of the whole cage
         (:func:`warp_stokes.geometry.local_boundary.local_data_bytes`; zeros for MVC): ``kept`` on the device while
-        the boundary data is formed, and on the CPU also held by the host throughout, ``work`` on the host while
-        they are computed. They do not shrink with the resolution.
+        the boundary data is formed, and on the CPU also held by the host throughout, ``work`` on the host and
+        ``device_work`` on a GPU while they are computed. They do not shrink with the resolution.
 
     Returns
     -------
@@ -109,7 +109,7 @@ def estimate_memory(grid: Grid, n_vertices: int = 0, preconditioner: str = "mult
     1.9
     """
     n_int, n_act, n_v = grid.n_interior, grid.n_active, int(n_vertices)
-    kept, local_work = (int(b) for b in boundary_bytes)
+    kept, local_work, device_work = (int(b) for b in (tuple(boundary_bytes) + (0, 0, 0))[:3])
     nodes = int(np.prod(grid.shape))
     multigrid = preconditioner == "multigrid"
     if not multigrid:
@@ -143,8 +143,9 @@ def estimate_memory(grid: Grid, n_vertices: int = 0, preconditioner: str = "mult
         # sampling: per-vertex cells and weights (on the CPU also their host copy)
         (80 * n_v, field_bytes + work + (8 if on_cpu else 4) * n_v),
     ]
+    # the local data computed (while voxelising): the graph, a group's arrays
+    stages.append((local_work if on_cpu else device_work, 0))
     if on_cpu:
-        stages.append((local_work, 0))  # the local data computed (while voxelising): the graph, a group's arrays
         if multigrid:
             # the coarsest inverse formed on the host (the multigrid's setup): the float64 operator, LAPACK's copy
             # of it and the inverse it writes, and the Cholesky factor that proves it positive definite
