@@ -102,3 +102,31 @@ def test_the_command_line_takes_auto_or_a_number(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         assert "auto" in warp_stokes("bind", "--help").stdout
+
+
+def test_auto_goes_finer_for_a_cage_too_thin_and_for_the_meshs_thin_parts(monkeypatch):
+    """Within the cap: a slab with no node inside at the least resolution, and a dumbbell whose neck's vertices
+    fall in cells without an inside node, are bound at a resolution that resolves them, without a warning."""
+    from warp_stokes.geometry import shapes
+
+    monkeypatch.setattr(grid_module, "AUTO_RESOLUTION", 16)
+    monkeypatch.setattr(grid_module, "AUTO_RESOLUTION_CAP", {"cpu": 64, "cuda": 64})
+    slab = shapes.slab_pair(0.05, rotation=None)
+    with pytest.raises(ws.ResolutionError, match="no grid node lies inside the cage at resolution 16"):
+        ws.bind(slab.mesh, slab.cage, resolution=16, device="cpu")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        b = ws.bind(slab.mesh, slab.cage, device="cpu")
+    assert b.settings["resolution"] == b.stats["resolution"]["chosen"] == 64
+    assert b.stats["partition_of_unity_error"] < 1e-5
+    neck = shapes.dumbbell_pair(0.1, rotation=None)
+    with pytest.warns(UserWarning, match="thinner than about two grid cells at resolution 16"):
+        ws.bind(neck.mesh, neck.cage, resolution=16, device="cpu")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        b = ws.bind(neck.mesh, neck.cage, device="cpu")
+    choice = b.stats["resolution"]
+    assert 16 < choice["chosen"] == choice["thin_parts"] <= 64 and b.settings["resolution"] == choice["chosen"]
+    # beyond the cap: the error names a resolution to give
+    with pytest.raises(ws.ResolutionError, match="no grid node lies inside the cage at resolution 64 .* try resolution 256"):
+        ws.bind(shapes.slab_pair(0.01, rotation=None).mesh, shapes.slab_pair(0.01, rotation=None).cage, device="cpu")

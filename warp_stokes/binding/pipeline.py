@@ -14,7 +14,7 @@ import warnings
 import numpy as np
 
 from ..device import resolve_device
-from ..errors import CageError, ConvergenceError, MeshError, WarpStokesError
+from ..errors import CageError, ConvergenceError, MeshError, ResolutionError, WarpStokesError
 from ..geometry.boundary import mean_value_coordinates
 from ..geometry.cage import Cage, check_cage
 from ..geometry import grid as grid_module
@@ -67,8 +67,9 @@ def bind(mesh, cage=None, resolution="auto", device=None, tol: float = 1e-6, max
         ``cage_prim`` names the cage in the mesh's USD stage.
     resolution : "auto" | int
         Grid cells along the cage's longest axis. "auto": 64, or more where the cage's folded edges need a finer
-        grid to cut off the thin wedges of outside space there, at most 96 on a CPU and 256 on a GPU
-        (:func:`warp_stokes.geometry.grid.auto_resolution`); the choice is in ``stats["resolution"]``.
+        grid to cut off the thin wedges of outside space there (:func:`warp_stokes.geometry.grid.auto_resolution`),
+        and more again where the cage is too thin for its grid or the mesh has parts thinner than two cells (bound
+        once more), at most 96 on a CPU and 256 on a GPU; the choice is in ``stats["resolution"]``.
     device : None | str | list of str
         ``"cpu"``, ``"cuda"`` or ``"cuda:N"``; default CUDA when present, else CPU. Several devices (a list,
         ``"cuda:0,cuda:1"``, or ``"cuda:all"`` for every GPU of the Ray cluster) spread the handles' solves over
@@ -168,14 +169,37 @@ def bind(mesh, cage=None, resolution="auto", device=None, tol: float = 1e-6, max
 
     options = dict(solver=solver, tol=tol, max_iterations=max_iterations, boundary=boundary, sampling=sampling,
                    memory_budget=memory_budget, equation=equation)
-    if devices is None:
-        part = grid_columns(checked, points, resolution, device, progress=progress, **options)
-    else:
+    def columns(resolution):
+        if devices is None:
+            return grid_columns(checked, points, resolution, device, progress=progress, **options)
         from .spread import spread_columns
 
         if progress is not None:
             progress("spreading", devices=len(devices))
-        part = spread_columns(checked, points, resolution, devices, **options)
+        return spread_columns(checked, points, resolution, devices, **options)
+
+    while True:
+        try:
+            part = columns(resolution)
+        except ResolutionError as error:
+            # "auto" on a cage too thin for its grid: a finer one, within the cap
+            finer = min(getattr(error, "suggested", 0), choice.get("cap") or 0)
+            if "chosen" not in choice or finer <= resolution:
+                raise
+            resolution = finer
+            choice.update(chosen=resolution, needed=max(choice["needed"], getattr(error, "suggested", 0)))
+            continue
+        break
+    thin = _thin_vertices(part, inside)
+    if "chosen" in choice and thin.any():
+        # "auto" resolves the mesh's thin parts too, within the cap: one more bind at what resolves them
+        suggestion = _suggest_resolution(resolution, part.grid.spacing, distance[thin])
+        if min(suggestion, choice["cap"]) > resolution:
+            seconds["first_resolution"] = sum(part.seconds.values())
+            resolution = min(suggestion, choice["cap"])
+            choice.update(chosen=resolution, needed=max(choice["needed"], suggestion), thin_parts=suggestion)
+            part = columns(resolution)
+    settings["resolution"] = resolution
     seconds.update(part.seconds)
     grid, weights, corners = part.grid, part.weights, part.corners
     t = time.perf_counter()
@@ -205,6 +229,14 @@ def bind(mesh, cage=None, resolution="auto", device=None, tol: float = 1e-6, max
     return Binding(weights, checked.vertices, checked.faces, points, surface.faces, settings, stats, device=device,
                    mesh_normals=surface.normals, cage_source_index=checked.source_index,
                    mesh_polygons=surface.polygons(), mesh_uvs=surface.uvs, parts=parts_record(scene), asset=asset_record(scene))
+
+
+def _thin_vertices(part, inside: np.ndarray) -> np.ndarray:
+    """Vertices inside the cage whose grid cell has no node inside it: in a part of the cage the grid does not
+    resolve."""
+    corners, grid = part.corners, part.grid
+    sampled = (corners >= 0).all(axis=1)
+    return inside & sampled & ~((corners >= 0) & (corners < grid.n_inside)).any(axis=1)
 
 
 def _swapped_hint(error: CageError, cage, surface) -> CageError:
@@ -317,11 +349,13 @@ def _vertices_off_the_grid(surface, checked: Cage, grid, resolution: int, weight
     # a vertex inside the cage whose cell has no node inside it sits in a feature the grid does not resolve
     thin = inside & sampled & ~((corners >= 0) & (corners < grid.n_inside)).any(axis=1)
     if thin.any():
+        capped = (choice or {}).get("cap")
         suggestion = _suggest_resolution(resolution, grid.spacing, distance[thin])
         notes.append(
             f"{checked.name}: {int(thin.sum())} mesh vertices lie in parts of the cage thinner than about two grid "
             f"cells at resolution {resolution}; their weights come from the boundary data alone. "
-            f"resolution={suggestion} would resolve them")
+            f"resolution={suggestion} would resolve them"
+            + (f" (resolution 'auto' stops at {capped} on this device)" if capped and suggestion > capped else ""))
         warnings.warn(notes[-1], stacklevel=3)
     below = wedge_resolution(checked, boundary, device)
     if below is not None and resolution < below:

@@ -318,10 +318,12 @@ def voxelize(cage: Cage, resolution: int = 64, device=None, max_rows: int = MAX_
     grid = _number_nodes(inside, centre, origin, spacing, resolution, device, max_rows, cage.name, cut_off)
     grid.boundary = boundary
     if grid.n_interior == 0:
-        raise ResolutionError(
+        error = ResolutionError(
             f"{cage.name}: no grid node lies inside the cage at resolution {resolution} "
             f"(spacing {spacing:.4g}); the cage is too thin for this grid, try resolution {4 * resolution}"
         )
+        error.suggested = 4 * resolution  # what resolution "auto" tries next
+        raise error
     return grid
 
 
