@@ -51,15 +51,6 @@ def _status_kib(field: str) -> int | None:
     return None
 
 
-def _load_kernels(device) -> None:
-    """Load every kernel module a bind may launch (compiled ones come from Warp's cache)."""
-    import warp as wp
-
-    from . import binding, solver  # noqa: F401 (their modules import every kernel module)
-
-    wp.force_load(device)
-
-
 def _hand_back_freed_heap() -> None:
     """Collect garbage and return the C heap's free pages to the system (glibc; a no-op elsewhere)."""
     import ctypes
@@ -151,7 +142,6 @@ def sweep(mesh, cage, resolutions, methods=("stokes",), pose=None, device=None, 
     device = resolve_device(device)
     surface, checked = load_surface(mesh), check_cage(cage)
     rows, weights = [], {method: {} for method in methods}
-    _load_kernels(device)  # loading a kernel module is no bind's memory: the first bind at a depth would count it
     for method in methods:
         if method == "mvc":
             peak = _PeakMemory(device)

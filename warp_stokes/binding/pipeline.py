@@ -190,7 +190,7 @@ def bind(mesh, cage=None, resolution="auto", device=None, tol: float = 1e-6, max
             choice.update(chosen=resolution, needed=max(choice["needed"], getattr(error, "suggested", 0)))
             continue
         break
-    thin = _thin_vertices(part, inside)
+    thin = _thin_vertices(part.corners, part.grid, inside)
     if "chosen" in choice and thin.any():
         # "auto" resolves the mesh's thin parts too, within the cap: one more bind at what resolves them
         suggestion = _suggest_resolution(resolution, part.grid.spacing, distance[thin])
@@ -231,10 +231,9 @@ def bind(mesh, cage=None, resolution="auto", device=None, tol: float = 1e-6, max
                    mesh_polygons=surface.polygons(), mesh_uvs=surface.uvs, parts=parts_record(scene), asset=asset_record(scene))
 
 
-def _thin_vertices(part, inside: np.ndarray) -> np.ndarray:
+def _thin_vertices(corners: np.ndarray, grid, inside: np.ndarray) -> np.ndarray:
     """Vertices inside the cage whose grid cell has no node inside it: in a part of the cage the grid does not
     resolve."""
-    corners, grid = part.corners, part.grid
     sampled = (corners >= 0).all(axis=1)
     return inside & sampled & ~((corners >= 0) & (corners < grid.n_inside)).any(axis=1)
 
@@ -346,8 +345,7 @@ def _vertices_off_the_grid(surface, checked: Cage, grid, resolution: int, weight
             f"(up to {distance[beyond].max():.3g} from the cage, {distance[beyond].max() / checked.diagonal:.3g} of its "
             "diagonal); they get the boundary data at their position")
         warnings.warn(notes[-1], stacklevel=3)
-    # a vertex inside the cage whose cell has no node inside it sits in a feature the grid does not resolve
-    thin = inside & sampled & ~((corners >= 0) & (corners < grid.n_inside)).any(axis=1)
+    thin = _thin_vertices(corners, grid, inside)
     if thin.any():
         capped = (choice or {}).get("cap")
         suggestion = _suggest_resolution(resolution, grid.spacing, distance[thin])
