@@ -107,6 +107,7 @@ def test_normal_derivatives_and_slopes_are_the_same_in_groups_of_faces(arm_cage,
     whole = local_boundary._normal_derivatives(arm_cage, settings, ws.device.resolve_device(device))
     slopes = local_boundary.data_slopes(arm_cage, settings, device)
     monkeypatch.setattr(local_boundary, "_KEPT_DERIVATIVES", type(local_boundary._KEPT_DERIVATIVES)())
+    monkeypatch.setattr(local_boundary, "_KEPT_SLOPES", {})
     monkeypatch.setattr(local_boundary, "FACE_GROUP_HANDLES", 7 * arm_cage.n_handles)  # groups of 7 faces
     grouped = local_boundary._normal_derivatives(arm_cage, settings, ws.device.resolve_device(device))
     assert np.allclose(grouped, whole, rtol=0, atol=1e-13 * np.abs(whole).max())

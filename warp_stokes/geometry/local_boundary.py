@@ -159,6 +159,8 @@ GRAPH_SCRATCH_BYTES = 64 << 20
 KEPT_CAGES = 4
 KEPT_BYTES = 256 << 20
 _KEPT_DERIVATIVES: collections.OrderedDict = collections.OrderedDict()
+#: the data slopes of the kept cages (a bind asks three times: the wedge cut-off, resolution "auto", its warning)
+_KEPT_SLOPES: dict = {}
 _KEPT_LOCK = threading.Lock()
 #: faces x handles per group of faces whose (faces, handles) arrays are formed at once (2 MB per float64 array;
 #: the 4 x 4 systems' (faces, handles, 4) arrays 8 MB)
@@ -213,12 +215,7 @@ def normal_derivatives(cage: Cage, settings: LocalData = LocalData(), device=Non
     (True, True)
     """
     device = resolve_device(device)
-    vertices = np.ascontiguousarray(cage.vertices, dtype=np.float64)
-    faces = np.ascontiguousarray(cage.faces, dtype=np.int64)
-    if vertices is not cage.vertices or faces is not cage.faces:  # computed from the arrays the key is made of
-        cage = dataclasses.replace(cage, vertices=vertices, faces=faces)
-    key = (vertices.shape, faces.shape, hashlib.sha1(vertices.tobytes() + faces.tobytes()).hexdigest(), settings,
-           str(device) if settings.model == "mvc-cut" else None)
+    cage, key = _kept_key(cage, settings, device)
     with _KEPT_LOCK:
         kept = _KEPT_DERIVATIVES.get(key)
         if kept is not None:
@@ -232,7 +229,21 @@ def normal_derivatives(cage: Cage, settings: LocalData = LocalData(), device=Non
                     len(_KEPT_DERIVATIVES) > KEPT_CAGES
                     or sum(g.nbytes for g in _KEPT_DERIVATIVES.values()) > KEPT_BYTES):
                 _KEPT_DERIVATIVES.popitem(last=False)
+            for stale in set(_KEPT_SLOPES) - set(_KEPT_DERIVATIVES):
+                del _KEPT_SLOPES[stale]
     return kept
+
+
+def _kept_key(cage: Cage, settings: LocalData, device) -> tuple[Cage, tuple]:
+    """The cage with float64 vertices and int64 faces (what is computed from them), and the key of what is kept
+    for it: its arrays, the settings and, for MVC's normal derivatives, the device."""
+    vertices = np.ascontiguousarray(cage.vertices, dtype=np.float64)
+    faces = np.ascontiguousarray(cage.faces, dtype=np.int64)
+    if vertices is not cage.vertices or faces is not cage.faces:
+        cage = dataclasses.replace(cage, vertices=vertices, faces=faces)
+    key = (vertices.shape, faces.shape, hashlib.sha1(vertices.tobytes() + faces.tobytes()).hexdigest(), settings,
+           str(device) if settings.model == "mvc-cut" else None)
+    return cage, key
 
 
 def _face_groups(cage: Cage):
@@ -303,7 +314,13 @@ def data_slopes(cage: Cage, settings: LocalData = LocalData(), device=None) -> n
     >>> slopes.shape, bool((slopes >= 1 / np.sqrt(2)).all())  # a hat falls from 1 to 0 over a height of sqrt(2)
     ((8,), True)
     """
+    device = resolve_device(device)
     derivatives = normal_derivatives(cage, settings, device)
+    _, key = _kept_key(cage, settings, device)
+    with _KEPT_LOCK:
+        kept = _KEPT_SLOPES.get(key)
+    if kept is not None:
+        return kept.copy()
     normals = unit_normals(cage)
     tangent = _tangent_gradients(cage)
     face_slope = np.empty(len(cage.faces))
@@ -316,6 +333,9 @@ def data_slopes(cage: Cage, settings: LocalData = LocalData(), device=None) -> n
     slope = np.zeros(cage.n_handles)
     for corner in range(3):
         np.maximum.at(slope, cage.faces[:, corner], face_slope)
+    with _KEPT_LOCK:
+        if key in _KEPT_DERIVATIVES:  # kept as long as its cage's derivatives are
+            _KEPT_SLOPES[key] = slope.copy()
     return slope
 
 
