@@ -23,26 +23,14 @@ from common import WORK, HostPeak, markdown_table, warm_up  # noqa: E402
 
 def sphere_files(rings: int, sections: int, folder: Path) -> tuple[Path, Path]:
     """The cage and mesh OBJ files of one case (written once)."""
-    import numpy as np
     import trimesh
+
+    from warp_stokes.geometry.shapes import latitude_longitude_sphere
 
     cage = folder / f"sphere_{rings}x{sections}.obj"
     mesh = folder / "icosphere3.obj"
     if not cage.exists():
-        theta = np.linspace(0.0, np.pi, rings + 1)[1:-1]
-        phi = np.linspace(0.0, 2 * np.pi, sections, endpoint=False)
-        t, p = np.meshgrid(theta, phi, indexing="ij")
-        band = np.column_stack([np.sin(t.ravel()) * np.cos(p.ravel()), np.sin(t.ravel()) * np.sin(p.ravel()),
-                                np.cos(t.ravel())])
-        vertices = 1.2 * np.vstack([[0, 0, 1], band, [0, 0, -1]])
-        ring = lambda i, j: 1 + i * sections + j % sections  # noqa: E731
-        faces = [[0, ring(0, j), ring(0, j + 1)] for j in range(sections)]
-        for i in range(rings - 2):
-            for j in range(sections):
-                faces += [[ring(i, j), ring(i + 1, j), ring(i + 1, j + 1)],
-                          [ring(i, j), ring(i + 1, j + 1), ring(i, j + 1)]]
-        faces += [[len(vertices) - 1, ring(rings - 2, j + 1), ring(rings - 2, j)] for j in range(sections)]
-        trimesh.Trimesh(vertices, np.array(faces), process=False).export(cage)
+        trimesh.Trimesh(*latitude_longitude_sphere(rings, sections, radius=1.2), process=False).export(cage)
     if not mesh.exists():
         trimesh.creation.icosphere(subdivisions=3).export(mesh)
     return mesh, cage

@@ -108,6 +108,17 @@ def one_error_line(proc) -> str:
     return lines[0]
 
 
+@pytest.fixture(scope="session")
+def arm_npz(tmp_path_factory):
+    """The bundled arm bound at resolution 16 on the CPU by ``warp-stokes bind`` (a subprocess): a binding file for
+    the command tests to read, never to change."""
+    out = tmp_path_factory.mktemp("bound") / "arm.npz"
+    proc = warp_stokes("bind", str(EXAMPLE / "arm.obj"), str(EXAMPLE / "arm_cage.obj"), "-o", str(out),
+                       "--resolution", "16", "--device", "cpu")
+    assert proc.returncode == 0, proc.stderr
+    return out
+
+
 def write_obj(path, vertices, faces):
     """A triangle mesh as an OBJ file (1-based faces), the way users' tools write one."""
     with open(path, "w") as fh:
@@ -153,24 +164,6 @@ def slit_cage(half_width: float = 0.09, depth: float = 1.2):
     cage = ws.check_cage((vertices @ rotation.T, faces), name="slit")
     lip = np.flatnonzero(np.isclose(vertices[:, 0], half_width) & np.isclose(vertices[:, 2], 1.0))
     return cage, rotation, lip
-
-
-def latitude_longitude_sphere(rings: int, sections: int):
-    """A unit sphere of ``rings`` bands from pole to pole and ``sections`` around, quads split along one diagonal,
-    outward."""
-    theta = np.linspace(0.0, np.pi, rings + 1)[1:-1]
-    phi = np.linspace(0.0, 2 * np.pi, sections, endpoint=False)
-    t, p = np.meshgrid(theta, phi, indexing="ij")
-    band = np.column_stack([np.sin(t.ravel()) * np.cos(p.ravel()), np.sin(t.ravel()) * np.sin(p.ravel()),
-                            np.cos(t.ravel())])
-    vertices = np.vstack([[0, 0, 1], band, [0, 0, -1]])
-    ring = lambda i, j: 1 + i * sections + j % sections  # noqa: E731
-    faces = [[0, ring(0, j), ring(0, j + 1)] for j in range(sections)]
-    for i in range(rings - 2):
-        for j in range(sections):
-            faces += [[ring(i, j), ring(i + 1, j), ring(i + 1, j + 1)], [ring(i, j), ring(i + 1, j + 1), ring(i, j + 1)]]
-    faces += [[len(vertices) - 1, ring(rings - 2, j + 1), ring(rings - 2, j)] for j in range(sections)]
-    return vertices, np.array(faces)
 
 
 F32_EPS = float(np.finfo(np.float32).eps)  # 1.19e-7

@@ -14,14 +14,6 @@ from conftest import EXAMPLE, one_error_line, warp_stokes
 MESH, CAGE = str(EXAMPLE / "arm.obj"), str(EXAMPLE / "arm_cage.obj")
 
 
-@pytest.fixture(scope="module")
-def binding(tmp_path_factory):
-    out = tmp_path_factory.mktemp("bound") / "arm.npz"
-    proc = warp_stokes("bind", MESH, CAGE, "-o", str(out), "--resolution", "16", "--device", "cpu")
-    assert proc.returncode == 0, proc.stderr
-    return out
-
-
 def usd_poses(path, rate=24.0, nan_at=None):
     """The bundled asset's animated cage as a poses file, its time codes per second ``rate`` and, with ``nan_at``,
     one point of that time sample NaN."""
@@ -39,27 +31,27 @@ def usd_poses(path, rate=24.0, nan_at=None):
 
 
 @pytest.mark.parametrize("rate", [-24.0, float("nan"), float("inf")])
-def test_usd_poses_whose_rate_is_not_a_positive_number_are_refused(tmp_path, binding, rate):
+def test_usd_poses_whose_rate_is_not_a_positive_number_are_refused(tmp_path, arm_npz, rate):
     # -24 was written as framesPerSecond -24 (USD refused to reopen it, the file stayed); inf exited 0
     poses = usd_poses(tmp_path / "poses.usda", rate)
     out = tmp_path / "o.usda"
-    proc = warp_stokes("animate", str(binding), str(poses), "--cage-prim", "/Arm/Rig/Cage", "-o", str(out),
+    proc = warp_stokes("animate", str(arm_npz), str(poses), "--cage-prim", "/Arm/Rig/Cage", "-o", str(out),
                        "--device", "cpu")
     assert proc.returncode == 2 and not out.exists() and os.listdir(tmp_path) == ["poses.usda"]
     assert one_error_line(proc) == (f"warp-stokes: error: {poses}: timeCodesPerSecond is {rate:g}, not a positive "
                                     "number of time codes per second")
 
 
-def test_fps_that_is_not_finite_is_refused(tmp_path, binding):
-    proc = warp_stokes("animate", str(binding), str(EXAMPLE / "bend_poses.npy"), "--fps", "inf", "-o",
+def test_fps_that_is_not_finite_is_refused(tmp_path, arm_npz):
+    proc = warp_stokes("animate", str(arm_npz), str(EXAMPLE / "bend_poses.npy"), "--fps", "inf", "-o",
                        str(tmp_path / "o.usda"))
     assert proc.returncode == 2 and os.listdir(tmp_path) == []
     assert one_error_line(proc).endswith("argument --fps: must be > 0, got inf")
 
 
-def test_a_time_sample_that_is_not_finite_is_named(tmp_path, binding):
+def test_a_time_sample_that_is_not_finite_is_named(tmp_path, arm_npz):
     poses = usd_poses(tmp_path / "poses.usda", nan_at=3.0)
-    proc = warp_stokes("animate", str(binding), str(poses), "--cage-prim", "/Arm/Rig/Cage", "-o",
+    proc = warp_stokes("animate", str(arm_npz), str(poses), "--cage-prim", "/Arm/Rig/Cage", "-o",
                        str(tmp_path / "o.usda"), "--device", "cpu")
     assert proc.returncode == 2 and not (tmp_path / "o.usda").exists()
     assert one_error_line(proc) == (f"warp-stokes: error: {poses}: /Arm/Rig/Cage has points that are not finite at "
@@ -114,7 +106,7 @@ def test_a_manifest_is_checked_whole_before_any_work(tmp_path, text, message):
 
 
 @pytest.mark.parametrize("kind", ["strings", "records", "objects in an archive", "string frame numbers"])
-def test_arrays_that_hold_no_numbers_are_refused(tmp_path, binding, kind):
+def test_arrays_that_hold_no_numbers_are_refused(tmp_path, arm_npz, kind):
     # strings, a structured dtype, an object array inside .npz (it would need unpickling): tracebacks before
     path = tmp_path / ("p.npz" if "archive" in kind or "frame" in kind else "p.npy")
     if kind == "strings":
@@ -126,9 +118,9 @@ def test_arrays_that_hold_no_numbers_are_refused(tmp_path, binding, kind):
     else:
         np.savez(path, poses=np.load(EXAMPLE / "bend_poses.npy")[:2], frames=np.array(["one", "two"]))
     out = tmp_path / "o.usda"
-    for command in (("animate", str(binding), str(path), "-o", str(out)),
-                    ("deform", str(binding), str(path), "-o", str(tmp_path / "d.obj")),
-                    ("encode", str(binding), str(path), "-o", str(tmp_path / "e.npy"))):
+    for command in (("animate", str(arm_npz), str(path), "-o", str(out)),
+                    ("deform", str(arm_npz), str(path), "-o", str(tmp_path / "d.obj")),
+                    ("encode", str(arm_npz), str(path), "-o", str(tmp_path / "e.npy"))):
         if command[0] == "deform" and path.suffix == ".npz":
             continue  # deform takes one pose: a cage file or a .npy
         proc = warp_stokes(*command, "--device", "cpu")
@@ -213,10 +205,10 @@ def _set(arrays, key, value):
     (lambda a, m: _set(a, "mesh_face_indices", a["mesh_face_indices"] + 5000),
      "the binding's mesh_face_indices run from"),
 ])
-def test_a_malformed_binding_is_one_error_and_writes_nothing(tmp_path, binding, change, message):
+def test_a_malformed_binding_is_one_error_and_writes_nothing(tmp_path, arm_npz, change, message):
     # KeyError / TypeError / ValueError tracebacks before, or (with the fingerprints recomputed) an OBJ with
     # out-of-range faces, a USD with negative indices, NaN points
-    bad = tampered(binding, tmp_path / "bad.npz", change)
+    bad = tampered(arm_npz, tmp_path / "bad.npz", change)
     pose = tmp_path / "pose.npy"
     np.save(pose, np.load(EXAMPLE / "bend_poses.npy")[-1])
     for command in (("deform", str(bad), str(pose), "-o", str(tmp_path / "x.obj")),

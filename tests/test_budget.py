@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 import warp_stokes as ws
-from conftest import EXAMPLE, latitude_longitude_sphere
+from conftest import EXAMPLE
+from warp_stokes.geometry.shapes import latitude_longitude_sphere
 
 MEASURE = textwrap.dedent(
     """

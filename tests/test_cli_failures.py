@@ -19,15 +19,6 @@ from conftest import EXAMPLE, cuda_available, float32_rounding, one_error_line, 
 MESH, CAGE = str(EXAMPLE / "arm.obj"), str(EXAMPLE / "arm_cage.obj")
 
 
-@pytest.fixture(scope="module")
-def bound(tmp_path_factory):
-    """One small binding shared by the deform cases."""
-    out = tmp_path_factory.mktemp("bound") / "arm.npz"
-    proc = warp_stokes("bind", MESH, CAGE, "-o", str(out), "--resolution", "16", "--device", "cpu")
-    assert proc.returncode == 0, proc.stderr
-    return out
-
-
 def test_version():
     proc = warp_stokes("--version")
     assert proc.returncode == 0 and proc.stdout.strip() == f"warp-stokes {ws.__version__}"
@@ -82,10 +73,10 @@ def test_a_mesh_far_outside_its_cage_is_refused(tmp_path):
     assert sorted(os.listdir(tmp_path)) == ["far.obj"]
 
 
-def test_deform_takes_reordered_faces_and_plain_positions(tmp_path, bound):
+def test_deform_takes_reordered_faces_and_plain_positions(tmp_path, arm_npz):
     cage = ws.load_surface(CAGE)
     moved = cage.vertices + [0.5, -0.25, 1.0]
-    expected = ws.load_binding(bound, device="cpu").deform(moved)  # on the CPU, like the subprocesses below
+    expected = ws.load_binding(arm_npz, device="cpu").deform(moved)  # on the CPU, like the subprocesses below
 
     # the deformed cage as another exporter writes it: faces in another order, corners rotated
     rng = np.random.default_rng(3)
@@ -95,7 +86,7 @@ def test_deform_takes_reordered_faces_and_plain_positions(tmp_path, bound):
     positions = tmp_path / "moved.npy"
     np.save(positions, moved)
     for source, name in ((shuffled, "a.obj"), (positions, "b.obj")):
-        proc = warp_stokes("deform", str(bound), str(source), "-o", str(tmp_path / name), "--device", "cpu")
+        proc = warp_stokes("deform", str(arm_npz), str(source), "-o", str(tmp_path / name), "--device", "cpu")
         assert proc.returncode == 0, proc.stderr
         # float32 positions (~140) deformed in another process (the OBJ's 8 decimals lose nothing of them): 8 eps
         np.testing.assert_allclose(ws.load_surface(tmp_path / name).vertices, expected, rtol=0,
@@ -106,20 +97,20 @@ def test_deform_takes_reordered_faces_and_plain_positions(tmp_path, bound):
     faces = cage.faces.copy()
     faces[0] = [faces[0][0], faces[0][1], faces[5][2] if faces[5][2] not in faces[0] else faces[7][2]]
     write_obj(other, moved, faces)
-    proc = warp_stokes("deform", str(bound), str(other), "-o", str(tmp_path / "c.obj"), "--device", "cpu")
+    proc = warp_stokes("deform", str(arm_npz), str(other), "-o", str(tmp_path / "c.obj"), "--device", "cpu")
     assert proc.returncode == 2 and "the pose's faces differ from the bound cage's" in one_error_line(proc)
     np.save(tmp_path / "short.npy", moved[:-1])
-    proc = warp_stokes("deform", str(bound), str(tmp_path / "short.npy"), "-o", str(tmp_path / "d.obj"),
+    proc = warp_stokes("deform", str(arm_npz), str(tmp_path / "short.npy"), "-o", str(tmp_path / "d.obj"),
                        "--device", "cpu")
     assert proc.returncode == 2 and "positions of shape (57, 3); the bound cage needs (58, 3)" in one_error_line(proc)
     assert not (tmp_path / "c.obj").exists() and not (tmp_path / "d.obj").exists()
 
 
 @pytest.mark.skipif(cuda_available(), reason="checks a machine without CUDA")
-def test_no_cuda_warning_on_the_cpu_and_a_clear_error_when_cuda_is_asked_for(tmp_path, bound):
-    proc = warp_stokes("deform", str(bound), CAGE, "-o", str(tmp_path / "rest.obj"))
+def test_no_cuda_warning_on_the_cpu_and_a_clear_error_when_cuda_is_asked_for(tmp_path, arm_npz):
+    proc = warp_stokes("deform", str(arm_npz), CAGE, "-o", str(tmp_path / "rest.obj"))
     assert proc.returncode == 0 and "CUDA" not in proc.stderr, proc.stderr
-    proc = warp_stokes("deform", str(bound), CAGE, "-o", str(tmp_path / "x.obj"), "--device", "cuda")
+    proc = warp_stokes("deform", str(arm_npz), CAGE, "-o", str(tmp_path / "x.obj"), "--device", "cuda")
     assert proc.returncode == 2 and "no CUDA driver or GPU was found" in one_error_line(proc)
 
 
@@ -153,7 +144,7 @@ def test_a_self_intersecting_cage_is_refused_naming_two_crossing_faces(tmp_path)
     assert sorted(os.listdir(tmp_path)) == ["poked.obj"]
 
 
-def test_a_full_disk_is_one_line_and_leaves_no_file(tmp_path, bound, monkeypatch, capsys, device):
+def test_a_full_disk_is_one_line_and_leaves_no_file(tmp_path, arm_npz, monkeypatch, capsys, device):
     # in process (so on the device under test), with the writers made to fail as they do on a full disk: the
     # binding's file write raises ENOSPC, and USD's Save returns False
     import errno
@@ -181,7 +172,7 @@ def test_a_full_disk_is_one_line_and_leaves_no_file(tmp_path, bound, monkeypatch
 
     with monkeypatch.context() as patch:
         patch.setattr(Sdf.Layer, "Save", lambda self, *args: False)
-        rc = main(["animate", str(bound), str(EXAMPLE / "bend_poses.npy"), "-o", str(out / "a.usd"),
+        rc = main(["animate", str(arm_npz), str(EXAMPLE / "bend_poses.npy"), "-o", str(out / "a.usd"),
                    "--device", device])
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and err == [f"warp-stokes: error: {out / 'a.usd'}: could not write the USD file (is the disk full "
@@ -189,12 +180,12 @@ def test_a_full_disk_is_one_line_and_leaves_no_file(tmp_path, bound, monkeypatch
     assert os.listdir(out) == []
 
 
-def test_a_full_disk_during_animate_in_a_subprocess(tmp_path, bound):
+def test_a_full_disk_during_animate_in_a_subprocess(tmp_path, arm_npz):
     # the command as a user runs it, with USD's writer failing as on a full disk (Save returns False)
     script = ("import sys; from pxr import Sdf; Sdf.Layer.Save = lambda self, *a: False; "
               "from warp_stokes.cli import main; sys.exit(main(sys.argv[1:]))")
     out = tmp_path / "out.usd"
-    proc = subprocess.run([sys.executable, "-c", script, "animate", str(bound), str(EXAMPLE / "bend_poses.npy"),
+    proc = subprocess.run([sys.executable, "-c", script, "animate", str(arm_npz), str(EXAMPLE / "bend_poses.npy"),
                            "-o", str(out), "--device", "cpu"], capture_output=True, text=True)
     assert proc.returncode == 2
     assert one_error_line(proc) == f"warp-stokes: error: {out}: could not write the USD file (is the disk full or " \

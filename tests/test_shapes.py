@@ -39,3 +39,11 @@ def test_bad_parameters_are_refused():
         shapes.dumbbell_pair(0.6)
     with pytest.raises(ValueError, match="detail must be 1 or 2"):
         shapes.stress_pairs(detail=3)
+
+
+@pytest.mark.parametrize("rings, sections", [(3, 4), (29, 60), (49, 102)])
+def test_latitude_longitude_spheres_are_valid_cages(rings, sections):
+    vertices, faces = shapes.latitude_longitude_sphere(rings, sections, radius=1.2)
+    cage = ws.check_cage((vertices, faces), name="sphere")  # closed, outward, no crossing faces (slivers included)
+    assert not cage.flipped and len(cage.vertices) == 2 + (rings - 1) * sections
+    assert np.allclose(np.linalg.norm(vertices, axis=1), 1.2)

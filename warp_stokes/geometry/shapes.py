@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["SyntheticPair", "random_rotation", "box_pair", "ellipsoid_pair", "star_pair", "slab_pair",
-           "dumbbell_pair", "torus_pair", "stress_pairs"]
+           "dumbbell_pair", "torus_pair", "stress_pairs", "latitude_longitude_sphere"]
 
 #: how far towards the skeleton the sample points are moved (1: on the cage, 0: on the skeleton)
 POINT_LEVELS = (0.95, 0.8, 0.5, 0.2)
@@ -205,6 +205,31 @@ def slab_pair(thickness: float = 0.1, aspect: float = 1.0, rotation="random", se
     faces = np.array(faces)
     rotation = random_rotation(seed) if isinstance(rotation, str) and rotation == "random" else rotation
     return _pair(f"slab 1x{aspect:g}x{thickness:g}", vertices, faces, _star_points(vertices, faces), rotation)
+
+
+def latitude_longitude_sphere(rings: int, sections: int, radius: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """A sphere of ``rings`` bands from pole to pole and ``sections`` around (2 + (rings - 1) sections vertices),
+    each quad split along one diagonal, outward: a cage of thousands of handles with slivers at the poles.
+
+    Examples
+    --------
+    >>> vertices, faces = latitude_longitude_sphere(49, 102)
+    >>> len(vertices), len(faces)
+    (4898, 9792)
+    """
+    theta = np.linspace(0.0, np.pi, rings + 1)[1:-1]
+    phi = np.linspace(0.0, 2 * np.pi, sections, endpoint=False)
+    t, p = np.meshgrid(theta, phi, indexing="ij")
+    band = np.column_stack([np.sin(t.ravel()) * np.cos(p.ravel()), np.sin(t.ravel()) * np.sin(p.ravel()),
+                            np.cos(t.ravel())])
+    vertices = radius * np.vstack([[0, 0, 1], band, [0, 0, -1]])
+    ring = lambda i, j: 1 + i * sections + j % sections  # noqa: E731
+    faces = [[0, ring(0, j), ring(0, j + 1)] for j in range(sections)]
+    for i in range(rings - 2):
+        for j in range(sections):
+            faces += [[ring(i, j), ring(i + 1, j), ring(i + 1, j + 1)], [ring(i, j), ring(i + 1, j + 1), ring(i, j + 1)]]
+    faces += [[len(vertices) - 1, ring(rings - 2, j + 1), ring(rings - 2, j)] for j in range(sections)]
+    return vertices, np.array(faces, dtype=np.int64)
 
 
 def _revolved(profile: np.ndarray, sections: int):
