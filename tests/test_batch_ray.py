@@ -57,6 +57,12 @@ def test_workers_give_the_serial_batch_s_files_and_weights(tmp_path):
     for name in ("arm_a", "arm_b"):
         assert got[name]["host"] and got[name]["device"] == "cpu" and got[name]["pid"] not in (None, os.getpid())
     assert "done, " in parallel.stderr and "running" in parallel.stderr and "arm_b: ok" in parallel.stderr
+    # each asset is said as it starts, on its worker, before it is said done
+    lines = parallel.stderr.splitlines()
+    for name in ("arm_a", "arm_b", "broken"):
+        start = next(k for k, line in enumerate(lines) if f"] {name}: started (" in line)
+        end = next(k for k, line in enumerate(lines) if f"] {name}: " in line and ": started" not in line)
+        assert start < end and f"pid {got[name]['pid']}" in lines[start], parallel.stderr
 
 
 def test_a_worker_killed_mid_asset_is_retried_and_the_batch_completes(tmp_path):
@@ -67,6 +73,7 @@ def test_a_worker_killed_mid_asset_is_retried_and_the_batch_completes(tmp_path):
                    env={"WARP_STOKES_KILL_WORKER_ONCE": str(marker)})
     assert result.returncode == 0, result.stderr
     assert not marker.exists()  # a worker found it and killed itself; Ray ran the task again
+    assert "arm_a: started (" in result.stderr and "arm_a: started again (" in result.stderr, result.stderr
     assert summary(tmp_path / "out")["arm_a"]["status"] == "ok"
     assert sorted(os.listdir(tmp_path / "out")) == ["arm_a.npz", "summary.json"]  # nothing half-written left
 

@@ -9,7 +9,7 @@ that the workers share with the driver), and returns its :class:`Result` with th
 
 Failures stay per asset: an error in a bind is that asset's result; a worker that dies (killed, out of memory) is
 retried by Ray (:data:`TASK_RETRIES` times), and then reported as failed. Progress goes to stderr, one line per
-asset finished, with the counts done / running / failed.
+asset as it starts (the task says so on a Ray queue) and as it finishes, with the counts done / running / failed.
 
 Ray is an optional extra: ``pip install "warp-stokes[ray]"``.
 """
@@ -21,6 +21,7 @@ import glob
 import logging
 import os
 import signal
+import time
 
 from ..device import require_ray
 from .run import Result, bind_one, earlier_records, skipped, warn_for
@@ -34,8 +35,13 @@ TASK_RETRIES = 2
 KILL_ONCE_VARIABLE = "WARP_STOKES_KILL_WORKER_ONCE"
 
 
-def _bind_task(asset, outdir: str, device) -> Result:
-    """One asset, in a Ray worker process."""
+def _bind_task(asset, outdir: str, device, started=None, k: int = 0) -> Result:
+    """One asset, in a Ray worker process; it says it started on ``started`` (a Ray queue, or None)."""
+    if started is not None:
+        import socket
+
+        with contextlib.suppress(Exception):  # a lost progress line must not fail the asset
+            started.put_nowait((k, socket.gethostname(), os.getpid(), time.time()))
     marker = os.environ.get(KILL_ONCE_VARIABLE)
     if marker:
         try:
@@ -83,45 +89,97 @@ def _line(stream, done: int, total: int, running: int, failed: int, result: Resu
           flush=True)
 
 
+def _result(ray, ref, asset) -> Result:
+    """A finished task's Result; a failed one when the task could not run (its worker died every time, or it failed
+    to start)."""
+    try:
+        return ray.get(ref)
+    except Exception as exc:
+        reason = " ".join(str(exc).split())[:300]
+        died = isinstance(exc, (ray.exceptions.WorkerCrashedError, ray.exceptions.NodeDiedError))
+        what = f"its worker died ({TASK_RETRIES + 1} tries)" if died else "the Ray task failed"
+        return Result(asset.name, "failed", resolution=asset.resolution, outputs=[],
+                      error=f"{what}: {type(exc).__name__}: {reason}")
+
+
+def _started_queue(ray, progress):
+    """A queue the tasks put (asset index, host, pid, time) on as they start, when progress is shown; else None."""
+    if not progress:
+        return None
+    from ray.util.queue import Queue
+
+    # it takes no CPU slot: the tasks have them all
+    return Queue(actor_options={"num_cpus": 0})
+
+
+def _drain(queue) -> list:
+    """What the tasks said since the last call (nothing when there is no queue or it is gone)."""
+    if queue is None:
+        return []
+    try:
+        return queue.get_nowait_batch(queue.qsize())
+    except Exception:  # the queue's actor died: no start lines, the batch goes on
+        return []
+
+
 def run_on_ray(assets, outdir: str, manifest, force: bool, device, progress, workers: int | None,
                address: str | None) -> list[Result]:
     """Bind the assets as Ray tasks; the results in manifest order (see the module docstring)."""
     ray = require_ray()
-    started = _start(ray, workers, address, device)
+    ray_started = _start(ray, workers, address, device)
     try:
         options, task_device = _task_options(ray, workers, device)
         task = ray.remote(_bind_task).options(max_retries=TASK_RETRIES, retry_exceptions=False, **options)
         results: list[Result | None] = [None] * len(assets)
         pending = {}
         earlier = earlier_records(outdir)
+        started = _started_queue(ray, progress)
+        running: set[int] = set()
         for k, asset in enumerate(assets):
             results[k] = skipped(asset, outdir, manifest, force, earlier)
             if results[k] is None:
-                pending[task.remote(asset, outdir, task_device)] = k
+                pending[task.remote(asset, outdir, task_device, started, k)] = k
         total, failed = len(assets), 0
         done = sum(r is not None for r in results)
+        began: dict[int, float] = {}  # asset -> when its task last started (the worker's clock)
         while pending:
-            finished, _ = ray.wait(list(pending), num_returns=1)
-            k = pending.pop(finished[0])
-            try:
-                result = ray.get(finished[0])
-            except Exception as exc:  # the task could not run: its worker died every time, or it failed to start
-                reason = " ".join(str(exc).split())[:300]
-                died = isinstance(exc, (ray.exceptions.WorkerCrashedError, ray.exceptions.NodeDiedError))
-                what = f"its worker died ({TASK_RETRIES + 1} tries)" if died else "the Ray task failed"
-                result = Result(assets[k].name, "failed", resolution=assets[k].resolution, outputs=[],
-                                error=f"{what}: {type(exc).__name__}: {reason}")
-            results[k] = result
-            done += 1
-            failed += result.status == "failed"
-            warn_for(result)
-            if progress:
-                _line(progress, done, total, len(pending), failed, result)
+            # with progress, every half second what started and finished meanwhile, said in the order it happened
+            if started is None:
+                finished, _ = ray.wait(list(pending), num_returns=1)
+            else:
+                finished, _ = ray.wait(list(pending), num_returns=len(pending), timeout=0.5)
+            events = []
+            for k, host, pid, when in _drain(started):
+                events.append((when, 0, k, (host, pid)))
+                began[k] = when
+            for ref in finished:
+                k = pending.pop(ref)
+                result = _result(ray, ref, assets[k])
+                # it ended its bind's seconds after it started (the same clock), else now
+                events.append((began[k] + result.seconds if k in began else time.time(), 1, k, result))
+            for _, _, k, what in sorted(events, key=lambda e: e[:3]):
+                if isinstance(what, tuple):  # started
+                    again = k in running or results[k] is not None  # Ray runs a task again after its worker died
+                    running.add(k)
+                    print(f"[{done}/{total} done, {len(running)} running, {failed} failed] {assets[k].name}: "
+                          f"{'started again' if again else 'started'} ({what[0]} pid {what[1]})", file=progress,
+                          flush=True)
+                    continue
+                running.discard(k)
+                results[k] = what
+                done += 1
+                failed += what.status == "failed"
+                warn_for(what)
+                if progress:
+                    _line(progress, done, total, len(running), failed, what)
         # no task runs any more and the folder is locked: what dead workers left is removed
         for stale in glob.glob(os.path.join(outdir, ".tmp-*")):
             with contextlib.suppress(OSError):
                 os.unlink(stale)
+        if started is not None:
+            with contextlib.suppress(Exception):
+                started.shutdown()
         return results
     finally:
-        if started:
+        if ray_started:
             ray.shutdown()
