@@ -72,23 +72,26 @@ def test_an_unconverged_bind_exits_non_zero(tmp_path, capsys, device):
 
 def test_a_recovered_solve_says_so_once(tmp_path):
     # the command in a process of its own, its smoothers' bounds forced too low (the fault the watchdog recovers
-    # from): it binds, says in its table what it did, and warns once on stderr
+    # from): it binds, says in its table what it did, and warns once on stderr. On 2 threads each lane recovers on
+    # its own (its own smoother bounds: none changes under another lane's cycles): a fault per chunk, one warning
     import sys
 
     out = tmp_path / "arm.npz"
     script = ("import sys; from warp_stokes.solver import multigrid; multigrid.LMAX_SAFETY = 0.3; "
               "from warp_stokes.cli import main; sys.exit(main(sys.argv[1:]))")
-    proc = subprocess.run([sys.executable, "-c", script, "bind", str(EXAMPLE / "arm.obj"),
-                           str(EXAMPLE / "arm_cage.obj"), "-o", str(out), "--resolution", "20", "--device", "cpu"],
-                          capture_output=True, text=True)
-    assert proc.returncode == 0, proc.stderr
-    assert "converged (after 1 fault(s) of its preconditioner, with multigrid with guaranteed smoother bounds)" in (
-        proc.stdout)
-    notices = [line for line in proc.stderr.splitlines() if "the solver's" in line]
-    assert len(notices) == 1 and notices[0].startswith("warning: the solver's multigrid preconditioner failed after 0 "
-                                                       "iterations (the preconditioner is not positive definite")
-    recoveries = ws.load_binding(out).stats["recoveries"]
-    assert [e["next"] for e in recoveries] == ["multigrid with guaranteed smoother bounds"]
+    for threads in (1, 2):
+        proc = subprocess.run([sys.executable, "-c", script, "bind", str(EXAMPLE / "arm.obj"),
+                               str(EXAMPLE / "arm_cage.obj"), "-o", str(out), "--resolution", "20", "--device", "cpu",
+                               "--threads", str(threads)], capture_output=True, text=True)
+        assert proc.returncode == 0, proc.stderr
+        assert (f"converged (after {threads} fault(s) of its preconditioner, with multigrid with guaranteed smoother "
+                "bounds)") in proc.stdout
+        assert (f"{threads} chunk(s) on 2 threads" in proc.stdout) == (threads == 2)
+        notices = [line for line in proc.stderr.splitlines() if "the solver's" in line]
+        assert len(notices) == 1 and notices[0].startswith("warning: the solver's multigrid preconditioner failed after "
+                                                           "0 iterations (the preconditioner is not positive definite")
+        recoveries = ws.load_binding(out).stats["recoveries"]
+        assert [e["next"] for e in recoveries] == ["multigrid with guaranteed smoother bounds"] * threads
 
 
 def test_bad_budget_and_resolution_fail_cleanly(tmp_path, capsys):

@@ -31,3 +31,19 @@ def test_cpu_and_cuda_weights_agree(name):
     offsets = np.abs(pose - pose.mean(axis=0)).sum(axis=0).max()
     np.testing.assert_allclose(cpu.deform(pose), gpu.deform(pose), rtol=0, atol=diff * offsets + float32_rounding(
         (np.abs(cpu.weights) @ np.abs(pose)).max()))
+
+
+def test_a_threaded_cpu_bind_on_a_gpu_host_stays_on_the_cpu():
+    """Threads that solve chunks at once on the CPU of a host whose default Warp device is a GPU: every lane's arrays
+    on the CPU (Warp's default device is one for all threads: a lane's scope once restored the GPU under another
+    lane, whose arrays then went there: an illegal memory access), the weights of one thread."""
+    import warp as wp
+
+    assert wp.get_device().is_cuda  # the default device, as on any GPU host
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        one = ws.bind(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", resolution=24, device="cpu", threads=1)
+        four = ws.bind(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", resolution=24, device="cpu", threads=4)
+    assert four.stats["threads"] == 4 and four.stats["device"] == "cpu"
+    np.testing.assert_allclose(four.weights, one.weights, atol=1e-6)
+    assert wp.get_device().is_cuda  # and the default is left as it was

@@ -130,3 +130,44 @@ def test_auto_goes_finer_for_a_cage_too_thin_and_for_the_meshs_thin_parts(monkey
     # beyond the cap: the error names a resolution to give
     with pytest.raises(ws.ResolutionError, match="no grid node lies inside the cage at resolution 64 .* try resolution 256"):
         ws.bind(shapes.slab_pair(0.01, rotation=None).mesh, shapes.slab_pair(0.01, rotation=None).cage, device="cpu")
+
+
+def _one_handle_bytes(cage, n_vertices, resolution):
+    """What the memory plan asks for to solve one handle (with the columns that check it) at ``resolution``."""
+    from warp_stokes.geometry.boundary import COMPLEMENT_COLUMNS
+    from warp_stokes.geometry.local_boundary import local_data_bytes
+    from warp_stokes.solver.budget import estimate_memory
+    from warp_stokes.solver.hierarchy import coarsen
+
+    grid = grid_module.voxelize(cage, resolution, device="cpu")
+    estimate = estimate_memory(grid, n_vertices, levels=coarsen(grid, "cpu"), device="cpu",
+                               n_handles=cage.n_handles, boundary_bytes=local_data_bytes(cage))
+    return estimate.total(1 + COMPLEMENT_COLUMNS)
+
+
+def test_auto_binds_at_the_finest_grid_the_memory_budget_holds_and_says_so_once(arm_cage):
+    """A budget too small for the resolution auto wants: a coarser grid that fits (never a refusal while one at 16 or
+    more does), one warning naming the budget, what the cage asks for and why, recorded in the stats."""
+    mesh = ws.load_surface(EXAMPLE / "arm.obj")
+    needed = grid_module.wedge_resolution(arm_cage, device="cpu")
+    one_handle = {n: _one_handle_bytes(arm_cage, len(mesh.vertices), n) for n in (32, 48)}
+    budget = (one_handle[32] + one_handle[48]) // 2
+    with pytest.raises(ws.ResolutionError, match=f"resolution {needed} .* MiB .* or less would fit"):
+        ws.bind(mesh, arm_cage, resolution=needed, device="cpu", memory_budget=budget)
+    with pytest.warns(UserWarning) as caught:
+        b = ws.bind(mesh, arm_cage, device="cpu", memory_budget=budget)
+    said = [str(w.message) for w in caught]
+    assert len(said) == 1, said
+    choice = b.stats["resolution"]
+    assert 32 <= choice["chosen"] == choice["memory_fits"] == b.settings["resolution"] < 48
+    assert choice["needed"] == needed and choice["memory_budget_bytes"] == budget
+    assert _one_handle_bytes(arm_cage, len(mesh.vertices), choice["chosen"]) <= budget
+    assert b.stats["memory_estimate_bytes"] <= budget
+    assert (f"resolution 'auto' bound at {choice['chosen']}, the finest grid that fits the memory budget "
+            f"({budget / 2**20:.1f} MiB); the cage asks for {needed} (its folded edges need resolution {needed})"
+            in said[0] and "--memory-gb" in said[0])
+    assert said[0] in b.stats["warnings"]  # recorded with the binding
+    assert b.stats["partition_of_unity_error"] < 1e-5
+    # no grid of 16 or more fits: the budget's own error, naming what would be needed
+    with pytest.raises(ws.ResolutionError, match="memory budget"):
+        ws.bind(mesh, arm_cage, device="cpu", memory_budget=_one_handle_bytes(arm_cage, len(mesh.vertices), 16) - 1)

@@ -6,6 +6,7 @@ import os
 import sys
 import tempfile
 
+import numpy as np
 import warp as wp
 
 from .errors import WarpStokesError
@@ -13,8 +14,8 @@ from .errors import WarpStokesError
 # Warp prints a banner on initialisation; a library should stay quiet unless asked.
 wp.config.log_level = wp.LOG_WARNING
 
-__all__ = ["resolve_device", "init_warp", "device_name", "available_memory", "reduction_threads", "require_ray",
-           "compile_kernels", "kernels_compiled", "announce_compilation"]
+__all__ = ["resolve_device", "init_warp", "device_name", "available_memory", "memory_size", "cpu_threads", "reduction_threads",
+           "require_ray", "compile_kernels", "kernels_compiled", "announce_compilation"]
 
 
 def resolve_device(device=None) -> wp.context.Device:
@@ -101,6 +102,25 @@ def available_memory(device=None) -> int:
         return int(0.5 * os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
     except (ValueError, OSError, AttributeError):
         return 8 << 30
+
+
+def cpu_threads(threads: int | None = None) -> int:
+    """Threads a CPU bind solves with: ``threads`` when given, else every core this process may run on (its CPU
+    affinity, which a batch's workers and containers narrow).
+
+    Examples
+    --------
+    >>> cpu_threads(3), cpu_threads() >= 1
+    (3, True)
+    """
+    if threads is not None:
+        if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 1:
+            raise WarpStokesError(f"threads must be a positive number of threads, got {threads!r}")
+        return int(threads)
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # macOS, Windows
+        return max(1, os.cpu_count() or 1)
 
 
 def reduction_threads(n_rows: int, n_cols: int, device) -> int:
@@ -233,3 +253,14 @@ def reset_peak_memory(device) -> bool:
         return cuda.cuMemPoolSetAttribute(pool, ctypes.c_int(_USED_MEM_HIGH), ctypes.byref(zero)) == 0
     except (OSError, AttributeError):
         return False
+
+
+def memory_size(n_bytes: float) -> str:
+    """Bytes as people read them: GiB from 1 GiB up, else MiB.
+
+    Examples
+    --------
+    >>> memory_size(3 * 2**30), memory_size(10e6)
+    ('3.00 GiB', '9.5 MiB')
+    """
+    return f"{n_bytes / 2**30:.2f} GiB" if n_bytes >= 2**30 else f"{n_bytes / 2**20:.1f} MiB"

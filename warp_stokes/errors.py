@@ -19,7 +19,12 @@ class BindingError(WarpStokesError):
 
 
 class ResolutionError(WarpStokesError):
-    """The requested grid is too coarse for the cage or too large for the device."""
+    """The requested grid is too coarse for the cage or too large for the device. ``suggested`` (a finer resolution
+    the cage needs) or ``fits`` (a coarser one the memory holds), where the error knows one: resolution "auto"
+    tries that one instead."""
+
+    suggested: int | None = None
+    fits: int | None = None
 
 
 class ConvergenceError(WarpStokesError):

@@ -23,7 +23,7 @@ import os
 import signal
 import time
 
-from ..device import require_ray
+from ..device import cpu_threads, require_ray
 from .run import Result, bind_one, earlier_records, skipped, warn_for
 
 __all__ = ["run_on_ray", "require_ray", "TASK_RETRIES", "KILL_ONCE_VARIABLE"]
@@ -35,8 +35,9 @@ TASK_RETRIES = 2
 KILL_ONCE_VARIABLE = "WARP_STOKES_KILL_WORKER_ONCE"
 
 
-def _bind_task(asset, outdir: str, device, started=None, k: int = 0) -> Result:
-    """One asset, in a Ray worker process; it says it started on ``started`` (a Ray queue, or None)."""
+def _bind_task(asset, outdir: str, device, started=None, k: int = 0, threads: int | None = None) -> Result:
+    """One asset, in a Ray worker process; it says it started on ``started`` (a Ray queue, or None). ``threads``: a
+    CPU bind's threads."""
     if started is not None:
         import socket
 
@@ -50,7 +51,7 @@ def _bind_task(asset, outdir: str, device, started=None, k: int = 0) -> Result:
             pass
         else:
             os.kill(os.getpid(), signal.SIGKILL)
-    return bind_one(asset, outdir, device)
+    return bind_one(asset, outdir, device, threads=threads)
 
 
 def _start(ray, workers: int | None, address: str | None, device) -> bool:
@@ -72,14 +73,18 @@ def _start(ray, workers: int | None, address: str | None, device) -> bool:
     return True
 
 
-def _task_options(ray, workers: int | None, device) -> tuple[dict, str | None]:
-    """Ray resources per task, and the device the task binds on: a whole GPU each when the cluster has GPUs (a
-    share when more workers than GPUs are asked for), one CPU otherwise."""
+def _task_options(ray, workers: int | None, device, local: bool) -> tuple[dict, str | None, int | None]:
+    """Ray resources per task, the device the task binds on, and a CPU bind's threads: a whole GPU each when the
+    cluster has GPUs (a share when more workers than GPUs are asked for), one CPU slot otherwise. On a local
+    cluster of CPU workers, each bind's threads are this host's cores over the workers (the machine full, not
+    oversubscribed); on a joined cluster one thread per task, as its slot says."""
     gpus = float(ray.cluster_resources().get("GPU", 0))
     if gpus > 0 and not (device is not None and str(device).startswith("cpu")):
         share = 1.0 if workers is None else min(1.0, gpus / max(1, int(workers)))
-        return {"num_gpus": share, "num_cpus": 1}, "cuda:0"  # CUDA_VISIBLE_DEVICES leaves one: cuda:0
-    return {"num_gpus": 0, "num_cpus": 1}, "cpu" if device is None else device
+        return {"num_gpus": share, "num_cpus": 1}, "cuda:0", None  # CUDA_VISIBLE_DEVICES leaves one: cuda:0
+    slots = int(ray.cluster_resources().get("CPU", 1))
+    threads = max(1, cpu_threads() // max(1, slots)) if local else 1
+    return {"num_gpus": 0, "num_cpus": 1}, "cpu" if device is None else device, threads
 
 
 def _line(stream, done: int, total: int, running: int, failed: int, result: Result) -> None:
@@ -128,7 +133,7 @@ def run_on_ray(assets, outdir: str, manifest, force: bool, device, progress, wor
     ray = require_ray()
     ray_started = _start(ray, workers, address, device)
     try:
-        options, task_device = _task_options(ray, workers, device)
+        options, task_device, threads = _task_options(ray, workers, device, local=ray_started and address is None)
         task = ray.remote(_bind_task).options(max_retries=TASK_RETRIES, retry_exceptions=False, **options)
         results: list[Result | None] = [None] * len(assets)
         pending = {}
@@ -138,7 +143,7 @@ def run_on_ray(assets, outdir: str, manifest, force: bool, device, progress, wor
         for k, asset in enumerate(assets):
             results[k] = skipped(asset, outdir, manifest, force, earlier)
             if results[k] is None:
-                pending[task.remote(asset, outdir, task_device, started, k)] = k
+                pending[task.remote(asset, outdir, task_device, started, k, threads)] = k
         total, failed = len(assets), 0
         done = sum(r is not None for r in results)
         began: dict[int, float] = {}  # asset -> when its task last started (the worker's clock)

@@ -199,10 +199,11 @@ def _grid_resolution(asset: Asset) -> int | None:
     return None if asset.method == "mvc" else asset.resolution
 
 
-def bind_one(asset: Asset, outdir: str, device, progress=None, k: int = 0, total: int = 1) -> Result:
+def bind_one(asset: Asset, outdir: str, device, progress=None, k: int = 0, total: int = 1,
+             threads: int | None = None) -> Result:
     """Check, bind and (with poses) animate one asset; its outputs go to temporary names and are renamed together
     when complete, so it is written whole or not at all. A failure is its Result, not an exception; what the bind
-    warned of is in ``Result.warnings``."""
+    warned of is in ``Result.warnings``. ``threads``: a CPU bind's threads (default: every core)."""
     import socket
 
     outputs = outputs_of(asset, outdir)
@@ -216,7 +217,7 @@ def bind_one(asset: Asset, outdir: str, device, progress=None, k: int = 0, total
             _progress(progress, k, total, asset.name, "checking the cage")
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            _bind_asset(asset, pending, device, progress, k, total, result)
+            _bind_asset(asset, pending, device, progress, k, total, result, threads)
         for path, tmp in pending.items():
             os.replace(tmp, path)
     except Exception as exc:  # keep going: one asset's failure is reported, not raised
@@ -262,7 +263,8 @@ def warn_for(result: Result) -> None:
         warnings.warn(f"{result.name}: {message}", stacklevel=3)
 
 
-def _bind_asset(asset, pending: dict, device, progress, k: int, total: int, result: Result) -> None:
+def _bind_asset(asset, pending: dict, device, progress, k: int, total: int, result: Result,
+                threads: int | None = None) -> None:
     """Check, bind and (with poses) animate one asset, writing its outputs to their temporary names
     (``pending``: final path -> temporary path, the binding first)."""
     from ..binding import bind
@@ -288,7 +290,7 @@ def _bind_asset(asset, pending: dict, device, progress, k: int, total: int, resu
                   else f"binding at resolution {asset.resolution}")
     binding = bind(asset.mesh, cage, resolution=asset.resolution, device=device, tol=asset.tol,
                    boundary=asset.boundary, sampling=asset.sampling, method=asset.method, cage_prim=asset.cage_prim,
-                   mesh_prims=asset.mesh_prims, rest_time=asset.rest_time)
+                   mesh_prims=asset.mesh_prims, rest_time=asset.rest_time, threads=threads)
     result.vertices, result.handles = binding.n_vertices, binding.n_handles
     result.resolution = binding.settings["resolution"]  # the number "auto" chose
     result.device = binding.stats["device"]

@@ -7,7 +7,9 @@ memory, form the multigrid, and for each chunk the boundary data, the solve and 
 
 from __future__ import annotations
 
+import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -18,7 +20,8 @@ from ..geometry.boundary import COMPLEMENT_COLUMNS, boundary_field
 from ..geometry.local_boundary import boundary_settings, local_data_bytes
 from ..geometry.cage import Cage
 from ..geometry.grid import voxelize
-from ..solver.budget import available_memory, chunk_columns, estimate_memory, plan_chunks
+from ..device import cpu_threads
+from ..solver.budget import available_memory, chunk_columns, estimate_memory, plan_lanes
 from ..solver.multigrid import Multigrid, coarsen
 from ..solver.solve import solve_biharmonic
 from .sample import sample_weights
@@ -53,6 +56,7 @@ class GridColumns:
     multigrid_seconds : dict, the multigrid's setup time by phase
     coarsest : dict or None, the multigrid's coarsest operator (``Multigrid.coarsest``: unknowns, condition, ...)
     chunks : int, chunks the range was solved in
+    threads : int, chunks solved at once (threads, on a CPU)
     memory_estimate : int, bytes the plan counted for the largest chunk
     seconds : dict, time by phase: voxelize, setup, boundary, solve, sample
     devices : list of dict, where the range was solved when a bind spreads over several devices (empty otherwise)
@@ -68,6 +72,7 @@ class GridColumns:
     coarsest: dict | None
     chunks: int
     memory_estimate: int
+    threads: int = 1
     seconds: dict = field(default_factory=dict)
     devices: list = field(default_factory=list)
     warnings: list = field(default_factory=list)
@@ -76,12 +81,14 @@ class GridColumns:
 def grid_columns(checked: Cage, points: np.ndarray, resolution: int, device, handles: slice = slice(None),
                  solver: str = "multigrid", tol: float = 1e-6, max_iterations: int | None = None, boundary="local",
                  sampling: str = "hermite", memory_budget: int | None = None,
-                 equation: str = "biharmonic", progress=None) -> GridColumns:
+                 equation: str = "biharmonic", progress=None, threads: int | None = None) -> GridColumns:
     """Solve the handles ``handles`` of a checked cage on a grid at ``resolution`` on ``device`` and sample them at
     ``points`` (arguments as in :func:`warp_stokes.bind`, the device resolved).
 
     A range short of the whole cage is solved with the rest of the cage as one more column (as the chunks of a bind
-    too large for memory are), so that every solve checks partition of unity.
+    too large for memory are), so that every solve checks partition of unity. On a CPU the handles are solved in
+    chunks by ``threads`` threads at once (default: every core this process may use, :func:`cpu_threads`), each
+    chunk with that column, within the memory budget.
 
     Returns
     -------
@@ -107,10 +114,11 @@ def grid_columns(checked: Cage, points: np.ndarray, resolution: int, device, han
                                n_handles=n_range,
                                boundary_bytes=(0, 0, 0) if boundary_settings(boundary) == "mvc" else local_data_bytes(checked))
     budget = available_memory(device) if memory_budget is None else int(memory_budget)
-    # a partial range always carries the rest-of-the-cage column: plan room for it
-    planned = plan_chunks(estimate, n_range + (COMPLEMENT_COLUMNS if partial else 0), budget, resolution,
-                          name=checked.name)
-    chunks = [slice(first + c.start, first + min(c.stop, n_range)) for c in planned if c.start < n_range]
+    # on a CPU, chunks solved at once by threads (Warp runs a CPU launch on the calling thread, without the GIL); a
+    # partial range always carries the rest-of-the-cage column: the plan has room for it
+    lanes = cpu_threads(threads) if wp.get_device(device).is_cpu else 1
+    chunks, lanes = plan_lanes(estimate, n_range, budget, resolution, lanes, name=checked.name, partial=partial)
+    chunks = [slice(first + c.start, first + c.stop) for c in chunks]
     seconds["voxelize"] = time.perf_counter() - t
 
     t = time.perf_counter()
@@ -121,38 +129,60 @@ def grid_columns(checked: Cage, points: np.ndarray, resolution: int, device, han
     wp.synchronize_device(device)
     seconds["setup"] = time.perf_counter() - t
 
-    seconds["boundary"] = seconds["solve"] = seconds["sample"] = 0.0
     weights = np.empty((len(points), n_range), dtype=np.float32)
-    reports = []
     complement = partial or len(chunks) > 1
-    for k, chunk in enumerate(chunks):
+
+    lanes_own = threading.local()  # each lane's view of the multigrid (its work vectors and smoother bounds)
+
+    def solve_chunk(k: int, chunk: slice) -> tuple:
+        """One chunk: its boundary data, solve and sampling (into ``weights``); its report, corners and seconds."""
+        spent = {}
+        mine = preconditioner
+        if lanes > 1 and solver == "multigrid":
+            if getattr(lanes_own, "multigrid", None) is None:
+                lanes_own.multigrid = preconditioner.lane()
+            mine = lanes_own.multigrid
         t = time.perf_counter()
         part = {"chunk": k + 1, "chunks": len(chunks)} if len(chunks) > 1 else {}
         tell("boundary data", **part)
         # a chunk carries the rest of the cage in one more column, so that its solve checks partition of unity
         field_ = boundary_field(grid, checked, device=device, handles=chunk, complement=complement, data=boundary)
         wp.synchronize_device(device)
-        seconds["boundary"] += time.perf_counter() - t
+        spent["boundary"] = time.perf_counter() - t
         report = solve_biharmonic(
             grid, field_, tol=tol, max_iterations=max_iterations, handles=checked.vertices,
-            chunk=chunk if complement else None, preconditioner=preconditioner, device=device, equation=equation,
+            chunk=chunk if complement else None, preconditioner=mine, device=device, equation=equation,
             progress=lambda iteration, residual: tell("solving", iteration=iteration, residual=residual, **part),
         )
-        reports.append(report)
-        seconds["solve"] += report.seconds
+        spent["solve"] = report.seconds
         t = time.perf_counter()
         tell("sampling", **part)
         sampled_columns, corners = sample_weights(grid, field_, points, device=device, method=sampling)
         weights[:, chunk.start - first: chunk.stop - first] = sampled_columns[:, : chunk.stop - chunk.start]
-        seconds["sample"] += time.perf_counter() - t
-        del field_
+        spent["sample"] = time.perf_counter() - t
+        return report, corners, spent
+
+    if lanes == 1:
+        done = [solve_chunk(k, chunk) for k, chunk in enumerate(chunks)]
+    else:
+        # Warp's default device is one for all threads, and each ScopedDevice restores the one it found: set here
+        # for the lanes, every lane's scope finds and restores the CPU (on a GPU host, a lane's array on the GPU was
+        # an illegal memory access)
+        with wp.ScopedDevice(device), ThreadPoolExecutor(max_workers=lanes,
+                                                         thread_name_prefix="warp-stokes-chunk") as pool:
+            done = list(pool.map(solve_chunk, range(len(chunks)), chunks))
+    reports, corners = [d[0] for d in done], done[-1][1]
+    # a stage's time: the longest lane's (the lanes' sums when they ran at once), so that the stages add up to the
+    # wall time
+    for stage in ("boundary", "solve", "sample"):
+        seconds[stage] = max(sum(d[2][stage] for d in done[lane::lanes]) for lane in range(lanes))
     summary = GridSummary(grid.shape, grid.spacing, grid.resolution, grid.n_interior, grid.n_ring, grid.n_band,
                           grid.n_cut_off, grid.n_inside)
     return GridColumns(
         weights=weights, corners=corners, reports=reports, grid=summary,
         levels=preconditioner.level_sizes if solver == "multigrid" else [grid.n_interior],
         multigrid_seconds=preconditioner.seconds if solver == "multigrid" else {},
-        coarsest=preconditioner.coarsest if solver == "multigrid" else None, chunks=len(chunks),
-        memory_estimate=estimate.total(chunk_columns(chunks) + (COMPLEMENT_COLUMNS if partial and len(chunks) == 1
-                                                                 else 0)),
+        coarsest=preconditioner.coarsest if solver == "multigrid" else None, chunks=len(chunks), threads=lanes,
+        memory_estimate=estimate.total(lanes * chunk_columns(chunks)
+                                       + (COMPLEMENT_COLUMNS if partial and len(chunks) == 1 else 0), lanes),
         seconds=seconds)

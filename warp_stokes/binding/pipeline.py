@@ -24,6 +24,7 @@ from ..geometry.local_boundary import boundary_settings, local_values
 from ..io.load import load_surface
 from ..io.scene import is_usd, load_scene
 from ..solver.solve import ACCEPTABLE
+from ..device import available_memory, cpu_threads, memory_size
 from .columns import grid_columns
 from .sample import SAMPLINGS
 from .spread import driver_device, spread_devices
@@ -37,6 +38,8 @@ __all__ = ["bind", "identity_errors", "METHODS"]
 METHODS = {"stokes": "biharmonic", "harmonic": "laplace", "mvc": None}
 #: vertices per block of mean value coordinates (float64 on the device, float32 in the weights)
 MVC_ROWS = 1 << 16
+#: resolution "auto" goes no coarser than this to fit the memory budget (the budget's error is raised instead)
+AUTO_MEMORY_FLOOR = 16
 
 
 def _suggest_resolution(resolution: int, spacing: float, distances: np.ndarray) -> int:
@@ -48,7 +51,7 @@ def _suggest_resolution(resolution: int, spacing: float, distances: np.ndarray) 
 def bind(mesh, cage=None, resolution="auto", device=None, tol: float = 1e-6, max_iterations: int | None = None,
          solver: str = "multigrid", memory_budget: int | None = None, boundary="local",
          sampling: str = "hermite", cage_prim: str | None = None, mesh_prims=None, rest_time=None,
-         method: str = "stokes", progress=None) -> Binding:
+         method: str = "stokes", progress=None, threads: int | None = None) -> Binding:
     """Compute Stokes cage coordinates (or harmonic or mean value coordinates) of a mesh's vertices with respect to a
     cage.
 
@@ -84,6 +87,9 @@ def bind(mesh, cage=None, resolution="auto", device=None, tol: float = 1e-6, max
     memory_budget : int, optional
         Bytes the bind may allocate on the device (default: 90% of a GPU's free memory, half the free RAM on
         the CPU). Handles are solved in chunks that fit it.
+    threads : int, optional
+        On a CPU, threads that solve chunks of handles at once (default: every core the process may use; 1 for the
+        single-threaded solve). The memory plan counts each thread's chunk. Ignored on a GPU.
     boundary : "local" | "mvc" | LocalData
         The data at ring and band nodes (see :func:`warp_stokes.boundary_field`): the local data of
         :mod:`warp_stokes.geometry.local_boundary` (default, ``LocalData()``), or mean value coordinates.
@@ -123,6 +129,8 @@ def bind(mesh, cage=None, resolution="auto", device=None, tol: float = 1e-6, max
     (2089, 58)
     """
     _check_arguments(tol, memory_budget, solver, boundary, sampling, method)
+    if threads is not None:
+        cpu_threads(threads)  # a bad number is refused before any work
     resolution = check_resolution(resolution)  # arguments first: before the inputs are loaded and checked
     devices = spread_devices(device)  # several: the handles' solves spread over them (Ray tasks)
     if devices is None and isinstance(device, (list, tuple)):
@@ -168,7 +176,7 @@ def bind(mesh, cage=None, resolution="auto", device=None, tol: float = 1e-6, max
     equation = METHODS[method]
 
     options = dict(solver=solver, tol=tol, max_iterations=max_iterations, boundary=boundary, sampling=sampling,
-                   memory_budget=memory_budget, equation=equation)
+                   memory_budget=memory_budget, equation=equation, threads=threads)
     def columns(resolution):
         if devices is None:
             return grid_columns(checked, points, resolution, device, progress=progress, **options)
@@ -178,27 +186,25 @@ def bind(mesh, cage=None, resolution="auto", device=None, tol: float = 1e-6, max
             progress("spreading", devices=len(devices))
         return spread_columns(checked, points, resolution, devices, **options)
 
-    while True:
-        try:
-            part = columns(resolution)
-        except ResolutionError as error:
-            # "auto" on a cage too thin for its grid: a finer one, within the cap
-            finer = min(getattr(error, "suggested", 0), choice.get("cap") or 0)
-            if "chosen" not in choice or finer <= resolution:
-                raise
-            resolution = finer
-            choice.update(chosen=resolution, needed=max(choice["needed"], getattr(error, "suggested", 0)))
-            continue
-        break
+    part, resolution = _columns_for(columns, resolution, choice)
     thin = _thin_vertices(part.corners, part.grid, inside)
     if "chosen" in choice and thin.any():
-        # "auto" resolves the mesh's thin parts too, within the cap: one more bind at what resolves them
+        # "auto" resolves the mesh's thin parts too, within the cap and the memory: one more bind at what resolves them
         suggestion = _suggest_resolution(resolution, part.grid.spacing, distance[thin])
-        if min(suggestion, choice["cap"]) > resolution:
-            seconds["first_resolution"] = sum(part.seconds.values())
-            resolution = min(suggestion, choice["cap"])
-            choice.update(chosen=resolution, needed=max(choice["needed"], suggestion), thin_parts=suggestion)
-            part = columns(resolution)
+        choice["needed"] = max(choice["needed"], suggestion)
+        finer = min(suggestion, choice["cap"], choice.get("memory_fits") or suggestion)
+        if finer > resolution:
+            first = sum(part.seconds.values())
+            choice["thin_parts"] = suggestion
+            try:
+                part, resolution = _columns_for(columns, finer, choice)
+            except ResolutionError:  # none finer fits the memory: the first bind stands
+                choice["memory_fits"] = resolution
+            else:
+                seconds["first_resolution"] = first
+            choice["chosen"] = resolution
+    if "chosen" in choice and choice.get("memory_fits") is not None and resolution < choice["needed"]:
+        choice["memory_budget_bytes"] = int(memory_budget if memory_budget is not None else available_memory(device))
     settings["resolution"] = resolution
     seconds.update(part.seconds)
     grid, weights, corners = part.grid, part.weights, part.corners
@@ -217,6 +223,7 @@ def bind(mesh, cage=None, resolution="auto", device=None, tol: float = 1e-6, max
         "levels": part.levels,
         "multigrid_seconds": part.multigrid_seconds,
         "chunks": part.chunks,
+        "threads": part.threads,
         "memory_estimate_bytes": part.memory_estimate,
         "resolution": choice,
         **({} if devices is None else {"devices": part.devices}),
@@ -229,6 +236,30 @@ def bind(mesh, cage=None, resolution="auto", device=None, tol: float = 1e-6, max
     return Binding(weights, checked.vertices, checked.faces, points, surface.faces, settings, stats, device=device,
                    mesh_normals=surface.normals, cage_source_index=checked.source_index,
                    mesh_polygons=surface.polygons(), mesh_uvs=surface.uvs, parts=parts_record(scene), asset=asset_record(scene))
+
+
+def _columns_for(columns, resolution: int, choice: dict):
+    """``columns(resolution)``, and the resolution it was solved at. For resolution "auto" (``choice`` has
+    "chosen"), a grid the cage is too thin for is tried finer (within the cap and the memory), and one the memory
+    budget cannot hold is tried coarser (down to :data:`AUTO_MEMORY_FLOOR`); ``choice`` records what was chosen.
+    Other resolution errors, and every one of an explicit resolution, are raised."""
+    while True:
+        try:
+            return columns(resolution), resolution
+        except ResolutionError as error:
+            if "chosen" not in choice:
+                raise
+            limit = min(choice["cap"], choice.get("memory_fits") or choice["cap"])
+            finer = min(error.suggested or 0, limit)
+            coarser = error.fits or 0
+            if finer > resolution:
+                choice["needed"] = max(choice["needed"], error.suggested)
+                resolution = finer
+            elif AUTO_MEMORY_FLOOR <= coarser < resolution:
+                resolution = choice["memory_fits"] = coarser
+            else:
+                raise
+            choice["chosen"] = resolution
 
 
 def _thin_vertices(corners: np.ndarray, grid, inside: np.ndarray) -> np.ndarray:
@@ -346,6 +377,19 @@ def _vertices_off_the_grid(surface, checked: Cage, grid, resolution: int, weight
             "diagonal); they get the boundary data at their position")
         warnings.warn(notes[-1], stacklevel=3)
     thin = _thin_vertices(corners, grid, inside)
+    below = wedge_resolution(checked, boundary, device)
+    folded = below is not None and resolution < below
+    if (choice or {}).get("memory_budget_bytes"):
+        # "auto" stopped short for the memory: one warning says why and what to do
+        reasons = [f"{int(thin.sum())} mesh vertices lie in parts thinner than two of its cells"] if thin.any() else []
+        reasons += [f"its folded edges need resolution {below}"] if folded else []
+        notes.append(
+            f"{checked.name}: resolution 'auto' bound at {resolution}, the finest grid that fits the memory budget "
+            f"({memory_size(choice['memory_budget_bytes'])}); the cage asks for {choice['needed']}"
+            + (f" ({'; '.join(reasons)})" if reasons else "")
+            + ": give more memory (--memory-gb, memory_budget=) or bind on a device with more")
+        warnings.warn(notes[-1], stacklevel=3)
+        return notes, beyond, thin
     if thin.any():
         capped = (choice or {}).get("cap")
         suggestion = _suggest_resolution(resolution, grid.spacing, distance[thin])
@@ -355,8 +399,7 @@ def _vertices_off_the_grid(surface, checked: Cage, grid, resolution: int, weight
             f"resolution={suggestion} would resolve them"
             + (f" (resolution 'auto' stops at {capped} on this device)" if capped and suggestion > capped else ""))
         warnings.warn(notes[-1], stacklevel=3)
-    below = wedge_resolution(checked, boundary, device)
-    if below is not None and resolution < below:
+    if folded:
         capped = (choice or {}).get("cap")
         caps = grid_module.AUTO_RESOLUTION_CAP
         reachable = below <= caps["cpu" if resolve_device(device).is_cpu else "cuda"]

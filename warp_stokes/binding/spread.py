@@ -24,7 +24,7 @@ import warnings
 
 import numpy as np
 
-from ..device import device_name, require_ray, resolve_device
+from ..device import cpu_threads, device_name, require_ray, resolve_device
 from ..errors import WarpStokesError
 from .columns import GridColumns, grid_columns
 
@@ -116,6 +116,8 @@ def spread_columns(checked, points: np.ndarray, resolution: int, devices: list[s
             raise WarpStokesError(f"devices {','.join(devices)}: {count} GPUs named, the Ray cluster has {gpus}")
         shares = [s for s in np.array_split(np.arange(checked.n_handles), count) if len(s)]
         resources = {"num_cpus": 1, "num_gpus": 0} if on_cpu else {"num_cpus": 1, "num_gpus": 1}
+        if on_cpu:  # the shares run at once on this host's cores: each its part of the threads
+            options = {**options, "threads": max(1, cpu_threads(options.get("threads")) // len(shares))}
         task = ray.remote(_solve_share).options(**resources)
         start = time.perf_counter()
         refs = [task.remote(checked, points, resolution, slice(int(s[0]), int(s[-1]) + 1),
@@ -169,5 +171,6 @@ def _gathered(parts: list[GridColumns], wall: float) -> GridColumns:
         weights=np.concatenate([p.weights for p in parts], axis=1), corners=first.corners,
         reports=[r for p in parts for r in p.reports], grid=first.grid, levels=first.levels,
         multigrid_seconds=first.multigrid_seconds, coarsest=first.coarsest, chunks=sum(p.chunks for p in parts),
+        threads=sum(p.threads for p in parts),
         memory_estimate=max(p.memory_estimate for p in parts), seconds=seconds,
         devices=[d for p in parts for d in p.devices])

@@ -143,6 +143,8 @@ def _add_bind(sub) -> None:
                    help="CG preconditioner (multigrid)")
     p.add_argument("--memory-gb", type=_number(float, 0.0, low_open=True), default=None,
                    help="memory budget in GiB (default: 90%% of free GPU memory, half the free RAM on CPU)")
+    p.add_argument("--threads", type=_number(int, 1), default=None,
+                   help="on a CPU, threads that solve chunks of handles at once (default: every core)")
     p.add_argument("--boundary", choices=["local", "mvc"], default="local",
                    help="boundary data: local to each node's closest cage point (default) or mean value coordinates")
     p.add_argument("--sampling", choices=["hermite", "trilinear"], default="hermite",

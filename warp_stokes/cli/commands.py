@@ -48,7 +48,8 @@ def format_stats(stats: dict) -> str:
         ("handles", str(stats["handles"])),
         ("vertices", f"{stats['vertices']} ({stats['vertices_outside_cage']} outside the cage, "
                      f"{stats['vertices_beyond_band']} beyond the band)"),
-        ("solver", f"{stats['solver']}, {len(stats['levels'])} level(s), {stats['chunks']} chunk(s), "
+        ("solver", f"{stats['solver']}, {len(stats['levels'])} level(s), {stats['chunks']} chunk(s)"
+                   + (f" on {stats['threads']} threads" if stats.get("threads", 1) > 1 else "") + ", "
                    f"{stats['iterations']} iterations, residual {stats['residual']:.2e}, "
                    + ("converged" if stats["converged"] else "NOT converged")
                    + (f" (after {len(stats['recoveries'])} fault(s) of its preconditioner, with "
@@ -116,7 +117,7 @@ def bind_command(args) -> int:
                           max_iterations=args.max_iterations, solver=args.solver, memory_budget=budget,
                           boundary=args.boundary, sampling=args.sampling, cage_prim=args.cage_prim,
                           mesh_prims=args.mesh_prim, rest_time=args.rest_time, method=args.method,
-                          progress=progress)
+                          progress=progress, threads=args.threads)
     binding.save(args.output)
     print(format_stats(binding.stats))
     if len(binding.parts) > 1:

@@ -9,7 +9,7 @@ import warp as wp
 
 from .cage import Cage
 from .inside import WINDING_ACCURACY, cage_mesh
-from ..device import available_memory, resolve_device
+from ..device import available_memory, memory_size, resolve_device
 from ..errors import ResolutionError
 from ..kernels import labels as node_labels
 from ..kernels import stencil
@@ -300,11 +300,13 @@ def voxelize(cage: Cage, resolution: int = 64, device=None, max_rows: int = MAX_
     room = available_memory(device) if memory_budget is None else int(memory_budget)
     if dense > room:
         fits = int(resolution * (room / dense) ** (1.0 / 3.0) * 0.9)
-        raise ResolutionError(
+        error = ResolutionError(
             f"{cage.name}: a grid at resolution {resolution} has {int(np.prod(counts)):,} nodes and needs "
-            f"{dense / 2**30:.1f} GiB before solving; {room / 2**30:.1f} GiB are available: resolution {fits} or less "
+            f"{memory_size(dense)} before solving; {memory_size(room)} are available: resolution {fits} or less "
             "would fit"
         )
+        error.fits = fits  # what resolution "auto" tries instead
+        raise error
     with wp.ScopedDevice(device):
         mesh = cage_mesh(cage, centre, device)
         inside = wp.empty(shape, dtype=wp.int8)

@@ -396,10 +396,16 @@ def local_field(grid: Grid, cage: Cage, field: wp.array, rows: slice, handles: s
                     wp.array(cage.faces.astype(np.int32), dtype=wp.vec3i),
                     wp.array(unit_normals(cage), dtype=wp.vec3d),
                     wp.array(_tangent_gradients(cage), dtype=wp.vec3d),
-                    wp.array(normal_derivatives(cage, settings, device), dtype=wp.float64), first, stop - first,
+                    _kept_on(normal_derivatives(cage, settings, device), device), first, stop - first,
                     int(complement)],
             outputs=[field],
         )
+
+
+def _kept_on(kept: np.ndarray, device) -> wp.array:
+    """The kept normal derivatives as a Warp array on ``device``: on the CPU the host array itself (threads that
+    form boundary fields at once share it), else a copy."""
+    return wp.array(kept, dtype=wp.float64, device=device, copy=not device.is_cpu)
 
 
 def local_values(cage: Cage, points: np.ndarray, spacing: float, settings: LocalData = LocalData(),
@@ -439,7 +445,7 @@ def local_values(cage: Cage, points: np.ndarray, spacing: float, settings: Local
                         wp.array(cage.faces.astype(np.int32), dtype=wp.vec3i),
                         wp.array(unit_normals(cage), dtype=wp.vec3d),
                         wp.array(_tangent_gradients(cage), dtype=wp.vec3d),
-                        wp.array(normal_derivatives(cage, settings, device), dtype=wp.float64), 0, cage.n_handles, 0],
+                        _kept_on(normal_derivatives(cage, settings, device), device), 0, cage.n_handles, 0],
                 outputs=[out],
             )
     return out.numpy()[..., 0].astype(np.float64)

@@ -15,9 +15,11 @@ Shared by all columns: the grid's node index (4 per lattice node), node coordina
 items (16 per patch), the multigrid hierarchy (27 blocks of 64 B per coarse node, its diagonal, coordinates and
 lattice indices: :func:`warp_stokes.solver.multigrid.hierarchy_bytes`), and per stage the node positions for the MVC
 (24 N_a) or the sampling's per-vertex arrays (80 V); on the CPU, the multigrid's setup, which forms the coarsest
-level's inverse on the host (4 float64 copies of its dense operator: 36 MB for 267 nodes). The local boundary data's normal derivatives (8 bytes per cage
-face and handle: :func:`warp_stokes.geometry.local_boundary.local_data_bytes`, 384 MB for a cage of 4,898 handles)
-are on the device while the boundary data is formed. On the CPU the host arrays live in the same memory and are
+level's inverse on the host (4 float64 copies of its dense operator: 5 MB for the CPU's 100 nodes at most). The
+local boundary data's normal derivatives (8 bytes per cage face and handle:
+:func:`warp_stokes.geometry.local_boundary.local_data_bytes`, 384 MB for a cage of 4,898 handles) are on the device
+while the boundary data is formed. Threads that solve chunks at once on the CPU (``lanes``) each hold their own stage
+arrays and columns (:meth:`MemoryEstimate.total`). On the CPU the host arrays live in the same memory and are
 counted too: the grid's (labels and index, 5 per lattice node, and 12 N_a), the weights of all handles (4 V per
 handle), the mesh as loaded and its per-vertex checks (about 120 V), the sampled columns' host copy (4 V per
 column), and the host's copy of the local data's normal derivatives, kept throughout.
@@ -31,13 +33,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..geometry.boundary import COMPLEMENT_COLUMNS
-from ..device import available_memory, resolve_device  # noqa: F401 (re-exported)
+from ..device import available_memory, memory_size, resolve_device  # noqa: F401 (available_memory re-exported)
 from ..errors import ResolutionError
 from ..geometry.grid import DEVICE_NODE_BYTES, HOST_NODE_BYTES, Grid
 from . import multigrid
-from .multigrid import COARSEST_NODES, hierarchy_bytes
+from .multigrid import coarsest_nodes_for, hierarchy_bytes
 
-__all__ = ["MemoryEstimate", "estimate_memory", "available_memory", "plan_chunks", "chunk_columns"]
+__all__ = ["MemoryEstimate", "estimate_memory", "available_memory", "plan_chunks", "plan_lanes", "chunk_columns"]
 
 VEC4 = 16
 #: coarse level size over the next finer one, used when the levels are not given (measured 0.15-0.19 on the
@@ -71,11 +73,15 @@ class MemoryEstimate:
     base: int = 0
     fixed: int = 0
 
-    def total(self, n_columns: int) -> int:
-        """Peak bytes with ``n_columns`` columns solved at once."""
+    def total(self, n_columns: int, lanes: int = 1) -> int:
+        """Peak bytes with ``n_columns`` columns solved at once, by ``lanes`` threads that each solve their share
+        (the stages with columns are the lanes': each lane's arrays are its own, and each may be in its largest
+        stage at once; the stages without, before the lanes start, happen once)."""
+        per_lane = -(-int(n_columns) // max(1, int(lanes)))
         if self.stages:
-            return int(self.base + max(s + n_columns * c for s, c in self.stages))
-        return int(self.shared + n_columns * self.per_handle)
+            in_lanes = lanes * max((s + per_lane * c for s, c in self.stages if c > 0), default=0)
+            return int(self.base + max([in_lanes] + [s for s, c in self.stages if c == 0]))
+        return int(self.shared + (lanes - 1) * (self.shared - self.base) + n_columns * self.per_handle)
 
 
 def estimate_memory(grid: Grid, n_vertices: int = 0, preconditioner: str = "multigrid", levels=None,
@@ -115,9 +121,10 @@ def estimate_memory(grid: Grid, n_vertices: int = 0, preconditioner: str = "mult
     if not multigrid:
         coarse, hierarchy, dense = 0.0, 0, 0
     else:
+        limit = coarsest_nodes_for(device)
         if levels is None:  # coarsen by the typical ratio until the coarsest level's size
             sizes = [float(n_int)]
-            while sizes[-1] > COARSEST_NODES:
+            while sizes[-1] > limit:
                 sizes.append(sizes[-1] * COARSENING_RATIO)
             coarse = sum(sizes[1:])
             hierarchy = COARSE_NODE_BYTES * coarse + 4 * (4 * sizes[-1]) ** 2
@@ -125,7 +132,7 @@ def estimate_memory(grid: Grid, n_vertices: int = 0, preconditioner: str = "mult
             sizes = [lev.n for lev in levels]
             coarse, hierarchy = float(sum(sizes[1:])), hierarchy_bytes(levels)
         # the coarsest level's dense inverse (float32) does not shrink with the resolution: at most this
-        dense = 4 * (4 * COARSEST_NODES) ** 2
+        dense = 4 * (4 * limit) ** 2
     work = (2 * VEC4 * n_int + 4 * VEC4 * coarse) if multigrid else 0.0
     # an item per 2 x 2 columns and up to 64 planes: fewer than one per 16 nodes; the smoother step's 1 x 2: one per 8
     patches = 16 * n_int / 16 + 16 * n_int / 8
@@ -137,7 +144,8 @@ def estimate_memory(grid: Grid, n_vertices: int = 0, preconditioner: str = "mult
         base += HOST_NODE_BYTES * nodes + 12 * n_act + 4 * n_v * int(n_handles) + 120 * n_v + kept
     field_bytes = VEC4 * n_act
     stages = [
-        # boundary data: positions, MVC values in float64, the local data's normal derivatives
+        # boundary data: positions, MVC values in float64, the local data's normal derivatives (the device's copy;
+        # a CPU reads the host's, but measured its peak as if it copied them: counted)
         (24 * n_act + kept, field_bytes + work + 8 * n_act),
         (0, field_bytes + work + 3 * VEC4 * n_int),  # solve: CG vectors
         # sampling: per-vertex cells and weights (on the CPU also their host copy)
@@ -193,20 +201,72 @@ def plan_chunks(estimate: MemoryEstimate, n_handles: int, budget: int, resolutio
         # scaling by the square root of the excess is safe for both
         if budget <= estimate.fixed:
             raise ResolutionError(
-                f"{name}: the cage's boundary data and the coarsest level need {estimate.fixed / 2**30:.2f} GiB at "
+                f"{name}: the cage's boundary data and the coarsest level need {memory_size(estimate.fixed)} at "
                 f"any resolution (they grow with the cage's faces times its handles), but the memory budget is "
-                f"{budget / 2**30:.2f} GiB; raise the budget, or use a cage with fewer handles or boundary 'mvc'"
+                f"{memory_size(budget)}; raise the budget, or use a cage with fewer handles or boundary 'mvc'"
             )
         ratio = max(budget - estimate.fixed, 0) / max(need - estimate.fixed, 1)
-        fits = int(resolution * ratio ** 0.5)
-        raise ResolutionError(
-            f"{name}: resolution {resolution} needs at least {need / 2**30:.2f} GiB to solve one handle at a time "
+        fits = max(int(resolution * ratio ** 0.5), 8)
+        error = ResolutionError(
+            f"{name}: resolution {resolution} needs at least {memory_size(need)} to solve one handle at a time "
             f"(with the column of the rest of the cage that checks it), but the memory budget is "
-            f"{budget / 2**30:.2f} GiB; resolution {max(fits, 8)} or less would fit"
+            f"{memory_size(budget)}; resolution {fits} or less would fit"
         )
+        # resolution "auto" tries the cube root's (the interior's) estimate, closer and sometimes too much: it is
+        # planned again there, and tried coarser again if it does not fit
+        error.fits = max(int(resolution * ratio ** (1.0 / 3.0)), 8)
+        raise error
     n_chunks = -(-n_handles // per_chunk)
     size = -(-n_handles // n_chunks)  # balanced chunks
     return [slice(s, min(s + size, n_handles)) for s in range(0, n_handles, size)]
+
+
+def plan_lanes(estimate: MemoryEstimate, n_handles: int, budget: int, resolution: int, lanes: int,
+               name: str = "the cage", partial: bool = False) -> tuple[list[slice], int]:
+    """Chunks of handles for ``lanes`` threads that solve a chunk each at once, within the budget, and how many
+    lanes run: one chunk per lane when all fit together, else smaller chunks taken in turn (fewer lanes where not
+    even one handle per lane fits). Every chunk carries the complement column when there are several (or the range
+    is ``partial``); with one lane this is :func:`plan_chunks`.
+
+    Raises
+    ------
+    ResolutionError
+        As :func:`plan_chunks`, when not even one handle fits.
+
+    Examples
+    --------
+    >>> plan_lanes(MemoryEstimate(per_handle=100, shared=1000), 10, budget=5000, resolution=64, lanes=2)
+    ([slice(0, 5, None), slice(5, 10, None)], 2)
+    >>> plan_lanes(MemoryEstimate(per_handle=100, shared=1000), 10, budget=3000, resolution=64, lanes=2)
+    ([slice(0, 3, None), slice(3, 6, None), slice(6, 8, None), slice(8, 10, None)], 2)
+    >>> plan_lanes(MemoryEstimate(per_handle=100, shared=1000), 10, budget=1800, resolution=64, lanes=2)
+    ([slice(0, 5, None), slice(5, 10, None)], 1)
+    """
+    lanes = max(1, min(int(lanes), n_handles))
+    extra = COMPLEMENT_COLUMNS if partial else 0
+    while lanes > 1:
+        if estimate.total(n_handles + lanes * COMPLEMENT_COLUMNS, lanes) <= budget:
+            return _split(n_handles, lanes), lanes  # one chunk per lane
+        # the most columns that fit at once, shared by the lanes, each chunk with its complement column
+        lo, hi = 0, n_handles + lanes * COMPLEMENT_COLUMNS
+        while lo < hi:
+            mid = (lo + hi + 1) // 2
+            lo, hi = (mid, hi) if estimate.total(mid, lanes) <= budget else (lo, mid - 1)
+        per_chunk = lo // lanes - COMPLEMENT_COLUMNS
+        if per_chunk >= 1:
+            # balanced, in rounds that keep every lane busy
+            n_chunks = -(-(-(-n_handles // per_chunk)) // lanes) * lanes
+            return _split(n_handles, min(n_chunks, n_handles)), lanes
+        lanes -= 1
+    planned = plan_chunks(estimate, n_handles + extra, budget, resolution, name=name)
+    return [slice(c.start, min(c.stop, n_handles)) for c in planned if c.start < n_handles], 1
+
+
+def _split(n: int, parts: int) -> list[slice]:
+    """``parts`` consecutive slices of ``range(n)`` whose sizes differ by one at most, the larger first."""
+    size, larger = divmod(n, parts)
+    bounds = np.cumsum([0] + [size + (k < larger) for k in range(parts)])
+    return [slice(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
 
 
 def chunk_columns(chunks: list[slice]) -> int:

@@ -12,11 +12,32 @@ from ..device import resolve_device
 from ..geometry.grid import Grid, lattice_counts, lattice_rows
 from ..kernels import multigrid as mg_kernels
 
-__all__ = ["Level", "coarsen", "lattice_shift", "hierarchy_bytes", "COARSEST_NODES", "COARSE_NODE_BYTES"]
+__all__ = ["Level", "coarsen", "coarsest_nodes_for", "lattice_shift", "hierarchy_bytes", "COARSEST_NODES",
+           "COARSEST_NODES_CPU", "COARSE_NODE_BYTES"]
 
-#: coarsen until a level has at most this many nodes; it is then inverted densely (1600 x 1600 floats at most:
-#: 10 MiB). A lower limit adds a level below and costs CG iterations (one at n = 80 on a bulky cage, measured)
+#: on a GPU, coarsen until a level has at most this many nodes; it is then inverted densely on the host (1600 x 1600
+#: floats at most: 10 MiB on the device). A lower limit adds a level below and costs CG iterations (one at n = 80 on
+#: a bulky cage, measured)
 COARSEST_NODES = 400
+#: on a CPU the inverse's host work (float64 copies, 32 (4m)^2 bytes: 82 MB at 400 nodes) is the bind's own memory,
+#: more than a small grid's solve: at 400 a sweep's peak fell from n = 16 to 20 (the arm: 43 -> 9 MiB). At 100 it
+#: grows with n (7, 9, 12, 17, 22 MiB at n = 16-32), with the same iterations (arm 16-64, ogre 24-96) and weights
+#: within 2e-7 (RESULTS.md, section 14)
+COARSEST_NODES_CPU = 100
+
+
+def coarsest_nodes_for(device) -> int:
+    """The size at which coarsening stops on ``device``: :data:`COARSEST_NODES_CPU` on a CPU, else
+    :data:`COARSEST_NODES`.
+
+    Examples
+    --------
+    >>> coarsest_nodes_for("cpu")
+    100
+    """
+    return COARSEST_NODES_CPU if resolve_device(device).is_cpu else COARSEST_NODES
+
+
 #: device bytes per node of a coarse level: 27 blocks of the operator and its neighbours' rows, the diagonal's
 #: inverse, its coordinates
 COARSE_NODE_BYTES = 27 * 64 + 27 * 4 + 64 + 12
@@ -36,14 +57,15 @@ class Level:
     shift: tuple = (0, 0, 0)  # this level's node c sits on the finer level's node 2c + shift
 
 
-def coarsen(grid: Grid, device=None, coarsest_nodes: int = COARSEST_NODES) -> list[Level]:
+def coarsen(grid: Grid, device=None, coarsest_nodes: int | None = None) -> list[Level]:
     """The nodes of every multigrid level, before any operator is formed (cheap: a pass over each lattice).
 
     Parameters
     ----------
     grid : Grid
     device : None | str
-    coarsest_nodes : int, coarsening stops at a level with at most this many nodes
+    coarsest_nodes : int, optional, coarsening stops at a level with at most this many nodes (default by the
+        device: :func:`coarsest_nodes_for`)
 
     Returns
     -------
@@ -56,6 +78,7 @@ def coarsen(grid: Grid, device=None, coarsest_nodes: int = COARSEST_NODES) -> li
     [16563, 2077, 268]
     """
     device = resolve_device(device)
+    coarsest_nodes = coarsest_nodes_for(device) if coarsest_nodes is None else int(coarsest_nodes)
     arrays = grid.device_arrays(device)
     n0 = grid.n_interior
     fine = Level(n=n0, ijk=grid.active_ijk[:n0], index=arrays["index"], ijk_device=arrays["active_ijk"][:n0])

@@ -38,6 +38,8 @@ No general sparse matrix is involved: warp.sparse addresses block values with 32
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
 
@@ -48,12 +50,14 @@ from ..device import reduction_threads, resolve_device
 from ..geometry.grid import Grid
 from ..kernels import cg
 from ..kernels import multigrid as mg_kernels
-from .hierarchy import COARSE_NODE_BYTES, COARSEST_NODES, Level, coarsen, hierarchy_bytes
+from .hierarchy import (COARSE_NODE_BYTES, COARSEST_NODES, COARSEST_NODES_CPU, Level, coarsen, coarsest_nodes_for,
+                        hierarchy_bytes)
 from .operator import apply_operator, chebyshev_step, check_equation
 
 # the levels' sizes are planned before the hierarchy is formed (solver.hierarchy); offered here too
 __all__ = ["Multigrid", "coarsen", "coarsest_inverse", "hierarchy_bytes", "Level", "SMOOTHER_DEGREES",
-           "DEEP_SMOOTHER_DEGREES", "DEEP_LEVELS", "COARSEST_NODES", "COARSE_NODE_BYTES", "COARSEST_CUTOFF"]
+           "DEEP_SMOOTHER_DEGREES", "DEEP_LEVELS", "COARSEST_NODES", "COARSEST_NODES_CPU", "coarsest_nodes_for",
+           "COARSE_NODE_BYTES", "COARSEST_CUTOFF"]
 
 #: Chebyshev degree on the fine level, the first coarse level, ...; the last entry holds for every deeper level
 #: (measured with benchmarks/bench_smoother.py: RESULTS.md)
@@ -168,7 +172,7 @@ class Multigrid:
     ----------
     grid : Grid
     device : None | str
-    coarsest_nodes : int, size at which coarsening stops
+    coarsest_nodes : int, optional, size at which coarsening stops (default by the device: :func:`coarsest_nodes_for`)
     levels : list of Level, optional
         The output of :func:`coarsen` for this grid and device, when it was computed already (e.g. to plan
         memory); computed here otherwise.
@@ -182,7 +186,7 @@ class Multigrid:
     >>> mg.apply(residual, correction)                      # doctest: +SKIP
     """
 
-    def __init__(self, grid: Grid, device=None, coarsest_nodes: int = COARSEST_NODES, levels=None,
+    def __init__(self, grid: Grid, device=None, coarsest_nodes: int | None = None, levels=None,
                  equation: str = "biharmonic"):
         self.grid = grid
         self.device = resolve_device(device)
@@ -390,6 +394,15 @@ class Multigrid:
         if lev.work["n_cols"] == n_cols:
             return lev.work
         return {name: a[:, :n_cols] for name, a in lev.work.items() if name != "n_cols"}
+
+    def lane(self) -> "Multigrid":
+        """A view of this multigrid for one of the threads that solve chunks at once on a CPU: the same operators,
+        coarsest inverse and eigenvalue estimates, its own work vectors and smoother bounds (a lane whose solve
+        recovers from a fault by guaranteed bounds changes them for itself, not in the middle of another lane's
+        cycles)."""
+        view = copy.copy(self)
+        view.levels = [dataclasses.replace(lev, work={}) for lev in self.levels]
+        return view
 
     def _smooth(self, depth: int, b: wp.array, x: wp.array, r: wp.array, d: wp.array, x_is_zero: bool,
                 residual: bool) -> None:

@@ -1,0 +1,85 @@
+"""A CPU bind on 1, 2, 4, ... threads: time, speed-up and parallel efficiency against one thread, and the weights
+against the one-thread bind's.
+
+    python benchmarks/bench_cpu_threads.py --pair ogre --resolutions 64 128 --threads 1 2 4 8 16
+
+Threads solve chunks of handles at once (``ws.bind(..., threads=T)``); voxelising, the multigrid's setup and the
+checks stay on one thread. One process: a warm-up bind at n = 16 loads the kernels, then per resolution one bind per
+thread count (``--repeat`` times, the fastest kept). Peak memory is the process's peak resident set above its size
+at the bind's start (Linux: reset through ``/proc/self/clear_refs``; the freed heap handed back first), beside the
+memory plan's estimate. Prints a Markdown table with the CPU's model and core count.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import sys
+import time
+import warnings
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import pair, table_head, table_row  # noqa: E402
+
+
+def cpu_model() -> str:
+    try:
+        with open("/proc/cpuinfo") as fh:
+            for line in fh:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "CPU"
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--pair", default="ogre")
+    p.add_argument("--resolutions", type=int, nargs="+", default=[64])
+    p.add_argument("--threads", type=int, nargs="+", default=[1, 2])
+    p.add_argument("--repeat", type=int, default=1)
+    args = p.parse_args(argv)
+
+    import numpy as np
+    import warp as wp
+
+    import warp_stokes as ws
+    from warp_stokes.sweep import _PeakMemory
+
+    mesh, cage = pair(args.pair)
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    print(f"{cpu_model()}, {cores} cores available; warp-stokes {ws.__version__}, Warp {wp.config.version}")
+    warnings.simplefilter("ignore")
+    ws.bind(mesh, cage, resolution=16, device="cpu", threads=1)
+    print(table_head(["pair", "n", "threads", "chunks", "seconds", "solve s", "boundary s", "speed-up", "efficiency",
+                      "iterations", "peak MiB", "estimate MiB", "max |w - w(1 thread)|"]), flush=True)
+    cpu = wp.get_device("cpu")
+    for n in args.resolutions:
+        first = None
+        for threads in args.threads:
+            best = None
+            for _ in range(args.repeat):
+                peak = _PeakMemory(cpu)
+                start = time.perf_counter()
+                binding = ws.bind(mesh, cage, resolution=n, device="cpu", threads=threads)
+                seconds = time.perf_counter() - start
+                if best is None or seconds < best[0]:
+                    best = (seconds, binding, peak.bytes())
+            seconds, binding, peak_bytes = best
+            if first is None:
+                first = (seconds, binding.weights, threads)
+            speedup = first[0] / seconds
+            stats = binding.stats
+            print(table_row([args.pair, n, threads, stats["chunks"], f"{seconds:.2f}",
+                             f"{stats['seconds']['solve']:.2f}", f"{stats['seconds']['boundary']:.2f}",
+                             f"{speedup:.2f}", f"{speedup / (threads / first[2]):.0%}", stats["iterations"],
+                             f"{peak_bytes / 2**20:.0f}", f"{stats['memory_estimate_bytes'] / 2**20:.0f}",
+                             f"{np.abs(binding.weights - first[1]).max():.1e}"]), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
