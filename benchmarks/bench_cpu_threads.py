@@ -54,8 +54,9 @@ def main(argv=None) -> int:
     print(f"{cpu_model()}, {cores} cores available; warp-stokes {ws.__version__}, Warp {wp.config.version}")
     warnings.simplefilter("ignore")
     ws.bind(mesh, cage, resolution=16, device="cpu", threads=1)
-    print(table_head(["pair", "n", "threads", "chunks", "seconds", "solve s", "boundary s", "speed-up", "efficiency",
-                      "iterations", "peak MiB", "estimate MiB", "max |w - w(1 thread)|"]), flush=True)
+    print(table_head(["pair", "n", "threads", "chunks", "seconds", "voxelize s", "setup s", "boundary s", "solve s",
+                      "sample s", "speed-up", "efficiency", "iterations", "peak MiB", "estimate MiB",
+                      "max |w - w(1 thread)|"]), flush=True)
     cpu = wp.get_device("cpu")
     for n in args.resolutions:
         first = None
@@ -73,8 +74,10 @@ def main(argv=None) -> int:
                 first = (seconds, binding.weights, threads)
             speedup = first[0] / seconds
             stats = binding.stats
-            print(table_row([args.pair, n, threads, stats["chunks"], f"{seconds:.2f}",
-                             f"{stats['seconds']['solve']:.2f}", f"{stats['seconds']['boundary']:.2f}",
+            spent = stats["seconds"]
+            print(table_row([args.pair, n, threads, stats["chunks"], f"{seconds:.2f}", f"{spent['voxelize']:.2f}",
+                             f"{spent['setup']:.2f}", f"{spent['boundary']:.2f}", f"{spent['solve']:.2f}",
+                             f"{spent['sample']:.2f}",
                              f"{speedup:.2f}", f"{speedup / (threads / first[2]):.0%}", stats["iterations"],
                              f"{peak_bytes / 2**20:.0f}", f"{stats['memory_estimate_bytes'] / 2**20:.0f}",
                              f"{np.abs(binding.weights - first[1]).max():.1e}"]), flush=True)

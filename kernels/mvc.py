@@ -142,6 +142,13 @@ def complement_column(n_handles: int, weights: wp.array2d(dtype=wp.float64)):
 
 
 @wp.kernel
+def copy_columns(source: wp.array2d(dtype=wp.float64), first: int, out: wp.array2d(dtype=wp.float64)):
+    """out[n, c] = source[n, first + c] for the rows of ``source`` (a chunk's columns of a table of all handles)."""
+    n, c = wp.tid()
+    out[n, c] = source[n, first + c]
+
+
+@wp.kernel
 def node_positions(
     ijk: wp.array(dtype=wp.vec3i),
     origin: wp.vec3d,

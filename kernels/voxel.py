@@ -17,12 +17,15 @@ def classify_nodes(
     spacing: float,
     accuracy: float,
     surface_tolerance: float,
+    first_i: int,
     labels: wp.array3d(dtype=wp.int8),
 ):
     """INTERIOR where the winding number exceeds 1/2, OUTSIDE elsewhere. Nodes on the cage surface
     (closer than `surface_tolerance`), where the winding number is 1/2 and its sign is noise, are outside:
-    the domain is the open interior, so boxes and other grid-aligned cages voxelise deterministically."""
-    i, j, k = wp.tid()
+    the domain is the open interior, so boxes and other grid-aligned cages voxelise deterministically. The
+    launch covers the slab of nodes from i = first_i on (threads on a CPU take a slab each)."""
+    ti, j, k = wp.tid()
+    i = first_i + ti
     p = node_position(origin, spacing, i, j, k)
     query = wp.mesh_query_point_sign_winding_number(cage, p, 1.0e30, accuracy, 0.5)
     label = OUTSIDE

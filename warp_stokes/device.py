@@ -14,7 +14,7 @@ from .errors import WarpStokesError
 # Warp prints a banner on initialisation; a library should stay quiet unless asked.
 wp.config.log_level = wp.LOG_WARNING
 
-__all__ = ["resolve_device", "init_warp", "device_name", "available_memory", "memory_size", "cpu_threads", "reduction_threads",
+__all__ = ["resolve_device", "init_warp", "device_name", "available_memory", "memory_size", "cpu_threads", "in_threads", "reduction_threads",
            "require_ray", "compile_kernels", "kernels_compiled", "announce_compilation"]
 
 
@@ -121,6 +121,33 @@ def cpu_threads(threads: int | None = None) -> int:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # macOS, Windows
         return max(1, os.cpu_count() or 1)
+
+
+def in_threads(n: int, work, device=None, threads: int | None = None) -> None:
+    """``work(start, stop)`` over consecutive ranges that cover ``range(n)``: on a CPU shared out between ``threads``
+    threads (default :func:`cpu_threads`; Warp runs a CPU launch on the thread that makes it, without the GIL, so
+    launches over disjoint ranges run at once), elsewhere once over all of it. Warp's default device is one for all
+    threads: it is held at ``device`` meanwhile, so that a scope inside ``work`` finds and restores that.
+
+    Examples
+    --------
+    >>> seen = []
+    >>> in_threads(10, lambda a, b: seen.append((a, b)), "cpu", threads=3)
+    >>> sorted(seen)
+    [(0, 4), (4, 8), (8, 10)]
+    """
+    d = resolve_device(device)
+    lanes = min(cpu_threads(threads), n) if d.is_cpu else 1
+    if lanes <= 1:
+        if n > 0:
+            work(0, n)
+        return
+    from concurrent.futures import ThreadPoolExecutor
+
+    size = -(-n // lanes)
+    ranges = [(a, min(a + size, n)) for a in range(0, n, size)]
+    with wp.ScopedDevice(d), ThreadPoolExecutor(max_workers=lanes, thread_name_prefix="warp-stokes") as pool:
+        list(pool.map(lambda r: work(*r), ranges))
 
 
 def reduction_threads(n_rows: int, n_cols: int, device) -> int:

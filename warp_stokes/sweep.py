@@ -8,7 +8,8 @@ percentile of the deformation's per-triangle conformal distortion), and ``error`
 solve that gave no weights (:class:`warp_stokes.ConvergenceError`; the sweep goes on). ``mvc`` (mean value
 coordinates, evaluated at the vertices) has no grid: one row with an empty resolution. Peak memory is the device
 memory pool's high-water mark on a GPU and the process's peak resident set on a CPU, each above its level when the
-bind starts: each bind's own (on a CPU the heap earlier binds freed is handed back first).
+bind starts: each bind's own (on a CPU the heap earlier binds freed is handed back first; with one thread,
+``threads=1``, the same from run to run).
 """
 
 from __future__ import annotations
@@ -112,7 +113,8 @@ def _row(method, resolution, weights, surface, cage, pose, seconds, peak, estima
     return row
 
 
-def sweep(mesh, cage, resolutions, methods=("stokes",), pose=None, device=None, tol: float = 1e-6) -> list[dict]:
+def sweep(mesh, cage, resolutions, methods=("stokes",), pose=None, device=None, tol: float = 1e-6,
+          threads: int | None = None) -> list[dict]:
     """Bind ``mesh`` to ``cage`` at each resolution with each method; one row per bind (see the module docstring).
 
     Parameters
@@ -123,6 +125,10 @@ def sweep(mesh, cage, resolutions, methods=("stokes",), pose=None, device=None, 
     pose : deformed cage (path, (L, 3) array), optional: adds ``conformal_p95``
     device : None | str
     tol : float
+    threads : int, optional
+        A CPU bind's threads (default: every core). With several, a bind's peak memory depends on whether the
+        threads' largest stages overlap (the estimate counts them as if they did); with one it is the same from run
+        to run.
 
     Returns
     -------
@@ -160,7 +166,8 @@ def sweep(mesh, cage, resolutions, methods=("stokes",), pose=None, device=None, 
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 try:
-                    binding = bind(surface, checked, resolution=resolution, device=device, tol=tol, method=method)
+                    binding = bind(surface, checked, resolution=resolution, device=device, tol=tol, method=method,
+                                   threads=threads)
                 except ConvergenceError as exc:  # a row that says so; the sweep goes on
                     row = dict.fromkeys(COLUMNS)
                     row.update(method=method, resolution=resolution, handles=checked.n_handles,

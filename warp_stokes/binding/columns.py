@@ -7,6 +7,7 @@ memory, form the multigrid, and for each chunk the boundary data, the solve and 
 
 from __future__ import annotations
 
+import contextlib
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -16,7 +17,7 @@ from typing import NamedTuple
 import numpy as np
 import warp as wp
 
-from ..geometry.boundary import COMPLEMENT_COLUMNS, boundary_field
+from ..geometry.boundary import COMPLEMENT_COLUMNS, boundary_field, start_rows, start_values
 from ..geometry.local_boundary import boundary_settings, local_data_bytes
 from ..geometry.cage import Cage
 from ..geometry.grid import voxelize
@@ -107,7 +108,8 @@ def grid_columns(checked: Cage, points: np.ndarray, resolution: int, device, han
     tell = progress or (lambda stage, **info: None)
     t = time.perf_counter()
     tell("voxelising", resolution=resolution)
-    grid = voxelize(checked, resolution, device=device, memory_budget=memory_budget, boundary=boundary)
+    grid = voxelize(checked, resolution, device=device, memory_budget=memory_budget, boundary=boundary,
+                    threads=threads)
     # the levels' sizes first (cheap), so that the plan counts the hierarchy before it is formed
     levels = coarsen(grid, device) if solver == "multigrid" else None
     estimate = estimate_memory(grid, len(points), preconditioner=solver, levels=levels, device=device,
@@ -117,7 +119,10 @@ def grid_columns(checked: Cage, points: np.ndarray, resolution: int, device, han
     # on a CPU, chunks solved at once by threads (Warp runs a CPU launch on the calling thread, without the GIL); a
     # partial range always carries the rest-of-the-cage column: the plan has room for it
     lanes = cpu_threads(threads) if wp.get_device(device).is_cpu else 1
-    chunks, lanes = plan_lanes(estimate, n_range, budget, resolution, lanes, name=checked.name, partial=partial)
+    # lanes share one table of every handle's starting values (each chunk's would cost the whole search)
+    table = 8 * start_rows(grid, boundary_settings(boundary)) * checked.n_handles
+    chunks, lanes = plan_lanes(estimate, n_range, budget, resolution, lanes, name=checked.name, partial=partial,
+                               lane_table=table)
     chunks = [slice(first + c.start, first + c.stop) for c in chunks]
     seconds["voxelize"] = time.perf_counter() - t
 
@@ -131,51 +136,78 @@ def grid_columns(checked: Cage, points: np.ndarray, resolution: int, device, han
 
     weights = np.empty((len(points), n_range), dtype=np.float32)
     complement = partial or len(chunks) > 1
+    starts = None
+    if lanes > 1:
+        t = time.perf_counter()
+        tell("boundary data", threads=lanes)
+        starts = start_values(grid, checked, device=device, threads=lanes, data=boundary)
+        seconds["start_values"] = time.perf_counter() - t
 
     lanes_own = threading.local()  # each lane's view of the multigrid (its work vectors and smoother bounds)
 
-    def solve_chunk(k: int, chunk: slice) -> tuple:
-        """One chunk: its boundary data, solve and sampling (into ``weights``); its report, corners and seconds."""
-        spent = {}
+    def part_of(k: int) -> dict:
+        return {"chunk": k + 1, "chunks": len(chunks)} if len(chunks) > 1 else {}
+
+    def form(k: int) -> tuple:
+        """Chunk k's field: the boundary data (a chunk carries the rest of the cage in one more column, so that
+        its solve checks partition of unity); and its seconds."""
+        t = time.perf_counter()
+        tell("boundary data", **part_of(k))
+        field_ = boundary_field(grid, checked, device=device, handles=chunks[k], complement=complement,
+                                data=boundary, start=starts)
+        wp.synchronize_device(device)
+        return field_, time.perf_counter() - t
+
+    def solve(k: int, field_) -> "SolveReport":
         mine = preconditioner
         if lanes > 1 and solver == "multigrid":
             if getattr(lanes_own, "multigrid", None) is None:
                 lanes_own.multigrid = preconditioner.lane()
             mine = lanes_own.multigrid
-        t = time.perf_counter()
-        part = {"chunk": k + 1, "chunks": len(chunks)} if len(chunks) > 1 else {}
-        tell("boundary data", **part)
-        # a chunk carries the rest of the cage in one more column, so that its solve checks partition of unity
-        field_ = boundary_field(grid, checked, device=device, handles=chunk, complement=complement, data=boundary)
-        wp.synchronize_device(device)
-        spent["boundary"] = time.perf_counter() - t
-        report = solve_biharmonic(
+        return solve_biharmonic(
             grid, field_, tol=tol, max_iterations=max_iterations, handles=checked.vertices,
-            chunk=chunk if complement else None, preconditioner=mine, device=device, equation=equation,
-            progress=lambda iteration, residual: tell("solving", iteration=iteration, residual=residual, **part),
+            chunk=chunks[k] if complement else None, preconditioner=mine, device=device, equation=equation,
+            progress=lambda iteration, residual: tell("solving", iteration=iteration, residual=residual,
+                                                      **part_of(k)),
         )
-        spent["solve"] = report.seconds
+
+    def sample(k: int, field_) -> tuple:
+        """Chunk k's weights at the vertices, into ``weights``; the cells' corners and the seconds."""
         t = time.perf_counter()
-        tell("sampling", **part)
+        tell("sampling", **part_of(k))
+        chunk = chunks[k]
         sampled_columns, corners = sample_weights(grid, field_, points, device=device, method=sampling)
         weights[:, chunk.start - first: chunk.stop - first] = sampled_columns[:, : chunk.stop - chunk.start]
-        spent["sample"] = time.perf_counter() - t
-        return report, corners, spent
+        return corners, time.perf_counter() - t
 
-    if lanes == 1:
-        done = [solve_chunk(k, chunk) for k, chunk in enumerate(chunks)]
-    else:
-        # Warp's default device is one for all threads, and each ScopedDevice restores the one it found: set here
-        # for the lanes, every lane's scope finds and restores the CPU (on a GPU host, a lane's array on the GPU was
-        # an illegal memory access)
-        with wp.ScopedDevice(device), ThreadPoolExecutor(max_workers=lanes,
-                                                         thread_name_prefix="warp-stokes-chunk") as pool:
-            done = list(pool.map(solve_chunk, range(len(chunks)), chunks))
-    reports, corners = [d[0] for d in done], done[-1][1]
-    # a stage's time: the longest lane's (the lanes' sums when they ran at once), so that the stages add up to the
-    # wall time
-    for stage in ("boundary", "solve", "sample"):
-        seconds[stage] = max(sum(d[2][stage] for d in done[lane::lanes]) for lane in range(lanes))
+    # rounds of `lanes` chunks, each stage of a round on its threads at once: the lanes are in the same stage
+    # together, so that a bind's peak memory is the plan's (every lane in its largest stage) from run to run
+    reports, corners = [], None
+    seconds["boundary"] = seconds["solve"] = seconds["sample"] = 0.0
+    with contextlib.ExitStack() as stack:
+        if lanes > 1:
+            # Warp's default device is one for all threads, and each ScopedDevice restores the one it found: set
+            # here for the lanes, every lane's scope finds and restores the CPU (on a GPU host, a lane's array on the
+            # GPU was an illegal memory access)
+            stack.enter_context(wp.ScopedDevice(device))
+            pool = stack.enter_context(ThreadPoolExecutor(max_workers=lanes, thread_name_prefix="warp-stokes-chunk"))
+            run = pool.map
+        else:
+            run = map
+        for first_k in range(0, len(chunks), lanes):
+            ks = range(first_k, min(first_k + lanes, len(chunks)))
+            formed = list(run(form, ks))
+            seconds["boundary"] += max(spent for _, spent in formed)
+            fields = [field_ for field_, _ in formed]
+            del formed
+            solved = list(run(solve, ks, fields))
+            seconds["solve"] += max(report.seconds for report in solved)
+            reports += solved
+            sampled = list(run(sample, ks, fields))
+            seconds["sample"] += max(spent for _, spent in sampled)
+            corners = sampled[-1][0]
+            del fields, sampled
+    seconds["boundary"] += seconds.pop("start_values", 0.0)
     summary = GridSummary(grid.shape, grid.spacing, grid.resolution, grid.n_interior, grid.n_ring, grid.n_band,
                           grid.n_cut_off, grid.n_inside)
     return GridColumns(
@@ -184,5 +216,6 @@ def grid_columns(checked: Cage, points: np.ndarray, resolution: int, device, han
         multigrid_seconds=preconditioner.seconds if solver == "multigrid" else {},
         coarsest=preconditioner.coarsest if solver == "multigrid" else None, chunks=len(chunks), threads=lanes,
         memory_estimate=estimate.total(lanes * chunk_columns(chunks)
-                                       + (COMPLEMENT_COLUMNS if partial and len(chunks) == 1 else 0), lanes),
+                                       + (COMPLEMENT_COLUMNS if partial and len(chunks) == 1 else 0), lanes)
+        + (table if lanes > 1 else 0),
         seconds=seconds)

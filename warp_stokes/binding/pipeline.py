@@ -110,8 +110,9 @@ def bind(mesh, cage=None, resolution="auto", device=None, tol: float = 1e-6, max
     progress : callable, optional
         ``progress(stage, **info)`` as the bind goes: "voxelising" (resolution), "multigrid" (levels), "boundary
         data", "solving" (iteration, residual: the largest relative residual still iterating) and "sampling", the
-        last three with chunk and chunks when the handles are solved in chunks; "spreading" (devices) for a bind
-        over several devices. The command line draws it as one line on a terminal.
+        last three with chunk and chunks when the handles are solved in chunks (threads that solve chunks at once
+        call it from their threads, "boundary data" first with threads); "spreading" (devices) for a bind over
+        several devices. The command line draws it as one line on a terminal.
 
     Returns
     -------

@@ -246,7 +246,7 @@ def sweep_command(args) -> int:
     if args.pose:
         pose = pose_argument(args.pose, check_cage(args.cage).n_handles)
     rows = sweep(args.mesh, args.cage, args.resolutions, methods=args.methods.split(","), pose=pose,
-                 device=resolve_device(args.device), tol=args.tol)
+                 device=resolve_device(args.device), tol=args.tol, threads=args.threads)
     print(format_sweep(rows))
     csv_path, json_path = write_sweep(rows, args.output)
     print(f"wrote {csv_path} and {json_path}")

@@ -35,19 +35,25 @@ class ProgressLine:
         self.start = time.perf_counter()
         self.drawn = 0.0
         self.width = 0
+        self.seen = set()  # (stage, chunk) drawn once at least
 
     def __call__(self, stage: str, **info) -> None:
         if not self.enabled:
             return
         now = time.perf_counter()
-        if "iteration" in info and now - self.drawn < REDRAW:
+        # a solve's iterations at most every REDRAW seconds, but each stage of each chunk at least once
+        key = (stage, info.get("chunk"))
+        if "iteration" in info and now - self.drawn < REDRAW and key in self.seen:
             return
+        self.seen.add(key)
         self.drawn = now
         text = f"{self.label}: {stage}"
         if "resolution" in info:
             text += f" at resolution {info['resolution']}"
         if "devices" in info:
             text += f" over {info['devices']} devices"
+        if "threads" in info:
+            text += f" on {info['threads']} threads"
         if "chunk" in info:
             text += f" (chunk {info['chunk']} of {info['chunks']})"
         if "iteration" in info:

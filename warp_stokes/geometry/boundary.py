@@ -15,7 +15,7 @@ import numpy as np
 import warp as wp
 
 from .cage import Cage
-from ..device import resolve_device
+from ..device import in_threads, resolve_device
 from .grid import Grid
 from ..kernels import mvc, stencil
 from .local_boundary import boundary_settings, local_field
@@ -84,8 +84,32 @@ def mean_value_coordinates(cage: Cage, points: np.ndarray, device=None) -> np.nd
     return _mvc_on_device(cage, centre, pts, slice(None), device).numpy()
 
 
+def start_rows(grid: Grid, data) -> int:
+    """The active rows whose mean value coordinates a boundary field needs: all of them for the MVC data, else the
+    interior's (the starting guess) and the ring's (the interior's gradients are differences with them)."""
+    return grid.n_active if boundary_settings(data) == "mvc" else grid.n_interior + grid.n_ring
+
+
+def start_values(grid: Grid, cage: Cage, device=None, threads: int | None = None, data=None) -> wp.array:
+    """Mean value coordinates of every handle at the rows :func:`start_rows` (float64, (rows, L)), formed once for
+    all the chunks of a bind that threads solve at once on a CPU (each chunk's field copies its columns,
+    ``boundary_field(..., start=)``): a chunk's coordinates cost the search over every face whatever its handles, so
+    T chunks cost T times one. On a CPU the rows are shared out between ``threads`` threads."""
+    device = resolve_device(device)
+    data = _data_for(grid, data)
+    rows = start_rows(grid, data)
+    positions = wp.empty(rows, dtype=wp.vec3d, device=device)
+    wp.launch(mvc.node_positions, dim=rows, inputs=[grid.device_arrays(device)["active_ijk"],
+                                                    wp.vec3d(*grid.origin), wp.float64(grid.spacing)],
+              outputs=[positions], device=device)
+    values = wp.empty((rows, cage.n_handles), dtype=wp.float64, device=device)
+    in_threads(rows, lambda a, b: _mvc_on_device(cage, grid.centre, positions[a:b], slice(None), device,
+                                                 out=values[a:b]), device, threads)
+    return values
+
+
 def boundary_field(grid: Grid, cage: Cage, device=None, handles: slice = slice(None),
-                   complement: bool = False, data=None) -> wp.array:
+                   complement: bool = False, data=None, start: wp.array | None = None) -> wp.array:
     """The packed (q, G) field of every handle at every active node: the boundary data at ring and band nodes.
 
     Parameters
@@ -105,6 +129,9 @@ def boundary_field(grid: Grid, cage: Cage, device=None, handles: slice = slice(N
         is ``LocalData()``). Both reproduce constants and linear functions exactly. By default the data the grid was
         voxelised for (``grid.boundary``; MVC for a grid from a mask); other data is warned of when the grid has
         nodes cut off for its own (they would take data they were not chosen for).
+    start : wp.array, optional
+        :func:`start_values` of this grid, cage and data: the chunk's mean value coordinates are copied from it
+        instead of computed (the same values).
 
     Returns
     -------
@@ -121,13 +148,18 @@ def boundary_field(grid: Grid, cage: Cage, device=None, handles: slice = slice(N
     data = _data_for(grid, data)
     first, stop, _ = handles.indices(cage.n_handles)
     n_columns = stop - first + (COMPLEMENT_COLUMNS if complement else 0)
-    # formed on the device from the nodes' coordinates there (at n = 512, 0.2 s on the host and a 120 MB copy)
-    positions = wp.empty(grid.n_active, dtype=wp.vec3d, device=device)
-    wp.launch(mvc.node_positions, dim=grid.n_active, inputs=[grid.device_arrays(device)["active_ijk"],
-                                                                wp.vec3d(*grid.origin), wp.float64(grid.spacing)],
-              outputs=[positions], device=device)
-    values = wp.empty((grid.n_active, n_columns), dtype=wp.float64, device=device)
-    _mvc_on_device(cage, grid.centre, positions, handles, device, out=values[:, 0 : stop - first])
+    if start is None:
+        # formed on the device from the nodes' coordinates there (at n = 512, 0.2 s on the host and a 120 MB copy)
+        positions = wp.empty(grid.n_active, dtype=wp.vec3d, device=device)
+        wp.launch(mvc.node_positions, dim=grid.n_active, inputs=[grid.device_arrays(device)["active_ijk"],
+                                                                    wp.vec3d(*grid.origin), wp.float64(grid.spacing)],
+                  outputs=[positions], device=device)
+        values = wp.empty((grid.n_active, n_columns), dtype=wp.float64, device=device)
+        _mvc_on_device(cage, grid.centre, positions, handles, device, out=values[:, 0 : stop - first])
+    else:  # rows beyond the table's (band rows, for the local data) take the local data below: zeros until then
+        values = wp.zeros((grid.n_active, n_columns), dtype=wp.float64, device=device)
+        wp.launch(mvc.copy_columns, dim=(start.shape[0], stop - first), inputs=[start, first], outputs=[values],
+                  device=device)
     if complement:
         wp.launch(mvc.complement_column, dim=grid.n_active, inputs=[stop - first], outputs=[values], device=device)
     arrays = grid.device_arrays(device)

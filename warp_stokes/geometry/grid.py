@@ -9,7 +9,7 @@ import warp as wp
 
 from .cage import Cage
 from .inside import WINDING_ACCURACY, cage_mesh
-from ..device import available_memory, memory_size, resolve_device
+from ..device import available_memory, in_threads, memory_size, resolve_device
 from ..errors import ResolutionError
 from ..kernels import labels as node_labels
 from ..kernels import stencil
@@ -232,7 +232,7 @@ def auto_resolution(cage: Cage, boundary="local", device=None, kind: str | None 
 
 
 def voxelize(cage: Cage, resolution: int = 64, device=None, max_rows: int = MAX_ROWS, memory_budget: int | None = None,
-             boundary="local") -> Grid:
+             boundary="local", threads: int | None = None) -> Grid:
     """Voxelise the inside of a cage: label grid nodes and number the active ones.
 
     Nodes whose generalised winding number exceeds 1/2 are inside the cage and, unless cut off (below), interior
@@ -262,6 +262,8 @@ def voxelize(cage: Cage, resolution: int = 64, device=None, max_rows: int = MAX_
     boundary : "local" | LocalData | "mvc"
         The boundary data the grid's known nodes will take (as in :func:`warp_stokes.bind`): with the local data,
         nodes cut off by thin wedges join the ring; with MVC data (global, the same on both sides) none do.
+    threads : int, optional
+        On a CPU, threads that classify slabs of nodes at once (default: every core; the same labels).
 
     Returns
     -------
@@ -310,12 +312,13 @@ def voxelize(cage: Cage, resolution: int = 64, device=None, max_rows: int = MAX_
     with wp.ScopedDevice(device):
         mesh = cage_mesh(cage, centre, device)
         inside = wp.empty(shape, dtype=wp.int8)
-        wp.launch(
-            voxel.classify_nodes,
-            dim=shape,
-            inputs=[mesh.id, wp.vec3(*origin.astype(np.float32)), float(spacing), WINDING_ACCURACY, 1e-5 * spacing],
-            outputs=[inside],
-        )
+
+        def classify(first: int, stop: int) -> None:  # the slab of nodes from i = first to stop
+            wp.launch(voxel.classify_nodes, dim=(stop - first, shape[1], shape[2]),
+                      inputs=[mesh.id, wp.vec3(*origin.astype(np.float32)), float(spacing), WINDING_ACCURACY,
+                              1e-5 * spacing, first], outputs=[inside], device=device)
+
+        in_threads(shape[0], classify, device, threads)
         cut_off = None if boundary == "mvc" else _wedge_cut_off(cage, mesh, inside, origin, spacing, boundary)
     grid = _number_nodes(inside, centre, origin, spacing, resolution, device, max_rows, cage.name, cut_off)
     grid.boundary = boundary

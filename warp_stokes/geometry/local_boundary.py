@@ -28,7 +28,7 @@ import numpy as np
 import warp as wp
 
 from .cage import FOLD_DEGREES, Cage, face_edges, folded_edges, unit_normals
-from ..device import resolve_device
+from ..device import in_threads, resolve_device
 from ..errors import WarpStokesError
 from .grid import Grid
 from ..kernels import local_boundary
@@ -162,6 +162,7 @@ _KEPT_DERIVATIVES: collections.OrderedDict = collections.OrderedDict()
 #: the data slopes of the kept cages (a bind asks three times: the wedge cut-off, resolution "auto", its warning)
 _KEPT_SLOPES: dict = {}
 _KEPT_LOCK = threading.Lock()
+_BLEND_LOCK = threading.Lock()
 #: faces x handles per group of faces whose (faces, handles) arrays are formed at once (2 MB per float64 array;
 #: the 4 x 4 systems' (faces, handles, 4) arrays 8 MB)
 FACE_GROUP_HANDLES = 1 << 18
@@ -386,20 +387,55 @@ def local_field(grid: Grid, cage: Cage, field: wp.array, rows: slice, handles: s
     device = resolve_device(device)
     first, stop, _ = handles.indices(cage.n_handles)
     start, end, _ = rows.indices(grid.n_active)
-    relative = cage.vertices - grid.centre
+    relative = wp.array(cage.vertices - grid.centre, dtype=wp.vec3d, device=device)
+    triangles = wp.array(cage.faces.astype(np.int32), dtype=wp.vec3i, device=device)
+    ijk = grid.device_arrays(device)["active_ijk"]
+    per_face = [wp.array(unit_normals(cage), dtype=wp.vec3d, device=device),
+                wp.array(_tangent_gradients(cage), dtype=wp.vec3d, device=device),
+                _kept_on(normal_derivatives(cage, settings, device), device)]
+    handles_args = [first, stop - first, int(complement)]
     with wp.ScopedDevice(device):
-        wp.launch(
-            local_boundary.local_field,
-            dim=end - start,
-            inputs=[grid.device_arrays(device)["active_ijk"], wp.empty(0, dtype=wp.vec3d), start,
-                    wp.vec3d(*grid.origin), wp.float64(grid.spacing), wp.float64(BLEND_BAND * grid.spacing), wp.array(relative, dtype=wp.vec3d),
-                    wp.array(cage.faces.astype(np.int32), dtype=wp.vec3i),
-                    wp.array(unit_normals(cage), dtype=wp.vec3d),
-                    wp.array(_tangent_gradients(cage), dtype=wp.vec3d),
-                    _kept_on(normal_derivatives(cage, settings, device), device), first, stop - first,
-                    int(complement)],
-            outputs=[field],
-        )
+        if device.is_cpu:
+            # the blend of each row found once, for every chunk of handles (the search over the faces was the
+            # boundary data's time, repeated per chunk)
+            table = blend_table(grid, cage, relative, triangles, start, end, device)
+            wp.launch(local_boundary.local_field_from_table, dim=end - start,
+                      inputs=[ijk, start, wp.vec3d(*grid.origin), wp.float64(grid.spacing), relative, triangles,
+                              *per_face, table, *handles_args], outputs=[field])
+            return
+        wp.launch(local_boundary.local_field, dim=end - start,
+                  inputs=[ijk, wp.empty(0, dtype=wp.vec3d), start, wp.vec3d(*grid.origin), wp.float64(grid.spacing),
+                          wp.float64(BLEND_BAND * grid.spacing), relative, triangles, *per_face, *handles_args],
+                  outputs=[field])
+
+
+#: bytes of a row's entry in :func:`blend_table` (a :class:`warp_stokes.kernels.local_boundary.Blend`)
+BLEND_ROW_BYTES = 296
+
+
+def blend_table(grid: Grid, cage: Cage, relative: wp.array, triangles: wp.array, start: int, end: int,
+                device, threads: int | None = None) -> wp.array:
+    """Each of the grid's active rows ``start`` to ``end``: the faces it blends, their shares and closest points
+    (:class:`warp_stokes.kernels.local_boundary.Blend`), formed once per grid, cage and rows on ``device`` (on a CPU
+    by ``threads`` threads, each a block of rows) and kept with the grid's device arrays (threads that form chunks'
+    fields at once wait for the first)."""
+    _, key = _kept_key(cage, LocalData(), None)
+    name = ("blend", start, end, key[2])
+    arrays = grid.device_arrays(device)
+    with _BLEND_LOCK:
+        table = arrays.get(name)
+        if table is None:
+            table = wp.empty(end - start, dtype=local_boundary.Blend, device=device)
+
+            def rows(a: int, b: int) -> None:  # the table's entries a to b (rows start + a to start + b)
+                wp.launch(local_boundary.blend_table, dim=b - a,
+                          inputs=[arrays["active_ijk"], start + a, wp.vec3d(*grid.origin), wp.float64(grid.spacing),
+                                  wp.float64(BLEND_BAND * grid.spacing), relative, triangles],
+                          outputs=[table[a:b]], device=device)
+
+            in_threads(end - start, rows, device, threads)
+            arrays[name] = table
+    return table
 
 
 def _kept_on(kept: np.ndarray, device) -> wp.array:

@@ -22,7 +22,8 @@ while the boundary data is formed. Threads that solve chunks at once on the CPU 
 arrays and columns (:meth:`MemoryEstimate.total`). On the CPU the host arrays live in the same memory and are
 counted too: the grid's (labels and index, 5 per lattice node, and 12 N_a), the weights of all handles (4 V per
 handle), the mesh as loaded and its per-vertex checks (about 120 V), the sampled columns' host copy (4 V per
-column), and the host's copy of the local data's normal derivatives, kept throughout.
+column), the host's copy of the local data's normal derivatives, kept throughout, and each ring and band row's blend
+of faces (296 bytes: :func:`warp_stokes.geometry.local_boundary.blend_table`), formed once for every chunk.
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ from ..geometry.boundary import COMPLEMENT_COLUMNS
 from ..device import available_memory, memory_size, resolve_device  # noqa: F401 (available_memory re-exported)
 from ..errors import ResolutionError
 from ..geometry.grid import DEVICE_NODE_BYTES, HOST_NODE_BYTES, Grid
+from ..geometry.local_boundary import BLEND_ROW_BYTES
 from . import multigrid
 from .multigrid import coarsest_nodes_for, hierarchy_bytes
 
@@ -142,6 +144,8 @@ def estimate_memory(grid: Grid, n_vertices: int = 0, preconditioner: str = "mult
         # the grid's host arrays; the weights of all handles; the mesh as loaded (float64 vertices, about two
         # int64 triangles per vertex), its classification and the vertex-sized arrays of the checks
         base += HOST_NODE_BYTES * nodes + 12 * n_act + 4 * n_v * int(n_handles) + 120 * n_v + kept
+        if kept:  # the local data's blend of each ring and band row, kept for every chunk
+            base += BLEND_ROW_BYTES * (n_act - n_int)
     field_bytes = VEC4 * n_act
     stages = [
         # boundary data: positions, MVC values in float64, the local data's normal derivatives (the device's copy;
@@ -222,11 +226,12 @@ def plan_chunks(estimate: MemoryEstimate, n_handles: int, budget: int, resolutio
 
 
 def plan_lanes(estimate: MemoryEstimate, n_handles: int, budget: int, resolution: int, lanes: int,
-               name: str = "the cage", partial: bool = False) -> tuple[list[slice], int]:
+               name: str = "the cage", partial: bool = False, lane_table: int = 0) -> tuple[list[slice], int]:
     """Chunks of handles for ``lanes`` threads that solve a chunk each at once, within the budget, and how many
     lanes run: one chunk per lane when all fit together, else smaller chunks taken in turn (fewer lanes where not
     even one handle per lane fits). Every chunk carries the complement column when there are several (or the range
-    is ``partial``); with one lane this is :func:`plan_chunks`.
+    is ``partial``); with one lane this is :func:`plan_chunks`. ``lane_table``: bytes that several lanes share
+    and one does not need (the starting values of every handle).
 
     Raises
     ------
@@ -244,14 +249,15 @@ def plan_lanes(estimate: MemoryEstimate, n_handles: int, budget: int, resolution
     """
     lanes = max(1, min(int(lanes), n_handles))
     extra = COMPLEMENT_COLUMNS if partial else 0
+    budget_of_lanes = budget - lane_table
     while lanes > 1:
-        if estimate.total(n_handles + lanes * COMPLEMENT_COLUMNS, lanes) <= budget:
+        if estimate.total(n_handles + lanes * COMPLEMENT_COLUMNS, lanes) <= budget_of_lanes:
             return _split(n_handles, lanes), lanes  # one chunk per lane
         # the most columns that fit at once, shared by the lanes, each chunk with its complement column
         lo, hi = 0, n_handles + lanes * COMPLEMENT_COLUMNS
         while lo < hi:
             mid = (lo + hi + 1) // 2
-            lo, hi = (mid, hi) if estimate.total(mid, lanes) <= budget else (lo, mid - 1)
+            lo, hi = (mid, hi) if estimate.total(mid, lanes) <= budget_of_lanes else (lo, mid - 1)
         per_chunk = lo // lanes - COMPLEMENT_COLUMNS
         if per_chunk >= 1:
             # balanced, in rounds that keep every lane busy
