@@ -2,8 +2,8 @@
 
     python benchmarks/bench_coarsest.py --pairs arm ogre --limits 400 100 --resolutions 16 24 32 48 64 --device cpu
 
-Each (pair, limit) in a fresh process, the resolutions coarsest first, each bind's peak measured as ``sweep``
-measures it (on a CPU: the process's peak resident set above its size at the bind's start, freed heap handed back
+Each (pair, limit) in a fresh process, the resolutions coarsest first, each bind on one thread, its peak measured as
+``sweep`` measures it (on a CPU: the process's peak resident set above its size at the bind's start, freed heap handed back
 first). Prints a Markdown table: levels' sizes, seconds (total, setup, solve), CG iterations, peak and estimated
 memory, and the largest weight difference against the first limit's weights at the same resolution.
 """
@@ -38,12 +38,12 @@ def _one(pair: str, limit: int, resolutions: list[int], device: str, folder: str
     columns.coarsen = lambda grid, device=None, coarsest_nodes=None: coarsen(grid, device, coarsest_nodes=limit)
     mesh, cage = pair_files(pair)
     warnings.simplefilter("ignore")
-    ws.bind(mesh, cage, resolution=16, device=device)  # kernels loaded, BLAS started
+    ws.bind(mesh, cage, resolution=16, device=device, threads=1)  # kernels loaded, BLAS started
     rows = []
     for n in resolutions:
         peak = _PeakMemory(wp.get_device(device))
         start = time.perf_counter()
-        b = ws.bind(mesh, cage, resolution=n, device=device)
+        b = ws.bind(mesh, cage, resolution=n, device=device, threads=1)
         seconds = time.perf_counter() - start
         np.save(os.path.join(folder, f"{pair}_{limit}_{n}.npy"), b.weights)
         s = b.stats

@@ -83,7 +83,7 @@ def test_the_peak_memory_column_is_each_binds_own_on_a_cpu():
     its dense inverse (host work that does not shrink with the grid) stays below the grid's own arrays (at 400
     nodes it did not: 41 / 13 / 47 MB at n = 16 / 24 / 32)."""
     rows = sweep(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", [16, 20, 24, 32, 48], methods=["stokes", "harmonic"],
-                 device="cpu", threads=1)
+                 device="cpu")  # on one thread unless told otherwise
     for method in ("stokes", "harmonic"):
         mine = [row for row in rows if row["method"] == method]
         for row in mine:

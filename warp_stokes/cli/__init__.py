@@ -223,8 +223,8 @@ def _add_sweep(sub) -> None:
     p.add_argument("-o", "--output", required=True, help="folder for sweep.csv and sweep.json")
     p.add_argument("--device", default=None, help="cpu, cuda or cuda:N")
     p.add_argument("--tol", type=_number(float, 0.0, 0.1, low_open=True), default=1e-6, help="solver tolerance")
-    p.add_argument("--threads", type=_number(int, 1), default=None,
-                   help="on a CPU, threads per bind (default: every core; 1: peak memory the same from run to run)")
+    p.add_argument("--threads", type=_number(int, 1), default=1,
+                   help="on a CPU, threads per bind (default 1: each row's peak memory the same from run to run)")
     p.set_defaults(run=commands.sweep_command)
 
 
