@@ -123,11 +123,13 @@ def cpu_threads(threads: int | None = None) -> int:
         return max(1, os.cpu_count() or 1)
 
 
-def in_threads(n: int, work, device=None, threads: int | None = None) -> None:
+def in_threads(n: int, work, device=None, threads: int | None = None, modules=()) -> None:
     """``work(start, stop)`` over consecutive ranges that cover ``range(n)``: on a CPU shared out between ``threads``
     threads (default :func:`cpu_threads`; Warp runs a CPU launch on the thread that makes it, without the GIL, so
     launches over disjoint ranges run at once), elsewhere once over all of it. Warp's default device is one for all
-    threads: it is held at ``device`` meanwhile, so that a scope inside ``work`` finds and restores that.
+    threads: it is held at ``device`` meanwhile, so that a scope inside ``work`` finds and restores that. The kernel
+    modules ``work`` launches (names as in :data:`KERNEL_MODULES`) are loaded first, on this thread: Warp's module
+    loading is not made for several threads at once.
 
     Examples
     --------
@@ -144,6 +146,8 @@ def in_threads(n: int, work, device=None, threads: int | None = None) -> None:
         return
     from concurrent.futures import ThreadPoolExecutor
 
+    if modules:
+        compile_kernels(d, modules=modules)
     size = -(-n // lanes)
     ranges = [(a, min(a + size, n)) for a in range(0, n, size)]
     with wp.ScopedDevice(d), ThreadPoolExecutor(max_workers=lanes, thread_name_prefix="warp-stokes") as pool:

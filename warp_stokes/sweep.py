@@ -128,7 +128,7 @@ def sweep(mesh, cage, resolutions, methods=("stokes",), pose=None, device=None, 
     threads : int or None
         A CPU bind's threads: one by default, so that each row's peak memory is the same from run to run and grows
         with the resolution; None for every core (faster; a bind's peak then depends on how the threads' stages
-        overlap: up to the estimate and, measured on 16 threads, 0.4 MB a thread beyond it at small grids).
+        overlap, up to the estimate).
 
     Returns
     -------

@@ -132,6 +132,7 @@ def run_on_ray(assets, outdir: str, manifest, force: bool, device, progress, wor
     """Bind the assets as Ray tasks; the results in manifest order (see the module docstring)."""
     ray = require_ray()
     ray_started = _start(ray, workers, address, device)
+    started = None
     try:
         options, task_device, threads = _task_options(ray, workers, device, local=ray_started and address is None)
         task = ray.remote(_bind_task).options(max_retries=TASK_RETRIES, retry_exceptions=False, **options)
@@ -164,7 +165,9 @@ def run_on_ray(assets, outdir: str, manifest, force: bool, device, progress, wor
                 events.append((began[k] + result.seconds if k in began else time.time(), 1, k, result))
             for _, _, k, what in sorted(events, key=lambda e: e[:3]):
                 if isinstance(what, tuple):  # started
-                    again = k in running or results[k] is not None  # Ray runs a task again after its worker died
+                    if results[k] is not None:  # Ray ran a finished task again (to rebuild a lost result): not said
+                        continue
+                    again = k in running  # Ray runs a task again after its worker died
                     running.add(k)
                     print(f"[{done}/{total} done, {len(running)} running, {failed} failed] {assets[k].name}: "
                           f"{'started again' if again else 'started'} ({what[0]} pid {what[1]})", file=progress,
@@ -181,10 +184,10 @@ def run_on_ray(assets, outdir: str, manifest, force: bool, device, progress, wor
         for stale in glob.glob(os.path.join(outdir, ".tmp-*")):
             with contextlib.suppress(OSError):
                 os.unlink(stale)
-        if started is not None:
-            with contextlib.suppress(Exception):
-                started.shutdown()
         return results
     finally:
+        if started is not None:  # the queue's actor, also when the batch fails in a cluster that stays up
+            with contextlib.suppress(Exception):
+                started.shutdown()
         if ray_started:
             ray.shutdown()

@@ -18,10 +18,10 @@ import numpy as np
 import warp as wp
 
 from ..geometry.boundary import COMPLEMENT_COLUMNS, boundary_field, start_rows, start_values
-from ..geometry.local_boundary import boundary_settings, local_data_bytes
+from ..geometry.local_boundary import blend_table, boundary_settings, local_data_bytes
 from ..geometry.cage import Cage
 from ..geometry.grid import voxelize
-from ..device import cpu_threads
+from ..device import BIND_MODULES, compile_kernels, cpu_threads
 from ..solver.budget import available_memory, chunk_columns, estimate_memory, plan_lanes
 from ..solver.multigrid import Multigrid, coarsen
 from ..solver.solve import solve_biharmonic
@@ -58,7 +58,8 @@ class GridColumns:
     coarsest : dict or None, the multigrid's coarsest operator (``Multigrid.coarsest``: unknowns, condition, ...)
     chunks : int, chunks the range was solved in
     threads : int, chunks solved at once (threads, on a CPU)
-    memory_estimate : int, bytes the plan counted for the largest chunk
+    memory_estimate : int, bytes the plan counted: the largest chunk, on each thread (lane) at once, and the tables
+        the lanes share
     seconds : dict, time by phase: voxelize, setup, boundary, solve, sample
     devices : list of dict, where the range was solved when a bind spreads over several devices (empty otherwise)
     warnings : list of str, what the range's solve warned of, where it ran in another process (a spread bind)
@@ -140,7 +141,13 @@ def grid_columns(checked: Cage, points: np.ndarray, resolution: int, device, han
     if lanes > 1:
         t = time.perf_counter()
         tell("boundary data", threads=lanes)
+        # the modules the lanes launch, loaded here: Warp's module loading is not made for several threads at once
+        compile_kernels(device, modules=BIND_MODULES + (("laplace",) if equation == "laplace" else ()))
         starts = start_values(grid, checked, device=device, threads=lanes, data=boundary)
+        if boundary_settings(boundary) != "mvc":  # the rows' blend of faces, formed on every thread before the lanes
+            blend_table(grid, checked, slice(grid.n_interior, grid.n_active), device, threads=lanes)
+        if solver == "multigrid":
+            preconditioner.coarse_inverse  # formed once, before the lanes' views share it
         seconds["start_values"] = time.perf_counter() - t
 
     lanes_own = threading.local()  # each lane's view of the multigrid (its work vectors and smoother bounds)
@@ -154,7 +161,7 @@ def grid_columns(checked: Cage, points: np.ndarray, resolution: int, device, han
         t = time.perf_counter()
         tell("boundary data", **part_of(k))
         field_ = boundary_field(grid, checked, device=device, handles=chunks[k], complement=complement,
-                                data=boundary, start=starts)
+                                data=boundary, start=starts, threads=lanes)
         wp.synchronize_device(device)
         return field_, time.perf_counter() - t
 

@@ -198,7 +198,7 @@ def bind(mesh, cage=None, resolution="auto", device=None, tol: float = 1e-6, max
             first = sum(part.seconds.values())
             choice["thin_parts"] = suggestion
             try:
-                part, resolution = _columns_for(columns, finer, choice)
+                part, resolution = _columns_for(columns, finer, choice, floor=resolution)
             except ResolutionError:  # none finer fits the memory: the first bind stands
                 choice["memory_fits"] = resolution
             else:
@@ -239,11 +239,12 @@ def bind(mesh, cage=None, resolution="auto", device=None, tol: float = 1e-6, max
                    mesh_polygons=surface.polygons(), mesh_uvs=surface.uvs, parts=parts_record(scene), asset=asset_record(scene))
 
 
-def _columns_for(columns, resolution: int, choice: dict):
+def _columns_for(columns, resolution: int, choice: dict, floor: int = 0):
     """``columns(resolution)``, and the resolution it was solved at. For resolution "auto" (``choice`` has
     "chosen"), a grid the cage is too thin for is tried finer (within the cap and the memory), and one the memory
-    budget cannot hold is tried coarser (down to :data:`AUTO_MEMORY_FLOOR`); ``choice`` records what was chosen.
-    Other resolution errors, and every one of an explicit resolution, are raised."""
+    budget cannot hold is tried coarser (down to :data:`AUTO_MEMORY_FLOOR`, and above ``floor``: a finer bind tried
+    after one that worked never ends coarser than it); ``choice`` records what was chosen. Other resolution errors,
+    and every one of an explicit resolution, are raised."""
     while True:
         try:
             return columns(resolution), resolution
@@ -256,7 +257,7 @@ def _columns_for(columns, resolution: int, choice: dict):
             if finer > resolution:
                 choice["needed"] = max(choice["needed"], error.suggested)
                 resolution = finer
-            elif AUTO_MEMORY_FLOOR <= coarser < resolution:
+            elif max(AUTO_MEMORY_FLOOR, floor + 1) <= coarser < resolution:
                 resolution = choice["memory_fits"] = coarser
             else:
                 raise

@@ -104,12 +104,13 @@ def start_values(grid: Grid, cage: Cage, device=None, threads: int | None = None
               outputs=[positions], device=device)
     values = wp.empty((rows, cage.n_handles), dtype=wp.float64, device=device)
     in_threads(rows, lambda a, b: _mvc_on_device(cage, grid.centre, positions[a:b], slice(None), device,
-                                                 out=values[a:b]), device, threads)
+                                                 out=values[a:b]), device, threads, modules=("mvc",))
     return values
 
 
 def boundary_field(grid: Grid, cage: Cage, device=None, handles: slice = slice(None),
-                   complement: bool = False, data=None, start: wp.array | None = None) -> wp.array:
+                   complement: bool = False, data=None, start: wp.array | None = None,
+                   threads: int | None = None) -> wp.array:
     """The packed (q, G) field of every handle at every active node: the boundary data at ring and band nodes.
 
     Parameters
@@ -132,6 +133,9 @@ def boundary_field(grid: Grid, cage: Cage, device=None, handles: slice = slice(N
     start : wp.array, optional
         :func:`start_values` of this grid, cage and data: the chunk's mean value coordinates are copied from it
         instead of computed (the same values).
+    threads : int, optional
+        On a CPU, threads that form the local data's blend of faces for the grid's rows, the first time
+        (default: every core).
 
     Returns
     -------
@@ -174,7 +178,8 @@ def boundary_field(grid: Grid, cage: Cage, device=None, handles: slice = slice(N
     if data != "mvc":
         # ring and band rows take the local data; the interior keeps the MVC field as its starting guess (exact
         # too, and smooth: starting from the local data's Taylor extension took twice the iterations)
-        local_field(grid, cage, field, slice(grid.n_interior, grid.n_active), handles, complement, data, device)
+        local_field(grid, cage, field, slice(grid.n_interior, grid.n_active), handles, complement, data, device,
+                    threads=threads)
     return field
 
 

@@ -318,7 +318,7 @@ def voxelize(cage: Cage, resolution: int = 64, device=None, max_rows: int = MAX_
                       inputs=[mesh.id, wp.vec3(*origin.astype(np.float32)), float(spacing), WINDING_ACCURACY,
                               1e-5 * spacing, first], outputs=[inside], device=device)
 
-        in_threads(shape[0], classify, device, threads)
+        in_threads(shape[0], classify, device, threads, modules=("voxel",))
         cut_off = None if boundary == "mvc" else _wedge_cut_off(cage, mesh, inside, origin, spacing, boundary)
     grid = _number_nodes(inside, centre, origin, spacing, resolution, device, max_rows, cage.name, cut_off)
     grid.boundary = boundary

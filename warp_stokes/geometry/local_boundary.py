@@ -365,7 +365,8 @@ def _tangent_gradients(cage: Cage) -> np.ndarray:
 
 
 def local_field(grid: Grid, cage: Cage, field: wp.array, rows: slice, handles: slice = slice(None),
-                complement: bool = False, settings: LocalData = LocalData(), device=None) -> None:
+                complement: bool = False, settings: LocalData = LocalData(), device=None,
+                threads: int | None = None) -> None:
     """Write the local data (q, G = h grad q) of ``handles`` into ``field``'s active rows ``rows``.
 
     Parameters
@@ -378,6 +379,7 @@ def local_field(grid: Grid, cage: Cage, field: wp.array, rows: slice, handles: s
     complement : bool, the column after them stands for the rest of the cage (see ``boundary_field``)
     settings : LocalData
     device : None | str
+    threads : int, optional, on a CPU the threads that form the rows' blend table the first time (every core)
 
     Examples
     --------
@@ -398,7 +400,7 @@ def local_field(grid: Grid, cage: Cage, field: wp.array, rows: slice, handles: s
         if device.is_cpu:
             # the blend of each row found once, for every chunk of handles (the search over the faces was the
             # boundary data's time, repeated per chunk)
-            table = blend_table(grid, cage, relative, triangles, start, end, device)
+            table = blend_table(grid, cage, slice(start, end), device, threads)
             wp.launch(local_boundary.local_field_from_table, dim=end - start,
                       inputs=[ijk, start, wp.vec3d(*grid.origin), wp.float64(grid.spacing), relative, triangles,
                               *per_face, table, *handles_args], outputs=[field])
@@ -413,12 +415,21 @@ def local_field(grid: Grid, cage: Cage, field: wp.array, rows: slice, handles: s
 BLEND_ROW_BYTES = 296
 
 
-def blend_table(grid: Grid, cage: Cage, relative: wp.array, triangles: wp.array, start: int, end: int,
-                device, threads: int | None = None) -> wp.array:
-    """Each of the grid's active rows ``start`` to ``end``: the faces it blends, their shares and closest points
+def blend_table(grid: Grid, cage: Cage, rows: slice, device=None, threads: int | None = None) -> wp.array:
+    """Each of the grid's active rows ``rows``: the faces it blends, their shares and closest points
     (:class:`warp_stokes.kernels.local_boundary.Blend`), formed once per grid, cage and rows on ``device`` (on a CPU
-    by ``threads`` threads, each a block of rows) and kept with the grid's device arrays (threads that form chunks'
-    fields at once wait for the first)."""
+    by ``threads`` threads, each a block of rows) and kept with the grid's device arrays.
+
+    Examples
+    --------
+    >>> table = blend_table(grid, cage, slice(grid.n_interior, grid.n_active), "cpu")  # doctest: +SKIP
+    >>> table.shape[0] == grid.n_ring + grid.n_band                                    # doctest: +SKIP
+    True
+    """
+    device = resolve_device(device)
+    start, end, _ = rows.indices(grid.n_active)
+    relative = wp.array(cage.vertices - grid.centre, dtype=wp.vec3d, device=device)
+    triangles = wp.array(cage.faces.astype(np.int32), dtype=wp.vec3i, device=device)
     _, key = _kept_key(cage, LocalData(), None)
     name = ("blend", start, end, key[2])
     arrays = grid.device_arrays(device)
@@ -433,7 +444,7 @@ def blend_table(grid: Grid, cage: Cage, relative: wp.array, triangles: wp.array,
                                   wp.float64(BLEND_BAND * grid.spacing), relative, triangles],
                           outputs=[table[a:b]], device=device)
 
-            in_threads(end - start, rows, device, threads)
+            in_threads(end - start, rows, device, threads, modules=("local_boundary",))
             arrays[name] = table
     return table
 

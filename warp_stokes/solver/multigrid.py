@@ -400,8 +400,10 @@ class Multigrid:
         coarsest inverse and eigenvalue estimates, its own work vectors and smoother bounds (a lane whose solve
         recovers from a fault by guaranteed bounds changes them for itself, not in the middle of another lane's
         cycles)."""
+        self.coarse_inverse  # formed (or waited for) once, here: every view shares it
         view = copy.copy(self)
         view.levels = [dataclasses.replace(lev, work={}) for lev in self.levels]
+        view.seconds = dict(self.seconds)
         return view
 
     def _smooth(self, depth: int, b: wp.array, x: wp.array, r: wp.array, d: wp.array, x_is_zero: bool,
