@@ -150,8 +150,9 @@ def test_auto_binds_at_the_finest_grid_the_memory_budget_holds_and_says_so_once(
     more does), one warning naming the budget, what the cage asks for and why, recorded in the stats."""
     mesh = ws.load_surface(EXAMPLE / "arm.obj")
     needed = grid_module.wedge_resolution(arm_cage, device="cpu")
-    one_handle = {n: _one_handle_bytes(arm_cage, len(mesh.vertices), n) for n in (32, 48)}
-    budget = (one_handle[32] + one_handle[48]) // 2
+    one_handle = {n: _one_handle_bytes(arm_cage, len(mesh.vertices), n) for n in (24, 32)}
+    assert one_handle[24] < one_handle[32]
+    budget = (one_handle[24] + one_handle[32]) // 2
     with pytest.raises(ws.ResolutionError, match=f"resolution {needed} .* MiB .* or less would fit"):
         ws.bind(mesh, arm_cage, resolution=needed, device="cpu", memory_budget=budget)
     with pytest.warns(UserWarning) as caught:
@@ -159,7 +160,7 @@ def test_auto_binds_at_the_finest_grid_the_memory_budget_holds_and_says_so_once(
     said = [str(w.message) for w in caught]
     assert len(said) == 1, said
     choice = b.stats["resolution"]
-    assert 32 <= choice["chosen"] == choice["memory_fits"] == b.settings["resolution"] < 48
+    assert 24 <= choice["chosen"] == choice["memory_fits"] == b.settings["resolution"] < 32
     assert choice["needed"] == needed and choice["memory_budget_bytes"] == budget
     assert _one_handle_bytes(arm_cage, len(mesh.vertices), choice["chosen"]) <= budget
     assert b.stats["memory_estimate_bytes"] <= budget
