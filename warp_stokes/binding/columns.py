@@ -165,7 +165,8 @@ def grid_columns(checked: Cage, points: np.ndarray, resolution: int, device, han
         wp.synchronize_device(device)
         return field_, time.perf_counter() - t
 
-    def solve(k: int, field_) -> "SolveReport":
+    def solve(k: int, field_):
+        """Chunk k's solve, on this thread's view of the multigrid; its report."""
         mine = preconditioner
         if lanes > 1 and solver == "multigrid":
             if getattr(lanes_own, "multigrid", None) is None:
