@@ -46,18 +46,11 @@ def _peak_reset() -> None:
         fh.write("5")
 
 
-def _peak_bytes() -> int:
+def _status_bytes(key: str) -> int:
+    """A field of /proc/self/status in bytes (VmHWM: the peak resident set since the reset; VmRSS: the current one)."""
     with open("/proc/self/status") as fh:
         for line in fh:
-            if line.startswith("VmHWM:"):
-                return int(line.split()[1]) * 1024
-    return 0
-
-
-def _rss_bytes() -> int:
-    with open("/proc/self/status") as fh:
-        for line in fh:
-            if line.startswith("VmRSS:"):
+            if line.startswith(key + ":"):
                 return int(line.split()[1]) * 1024
     return 0
 
@@ -88,12 +81,12 @@ def _blender_case(pair: dict, n: int) -> dict:
     modifier.precision = precision
     bpy.context.view_layer.objects.active = obj
     _peak_reset()
-    base = _rss_bytes()
+    base = _status_bytes("VmRSS")
     start = time.perf_counter()
     with bpy.context.temp_override(object=obj, active_object=obj):
         bpy.ops.object.meshdeform_bind(modifier=modifier.name)
     seconds = time.perf_counter() - start
-    peak = _peak_bytes() - base
+    peak = _status_bytes("VmHWM") - base
     if not modifier.is_bound:
         raise RuntimeError("Blender's Mesh Deform did not bind")
     cage_data.vertices.foreach_set("co", np.asarray(pair["pose"], dtype=np.float32).ravel())
@@ -115,11 +108,11 @@ def _warp_stokes_case(pair: dict, n: int, threads: int, method: str) -> dict:
         warnings.simplefilter("ignore")
         ws.bind(mesh, cage, resolution=16, device="cpu", threads=threads, method=method)  # the kernels loaded
         _peak_reset()
-        base = _rss_bytes()
+        base = _status_bytes("VmRSS")
         start = time.perf_counter()
         binding = ws.bind(mesh, cage, resolution=n, device="cpu", threads=threads, method=method)
         seconds = time.perf_counter() - start
-        peak = _peak_bytes() - base
+        peak = _status_bytes("VmHWM") - base
     deformed = binding.deform(pair["pose"])
     return dict(tool=f"warp-stokes {method}", grid=f"{n} (cells along the longest axis)", seconds=seconds, peak=peak,
                 deformed=np.asarray(deformed, dtype=np.float64), iterations=binding.stats["iterations"])

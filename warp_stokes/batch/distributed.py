@@ -87,9 +87,13 @@ def _task_options(ray, workers: int | None, device, local: bool) -> tuple[dict, 
     return {"num_gpus": 0, "num_cpus": 1}, "cpu" if device is None else device, threads
 
 
+def _counts(done: int, total: int, running: int, failed: int) -> str:
+    return f"[{done}/{total} done, {running} running, {failed} failed]"
+
+
 def _line(stream, done: int, total: int, running: int, failed: int, result: Result) -> None:
     where = f"{result.host} pid {result.pid}" + (f" {result.device}" if result.device else "")
-    print(f"[{done}/{total} done, {running} running, {failed} failed] {result.name}: {result.status} "
+    print(f"{_counts(done, total, running, failed)} {result.name}: {result.status} "
           f"({where}, {result.seconds:.1f} s)" + (f": {result.error}" if result.error else ""), file=stream,
           flush=True)
 
@@ -169,7 +173,7 @@ def run_on_ray(assets, outdir: str, manifest, force: bool, device, progress, wor
                         continue
                     again = k in running  # Ray runs a task again after its worker died
                     running.add(k)
-                    print(f"[{done}/{total} done, {len(running)} running, {failed} failed] {assets[k].name}: "
+                    print(f"{_counts(done, total, len(running), failed)} {assets[k].name}: "
                           f"{'started again' if again else 'started'} ({what[0]} pid {what[1]})", file=progress,
                           flush=True)
                     continue

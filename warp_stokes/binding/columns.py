@@ -147,7 +147,7 @@ def grid_columns(checked: Cage, points: np.ndarray, resolution: int, device, han
         if boundary_settings(boundary) != "mvc":  # the rows' blend of faces, formed on every thread before the lanes
             blend_table(grid, checked, slice(grid.n_interior, grid.n_active), device, threads=lanes)
         if solver == "multigrid":
-            preconditioner.coarse_inverse  # formed once, before the lanes' views share it
+            preconditioner.coarse_inverse  # formed here: the lanes' views, made on their threads, share it
         seconds["start_values"] = time.perf_counter() - t
 
     lanes_own = threading.local()  # each lane's view of the multigrid (its work vectors and smoother bounds)

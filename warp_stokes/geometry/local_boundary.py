@@ -428,14 +428,14 @@ def blend_table(grid: Grid, cage: Cage, rows: slice, device=None, threads: int |
     """
     device = resolve_device(device)
     start, end, _ = rows.indices(grid.n_active)
-    relative = wp.array(cage.vertices - grid.centre, dtype=wp.vec3d, device=device)
-    triangles = wp.array(cage.faces.astype(np.int32), dtype=wp.vec3i, device=device)
     _, key = _kept_key(cage, LocalData(), None)
     name = ("blend", start, end, key[2])
     arrays = grid.device_arrays(device)
     with _BLEND_LOCK:
         table = arrays.get(name)
         if table is None:
+            relative = wp.array(cage.vertices - grid.centre, dtype=wp.vec3d, device=device)
+            triangles = wp.array(cage.faces.astype(np.int32), dtype=wp.vec3i, device=device)
             table = wp.empty(end - start, dtype=local_boundary.Blend, device=device)
 
             def rows(a: int, b: int) -> None:  # the table's entries a to b (rows start + a to start + b)
