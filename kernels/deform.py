@@ -2,6 +2,9 @@
 
 import warp as wp
 
+# no kernel of the package is differentiated: without adjoints a first run compiles in half the time
+wp.set_module_options({"enable_backward": False})
+
 
 @wp.kernel
 def deform_vertices(

@@ -7,6 +7,9 @@ atomically: V / block partial sums per entry instead of V sequential ones.
 
 import warp as wp
 
+# no kernel of the package is differentiated: without adjoints a first run compiles in half the time
+wp.set_module_options({"enable_backward": False})
+
 
 @wp.kernel
 def gram(weights: wp.array2d(dtype=wp.float32), block: int, out: wp.array2d(dtype=wp.float64)):

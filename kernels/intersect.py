@@ -2,6 +2,9 @@
 
 import warp as wp
 
+# no kernel of the package is differentiated: without adjoints a first run compiles in half the time
+wp.set_module_options({"enable_backward": False})
+
 
 @wp.func
 def segment_crosses_triangle(p: wp.vec3d, q: wp.vec3d, a: wp.vec3d, b: wp.vec3d, c: wp.vec3d, eps: wp.float64):

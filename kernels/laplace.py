@@ -14,6 +14,9 @@ second-order accurate, which is what the Hermite sampling reads.
 
 import warp as wp
 
+# no kernel of the package is differentiated: without adjoints a first run compiles in half the time
+wp.set_module_options({"enable_backward": False})
+
 from .stencil import node_value
 
 
@@ -21,7 +24,7 @@ def laplace_kernel(scalar):
     """The batched 7-point operator with the value equation's sums in `scalar` (wp.float64 for residuals,
     wp.float32 for Krylov and smoothing steps); launch (interior rows, handles)."""
 
-    @wp.kernel(module="unique")
+    @wp.kernel(module="unique", enable_backward=False)
     def apply_laplacian(
         field: wp.array2d(dtype=wp.vec4f),
         index: wp.array3d(dtype=wp.int32),

@@ -14,6 +14,9 @@ the nearest face changes (medial surfaces, convex edges), and the same on every 
 
 import warp as wp
 
+# no kernel of the package is differentiated: without adjoints a first run compiles in half the time
+wp.set_module_options({"enable_backward": False})
+
 
 @wp.func
 def closest_on_triangle(p: wp.vec3d, a: wp.vec3d, b: wp.vec3d, c: wp.vec3d):

@@ -6,6 +6,9 @@ equal the piecewise linear hat functions on it: the boundary data of Stokes cage
 
 import warp as wp
 
+# no kernel of the package is differentiated: without adjoints a first run compiles in half the time
+wp.set_module_options({"enable_backward": False})
+
 
 @wp.func
 def half_angle(u: wp.vec3d, v: wp.vec3d):
