@@ -11,6 +11,9 @@ nodes come first, so row n < n_interior is interior node n.
 
 import warp as wp
 
+# no kernel of the package is differentiated: without adjoints a first run compiles in half the time
+wp.set_module_options({"enable_backward": False})
+
 
 @wp.func
 def node_value(field: wp.array2d(dtype=wp.vec4f), index: wp.array3d(dtype=wp.int32), n_rows: int, i: int, j: int,
@@ -164,7 +167,7 @@ def operator_kernel(scalar, patch=(PATCH_I, PATCH_J), residual: bool = False, ch
             below = mid
             mid = above
 
-    @wp.kernel(module="unique")
+    @wp.kernel(module="unique", enable_backward=False)
     def apply_operator(
         field: wp.array2d(dtype=wp.vec4f),
         index: wp.array3d(dtype=wp.int32),
@@ -184,7 +187,7 @@ def operator_kernel(scalar, patch=(PATCH_I, PATCH_J), residual: bool = False, ch
             return
         walk(field, index, n_rows, patches[s], h, out, APPLY, out, wp.float32(0.0), wp.float32(0.0), out)
 
-    @wp.kernel(module="unique")
+    @wp.kernel(module="unique", enable_backward=False)
     def residual_operator(
         field: wp.array2d(dtype=wp.vec4f),
         index: wp.array3d(dtype=wp.int32),
@@ -201,7 +204,7 @@ def operator_kernel(scalar, patch=(PATCH_I, PATCH_J), residual: bool = False, ch
             return
         walk(field, index, n_rows, patches[s], h, rhs, RESIDUAL, out, wp.float32(0.0), wp.float32(0.0), out)
 
-    @wp.kernel(module="unique")
+    @wp.kernel(module="unique", enable_backward=False)
     def chebyshev_operator(
         field: wp.array2d(dtype=wp.vec4f),
         index: wp.array3d(dtype=wp.int32),
@@ -235,6 +238,9 @@ residual_operator_fast = operator_kernel(wp.float32, residual=True)
 #: a Chebyshev smoothing step from b - A x in one pass (float32 sums), the same numbers as the residual kernel and
 #: ``multigrid.chebyshev_step`` in turn, without writing and reading back the residual
 chebyshev_step_fast = operator_kernel(wp.float32, patch=STEP_PATCH, chebyshev=True)
+#: the walks a bind launches on a GPU only (a CPU runs ``stencil_cpu``'s node loops): a first run on a CPU does not
+#: compile them
+CUDA_ONLY = (apply_operator, apply_operator_fast, residual_operator_fast, chebyshev_step_fast)
 
 
 @wp.kernel

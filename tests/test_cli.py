@@ -123,7 +123,7 @@ def test_a_first_run_says_it_compiles_the_kernels(tmp_path, monkeypatch, capsys)
     empty.mkdir()
     monkeypatch.setattr(wp.config, "kernel_cache_dir", str(empty))
     assert not device.kernels_compiled("cpu")  # nothing compiled in this cache
-    for module, _ in device._warp_modules(device.KERNEL_MODULES):  # a cache with every module's CPU object file
+    for module, _ in device._warp_modules(device.KERNEL_MODULES, ws.resolve_device("cpu")):  # every CPU object file
         (empty / f"wp_{module.name}_abc1234").mkdir()
         (empty / f"wp_{module.name}_abc1234" / f"wp_{module.name}.cpu1.o").write_text("")
     assert device.kernels_compiled("cpu")
@@ -140,31 +140,45 @@ def test_a_first_run_says_it_compiles_the_kernels(tmp_path, monkeypatch, capsys)
 
 
 def test_kernels_compiled_at_once_are_the_ones_the_launches_use(tmp_path, monkeypatch):
-    """compile_kernels fills an empty cache with a module's kernels, its stencil walks (compiled alone, launched in
-    blocks of their own size) included: the launches after it compile nothing more."""
+    """compile_kernels fills an empty cache with a module's kernels, those compiled alone (the CPU's node loops)
+    included, and leaves out the GPU's patch walks on a CPU: the launches after it compile nothing more."""
     import warp as wp
 
     import warp_stokes.device as device
-    from warp_stokes.solver.operator import apply_operator
+    from warp_stokes.kernels import stencil
+    from warp_stokes.solver.operator import apply_operator, chebyshev_step
 
+    cpu = ws.resolve_device("cpu")
     mask = np.zeros((12, 12, 12), bool)
     mask[5:7, 5:7, 5:7] = True
     grid = ws.grid_from_mask(mask, device="cpu")  # with the suite's cache (the voxel kernels)
     monkeypatch.setattr(wp.config, "kernel_cache_dir", str(tmp_path))
-    walks = [m for m, block_dim in device._warp_modules(("stencil",)) if block_dim is not None]
-    assert len(walks) >= 3 and not device.kernels_compiled("cpu", ("cg", "stencil"))
-    for module, _ in device._warp_modules(("cg", "stencil")):  # loaded by earlier tests: as in a fresh process
+    modules = ("cg", "stencil", "stencil_cpu")
+    found = device._warp_modules(modules, cpu)
+    alone = [m for m, _ in found if not m.name.startswith("warp_stokes.kernels.")]
+    assert len(alone) >= 4 and not device.kernels_compiled("cpu", modules)
+    assert not any(k.module is m for k in stencil.CUDA_ONLY for m, _ in found)  # walks: a GPU's only
+    assert {k.module for k in stencil.CUDA_ONLY} <= {m for m, _ in device._warp_modules(modules, FakeCuda())}
+    for module, _ in found:  # loaded by earlier tests: as in a fresh process
         module.unload()
-    device.compile_kernels("cpu", ("cg", "stencil"), workers=2)
-    assert device.kernels_compiled("cpu", ("cg", "stencil"))
+    device.compile_kernels("cpu", modules, workers=2)
+    assert device.kernels_compiled("cpu", modules)
     compiled = sorted(p.name for p in tmp_path.iterdir())
     field = wp.zeros((grid.n_active, 2), dtype=wp.vec4f, device="cpu")
     out = wp.empty((grid.n_interior, 2), dtype=wp.vec4f, device="cpu")
-    for walk in walks:  # unload the walks: the next launches load them from the cache, or compile them afresh
-        walk.unload()
+    for module in alone:  # unload them: the next launches load them from the cache, or compile them afresh
+        module.unload()
     apply_operator(grid, field, out, device="cpu", precise=False)
-    apply_operator(grid, field, out, device="cpu", rhs=wp.zeros_like(out))
+    apply_operator(grid, field, out, device="cpu")
+    apply_operator(grid, field, out, device="cpu", rhs=wp.zeros_like(out), precise=False)
+    chebyshev_step(grid, field, wp.zeros_like(out), wp.zeros_like(out), 0.5, 0.5, wp.zeros_like(out), grid.n_interior,
+                   device="cpu")
     assert sorted(p.name for p in tmp_path.iterdir()) == compiled
+
+
+class FakeCuda:
+    """What device._warp_modules reads of a CUDA device."""
+    is_cpu = False
 
 
 def test_the_command_says_so_before_it_compiles(tmp_path, monkeypatch, capsys):

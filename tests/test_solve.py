@@ -103,17 +103,27 @@ def test_operator_does_not_depend_on_how_patches_are_cut(max_length, handles, pr
     rng = np.random.default_rng(3)
     field = wp.array(rng.standard_normal((grid.n_active, handles, 4)).astype(np.float32), dtype=wp.vec4f,
                      device=device)
-    expected = wp.empty((grid.n_interior, handles), dtype=wp.vec4f, device=device)
-    ws.apply_operator(grid, field, expected, device=device, precise=precise)
-    patches = wp.array(grid.interior_patches((stencil.PATCH_I, stencil.PATCH_J), max_length), dtype=wp.vec4i,
-                       device=device)
-    arrays = grid.device_arrays(device)
-    out = wp.full((grid.n_interior, handles), wp.vec4f(np.nan), dtype=wp.vec4f, device=device)
     kernel = stencil.apply_operator if precise else stencil.apply_operator_fast
-    groups = -(-handles // stencil.GROUP)
-    wp.launch(kernel, dim=(groups, patches.shape[0], stencil.GROUP),
-              inputs=[field, arrays["index"], patches, grid.n_active], outputs=[out], device=device)
-    np.testing.assert_array_equal(out.numpy(), expected.numpy())
+    expected = walk(grid, kernel, field, device)
+    np.testing.assert_array_equal(walk(grid, kernel, field, device, max_length=max_length), expected)
+    # ws.apply_operator runs the walk on a GPU, the node loop on a CPU: the same bits either way
+    out = wp.empty((grid.n_interior, handles), dtype=wp.vec4f, device=device)
+    ws.apply_operator(grid, field, out, device=device, precise=precise)
+    np.testing.assert_array_equal(out.numpy(), expected)
+
+
+def walk(grid, kernel, field, device, patch=None, max_length=64, extra=()):
+    """The stencil's patch walk ``kernel`` launched directly on ``device`` (a CPU's bind runs the node loop): its
+    output at the interior nodes as a numpy array."""
+    from warp_stokes.kernels import stencil
+
+    patch = patch or (stencil.PATCH_I, stencil.PATCH_J)
+    patches = wp.array(grid.interior_patches(patch, max_length), dtype=wp.vec4i, device=device)
+    out = wp.full((grid.n_interior, field.shape[1]), wp.vec4f(np.nan), dtype=wp.vec4f, device=device)
+    wp.launch(kernel, dim=(-(-field.shape[1] // stencil.GROUP), patches.shape[0], stencil.GROUP),
+              inputs=[field, grid.device_arrays(device)["index"], patches, grid.n_active, *extra], outputs=[out],
+              device=device)
+    return out.numpy()
 
 
 def test_the_one_pass_residual_is_the_difference_to_the_bit(device):
@@ -129,6 +139,51 @@ def test_the_one_pass_residual_is_the_difference_to_the_bit(device):
     np.testing.assert_array_equal(out.numpy(), rhs - applied.numpy())
 
 
+@pytest.mark.parametrize("rows", ["interior", "active"])
+def test_the_cpus_node_loops_are_the_walks_to_the_bit(rows):
+    # a CPU applies the operator by a thread per node looping over the handles (kernels/stencil_cpu.py), a GPU by
+    # patch walks: the same sums in the same order, so the same bits, in each of the four forms (A x in float32 and
+    # float64 sums, b - A x, the Chebyshev step), with rows beyond n_rows read as zero; 37 handles
+    from warp_stokes.kernels import stencil, stencil_cpu
+    from warp_stokes.solver.operator import _node_loop
+
+    grid = ball_grid("cpu")
+    n_rows = grid.n_interior if rows == "interior" else grid.n_active
+    rng = np.random.default_rng(6)
+    field = wp.array(rng.standard_normal((grid.n_active, 37, 4)).astype(np.float32), dtype=wp.vec4f, device="cpu")
+    rhs, d = (wp.array(rng.standard_normal((grid.n_interior, 37, 4)).astype(np.float32), dtype=wp.vec4f,
+                       device="cpu") for _ in range(2))
+    arrays = grid.device_arrays("cpu")
+    assert arrays["neighbours"].shape == (grid.n_interior, stencil_cpu.NEIGHBOURS)
+    patches = wp.array(grid.interior_patches((stencil.PATCH_I, stencil.PATCH_J), 64), dtype=wp.vec4i, device="cpu")
+    step_patches = wp.array(grid.interior_patches(stencil.STEP_PATCH, 64), dtype=wp.vec4i, device="cpu")
+    forms = [(stencil.apply_operator, stencil_cpu.apply_operator, False, False),
+             (stencil.apply_operator_fast, stencil_cpu.apply_operator_fast, False, False),
+             (stencil.residual_operator_fast, stencil_cpu.residual_operator_fast, True, False),
+             (stencil.chebyshev_step_fast, stencil_cpu.chebyshev_step_fast, True, True)]
+    walked_out = {}
+    for walked, looped, takes_rhs, steps in forms:
+        d_walk, d_loop = wp.clone(d), wp.clone(d)
+        out = wp.full((grid.n_interior, 37), wp.vec4f(np.nan), dtype=wp.vec4f, device="cpu")
+        extra = ([rhs] if takes_rhs else []) + ([0.3, 0.7, d_walk] if steps else [])
+        items = step_patches if steps else patches
+        wp.launch(walked, dim=(2, items.shape[0], stencil.GROUP),
+                  inputs=[field, arrays["index"], items, n_rows, *extra], outputs=[out], device="cpu")
+        walked_out[looped.key] = out.numpy()
+        loop_out = wp.full_like(out, wp.vec4f(np.nan))
+        ca, cb = (0.3, 0.7) if steps else (0.0, 0.0)
+        _node_loop(looped, arrays, field, n_rows, rhs if takes_rhs else loop_out, ca, cb, d_loop if steps else loop_out,
+                   loop_out, wp.get_device("cpu"))
+        np.testing.assert_array_equal(loop_out.numpy(), walked_out[looped.key], err_msg=looped.key)
+        np.testing.assert_array_equal(d_loop.numpy(), d_walk.numpy(), err_msg=looped.key)
+        assert np.isfinite(loop_out.numpy()).all()
+    # reading the ring's rows or not changes the result (the test tells the two apart)
+    other = wp.empty((grid.n_interior, 37), dtype=wp.vec4f, device="cpu")
+    _node_loop(stencil_cpu.apply_operator, arrays, field, grid.n_active + grid.n_interior - n_rows, other, 0.0, 0.0,
+               other, other, wp.get_device("cpu"))
+    assert not np.array_equal(other.numpy(), walked_out[stencil_cpu.apply_operator.key])
+
+
 @pytest.mark.parametrize("patch", [(1, 1), (3, 2)])
 def test_operator_does_not_depend_on_the_patch_shape(patch, device):
     # each column's terms are summed in the same order whatever patch it sits in: other shapes give the same bits
@@ -139,12 +194,8 @@ def test_operator_does_not_depend_on_the_patch_shape(patch, device):
     field = wp.array(rng.standard_normal((grid.n_active, 3, 4)).astype(np.float32), dtype=wp.vec4f, device=device)
     expected = wp.empty((grid.n_interior, 3), dtype=wp.vec4f, device=device)
     ws.apply_operator(grid, field, expected, device=device)
-    patches = wp.array(grid.interior_patches(patch, 7), dtype=wp.vec4i, device=device)
-    out = wp.full((grid.n_interior, 3), wp.vec4f(np.nan), dtype=wp.vec4f, device=device)
-    wp.launch(stencil.operator_kernel(wp.float64, patch), dim=(1, patches.shape[0], stencil.GROUP),
-              inputs=[field, grid.device_arrays(device)["index"], patches, grid.n_active], outputs=[out],
-              device=device)
-    np.testing.assert_array_equal(out.numpy(), expected.numpy())
+    np.testing.assert_array_equal(walk(grid, stencil.operator_kernel(wp.float64, patch), field, device, patch, 7),
+                                  expected.numpy())
 
 
 def test_float32_and_float64_sums_agree_to_rounding(device):

@@ -180,27 +180,33 @@ def cuda_device_count() -> int:
 #: the package's kernel modules (warp_stokes.kernels.*): what a first run on a machine compiles (laplace is left out:
 #: only harmonic coordinates compile it)
 KERNEL_MODULES = ("cg", "checks", "deform", "intersect", "labels", "local_boundary", "multigrid", "mvc", "sample",
-                  "stencil", "voxel")
+                  "stencil", "stencil_cpu", "voxel")
 #: the modules a bind compiles (deforming compiles "deform" on first use: a bind's process never does)
 BIND_MODULES = tuple(m for m in KERNEL_MODULES if m != "deform")
 
 
-def _warp_modules(modules) -> list[tuple]:
-    """The Warp modules behind the package's kernel modules ``modules``, with the block size their kernels launch
-    with (None: Warp's default): each Python module's own, and the modules of its kernels compiled alone
-    (``module="unique"``, e.g. the stencil's walks, launched in blocks of ``BLOCK_DIM``)."""
+def _warp_modules(modules, device) -> list[tuple]:
+    """The Warp modules behind the package's kernel modules ``modules`` that run on ``device``'s kind, with the
+    block size their kernels launch with (None: Warp's default): each Python module's own, and the modules of its
+    kernels compiled alone (``module="unique"``, e.g. the stencil's walks, launched in blocks of ``BLOCK_DIM``). A
+    module that names the kinds it runs on (``DEVICE_KINDS``, e.g. the CPU's node loops) is left out elsewhere, and
+    so are kernels a module lists as ``CUDA_ONLY`` on a CPU (the GPU's patch walks)."""
     import importlib
 
+    kind = "cpu" if device.is_cpu else "cuda"
     found = []
     for name in modules:
         if name == "labels":  # constants only: nothing to compile
             continue
         python_module = importlib.import_module(f"{__package__}.kernels.{name}")
+        if kind not in getattr(python_module, "DEVICE_KINDS", (kind,)):
+            continue
+        skipped = getattr(python_module, "CUDA_ONLY", ()) if kind == "cpu" else ()
         own = wp.get_module(python_module.__name__)
         found.append((own, None))
         block_dim = getattr(python_module, "BLOCK_DIM", None)
         found += [(k.module, block_dim) for k in vars(python_module).values()
-                  if isinstance(k, wp.Kernel) and k.module is not own]
+                  if isinstance(k, wp.Kernel) and k.module is not own and not any(k is c for c in skipped)]
     return found
 
 
@@ -219,7 +225,7 @@ def kernels_compiled(device=None, modules=KERNEL_MODULES) -> bool:
         return False
     suffixes = (".o",) if d.is_cpu else (".cubin", ".ptx")
     entries = os.listdir(cache)
-    for module, _ in _warp_modules(modules):
+    for module, _ in _warp_modules(modules, d):
         prefix = f"wp_{module.name}_"
         folders = [os.path.join(cache, e) for e in entries if e.startswith(prefix)]
         if not any(f.endswith(suffixes) for folder in folders if os.path.isdir(folder) for f in os.listdir(folder)):
@@ -237,7 +243,7 @@ def compile_kernels(device=None, modules=KERNEL_MODULES, workers: int | None = N
     """
     d = resolve_device(device)
     by_block = {}
-    for module, block_dim in _warp_modules(modules):
+    for module, block_dim in _warp_modules(modules, d):
         by_block.setdefault(block_dim, []).append(module)
     workers = workers or os.cpu_count() or 1
     for block_dim, group in by_block.items():

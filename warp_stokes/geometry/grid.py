@@ -12,7 +12,7 @@ from .inside import WINDING_ACCURACY, cage_mesh
 from ..device import available_memory, in_threads, memory_size, resolve_device
 from ..errors import ResolutionError
 from ..kernels import labels as node_labels
-from ..kernels import stencil
+from ..kernels import stencil, stencil_cpu
 from ..kernels import voxel
 
 __all__ = ["Grid", "voxelize", "wedge_resolution", "check_resolution", "grid_from_mask", "MARGIN", "BAND_WIDTH",
@@ -163,15 +163,17 @@ class Grid:
                         axis=1).astype(np.int32)
 
     def device_arrays(self, device) -> dict:
-        """``index``, ``active_ijk``, the stencil's ``patches`` and the smoother step's ``step_patches`` on ``device``
-        (made there by ``voxelize``; for another device uploaded, the patches made there from the labels, once)."""
+        """``index``, ``active_ijk`` and the stencil's work items on ``device``: on a GPU the patch walk's
+        ``patches`` and the smoother step's ``step_patches``, on a CPU the node loop's ``neighbours`` (made there by
+        ``voxelize``; for another device uploaded and made there, once)."""
         d = resolve_device(device)
         arrays = self._device_arrays.setdefault(d.alias, {})
         if "index" not in arrays:
             arrays["index"] = wp.array(self.index, dtype=wp.int32, device=d)
             arrays["active_ijk"] = wp.array(self.active_ijk, dtype=wp.vec3i, device=d)
-        if "patches" not in arrays:
-            arrays.update(_patch_arrays(wp.array(self.labels, dtype=wp.int8, device=d)))
+        if "neighbours" not in arrays and "patches" not in arrays:
+            labels = wp.array(self.labels, dtype=wp.int8, device=d)
+            arrays.update(_stencil_arrays(labels, arrays["index"], arrays["active_ijk"], self.n_interior))
         return arrays
 
 
@@ -475,7 +477,7 @@ def _number_nodes(inside: wp.array, centre, origin, spacing, resolution, device,
             )
         index, active_ijk = lattice_rows(classes, counts, n_active)
         del classes, counts
-        patches = _patch_arrays(labels)
+        work_items = _stencil_arrays(labels, index, active_ijk, n_interior)
         labels_np = labels.numpy()
         grid = Grid(
             centre=np.asarray(centre, dtype=np.float64),
@@ -490,13 +492,21 @@ def _number_nodes(inside: wp.array, centre, origin, spacing, resolution, device,
             n_cut_off=n_cut_off,
         )
     # the device's numbering is the grid's (the host copy of the index is made when first read)
-    grid._device_arrays[device.alias] = {"index": index, "active_ijk": active_ijk, **patches}
+    grid._device_arrays[device.alias] = {"index": index, "active_ijk": active_ijk, **work_items}
     return grid
 
 
-def _patch_arrays(labels: wp.array) -> dict:
-    """The stencil's work items (``patches``) and the smoother step's (``step_patches``), made from the labels on
-    their device (numpy's passes over the lattice in :meth:`Grid.interior_patches` took 0.4-0.6 s each at n = 512)."""
+def _stencil_arrays(labels: wp.array, index: wp.array, active_ijk: wp.array, n_interior: int) -> dict:
+    """The stencil's work items on the labels' device. A GPU's patch walks: the operator's ``patches`` and the
+    smoother step's ``step_patches``, made from the labels there (numpy's passes over the lattice in
+    :meth:`Grid.interior_patches` took 0.4-0.6 s each at n = 512). A CPU's node loops: each interior node's neighbour
+    rows, ``neighbours`` (n_interior, 18) (:mod:`warp_stokes.kernels.stencil_cpu`)."""
+    device = labels.device
+    if device.is_cpu:
+        neighbours = wp.empty((n_interior, stencil_cpu.NEIGHBOURS), dtype=wp.int32, device=device)
+        wp.launch(stencil_cpu.neighbour_rows, dim=neighbours.shape, inputs=[index, active_ijk], outputs=[neighbours],
+                  device=device)
+        return {"neighbours": neighbours}
     return {"patches": device_patches(labels, (stencil.PATCH_I, stencil.PATCH_J)),
             "step_patches": device_patches(labels, stencil.STEP_PATCH)}
 

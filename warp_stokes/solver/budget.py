@@ -12,8 +12,9 @@ mesh vertices:
   48 N_i), the sampled weights (4 V).
 
 Shared by all columns: the grid's node index (4 per lattice node), node coordinates (12 N_a) and stencil work
-items (16 per patch), the multigrid hierarchy (27 blocks of 64 B per coarse node, its diagonal, coordinates and
-lattice indices: :func:`warp_stokes.solver.multigrid.hierarchy_bytes`), and per stage the node positions for the MVC
+items (on a GPU 16 per patch, on a CPU 72 N_i: each interior node's neighbour rows), the multigrid hierarchy
+(27 blocks of 64 B per coarse node, its diagonal, coordinates and lattice indices:
+:func:`warp_stokes.solver.multigrid.hierarchy_bytes`), and per stage the node positions for the MVC
 (24 N_a) or the sampling's per-vertex arrays (80 V); on the CPU, the multigrid's setup, which forms the coarsest
 level's inverse on the host (4 float64 copies of its dense operator: 5 MB for the CPU's 100 nodes at most). The
 local boundary data's normal derivatives (8 bytes per cage face and handle:
@@ -38,6 +39,7 @@ from ..device import available_memory, memory_size, resolve_device  # noqa: F401
 from ..errors import ResolutionError
 from ..geometry.grid import DEVICE_NODE_BYTES, HOST_NODE_BYTES, Grid
 from ..geometry.local_boundary import BLEND_ROW_BYTES
+from ..kernels.stencil_cpu import NEIGHBOURS
 from . import multigrid
 from .multigrid import coarsest_nodes_for, hierarchy_bytes
 
@@ -143,10 +145,13 @@ def estimate_memory(grid: Grid, n_vertices: int = 0, preconditioner: str = "mult
         # the coarsest level's dense inverse (float32) does not shrink with the resolution: at most this
         dense = 4 * (4 * limit) ** 2
     work = (2 * VEC4 * n_int + 4 * VEC4 * coarse) if multigrid else 0.0
-    # an item per 2 x 2 columns and up to 64 planes: fewer than one per 16 nodes; the smoother step's 1 x 2: one per 8
-    patches = 16 * n_int / 16 + 16 * n_int / 8
-    base = DEVICE_NODE_BYTES * nodes + 12 * n_act + patches + hierarchy
     on_cpu = resolve_device(device).is_cpu
+    if on_cpu:  # the node loop's neighbour rows: 18 int32 per interior node
+        work_items = 4 * NEIGHBOURS * n_int
+    else:  # the patch walks: an item per 2 x 2 columns and up to 64 planes, fewer than one per 16 nodes; the
+        # smoother step's 1 x 2: one per 8
+        work_items = 16 * n_int / 16 + 16 * n_int / 8
+    base = DEVICE_NODE_BYTES * nodes + 12 * n_act + work_items + hierarchy
     if on_cpu:
         # the grid's host arrays; the weights of all handles; the mesh as loaded (float64 vertices, about two
         # int64 triangles per vertex), its classification and the vertex-sized arrays of the checks

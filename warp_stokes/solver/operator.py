@@ -13,7 +13,7 @@ import warp as wp
 from ..device import resolve_device
 from ..geometry.grid import Grid
 from ..errors import WarpStokesError
-from ..kernels import cg, laplace, stencil
+from ..kernels import cg, laplace, stencil, stencil_cpu
 
 __all__ = ["apply_operator", "chebyshev_step", "EQUATIONS", "check_equation"]
 
@@ -69,10 +69,15 @@ def apply_operator(grid: Grid, field: wp.array, out: wp.array, n_rows: int | Non
                            inputs=[field, arrays["index"], arrays["active_ijk"], int(n_rows)], outputs=[out],
                            device=device, record_cmd=record_cmd)
     else:
-        kernel = stencil.residual_operator_fast if fused else (
-            stencil.apply_operator if precise else stencil.apply_operator_fast)
-        launch = _walk(kernel, arrays, arrays["patches"], field, n_rows, [rhs] if fused else [], out, device,
-                       record_cmd)
+        kernels = stencil_cpu if device.is_cpu else stencil
+        kernel = kernels.residual_operator_fast if fused else (
+            kernels.apply_operator if precise else kernels.apply_operator_fast)
+        if device.is_cpu:
+            launch = _node_loop(kernel, arrays, field, n_rows, rhs if fused else out, 0.0, 0.0, out, out, device,
+                                record_cmd)
+        else:
+            launch = _walk(kernel, arrays, arrays["patches"], field, n_rows, [rhs] if fused else [], out, device,
+                           record_cmd)
     if rhs is not None and not fused:
         wp.launch(cg.residual, dim=out.shape, inputs=[rhs, out], outputs=[out], device=device)
     return launch
@@ -104,8 +109,11 @@ def chebyshev_step(grid: Grid, field: wp.array, rhs: wp.array, d: wp.array, ca: 
         raise ValueError("chebyshev_step: out must not be field")
     device = resolve_device(device)
     arrays = grid.device_arrays(device)
-    _walk(stencil.chebyshev_step_fast, arrays, arrays["step_patches"], field, n_rows, [rhs, float(ca), float(cb), d],
-          out, device)
+    if device.is_cpu:
+        _node_loop(stencil_cpu.chebyshev_step_fast, arrays, field, n_rows, rhs, ca, cb, d, out, device)
+    else:
+        _walk(stencil.chebyshev_step_fast, arrays, arrays["step_patches"], field, n_rows,
+              [rhs, float(ca), float(cb), d], out, device)
 
 
 def _walk(kernel, arrays: dict, patches: wp.array, field: wp.array, n_rows: int, extra: list, out: wp.array,
@@ -116,3 +124,12 @@ def _walk(kernel, arrays: dict, patches: wp.array, field: wp.array, n_rows: int,
     return wp.launch(kernel, dim=(groups, patches.shape[0], stencil.GROUP),
                      inputs=[field, arrays["index"], patches, int(n_rows), *extra], outputs=[out], device=device,
                      block_dim=stencil.BLOCK_DIM, record_cmd=record_cmd)
+
+
+def _node_loop(kernel, arrays: dict, field: wp.array, n_rows: int, rhs: wp.array, ca: float, cb: float, d: wp.array,
+               out: wp.array, device, record_cmd: bool = False) -> "wp.Launch | None":
+    """Launch one of the CPU's node loops (``stencil_cpu.node_operator_kernel``): a thread per interior node (or
+    return it recorded)."""
+    return wp.launch(kernel, dim=out.shape[0], inputs=[field, arrays["neighbours"], int(n_rows), rhs, float(ca),
+                                                       float(cb), d], outputs=[out], device=device,
+                     record_cmd=record_cmd)
