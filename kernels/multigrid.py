@@ -482,6 +482,75 @@ def prolong_add(
     x[n, h] = x[n, h] + acc
 
 
+#: a coarse node's fine rows (at most 27) and a fine node's parents (at most 8), kept by the CPU's transfers
+_row_list27 = wp.types.vector(length=27, dtype=wp.int32)
+_row_list8 = wp.types.vector(length=8, dtype=wp.int32)
+
+
+@wp.kernel
+def restrict_rows(
+    table: wp.array(dtype=wp.mat44f),
+    coarse_ijk: wp.array(dtype=wp.vec3i),
+    fine_index: wp.array3d(dtype=wp.int32),
+    n_fine: int,
+    shift: wp.vec3i,
+    r: wp.array2d(dtype=wp.vec4f),
+    b: wp.array2d(dtype=wp.vec4f),
+):
+    """:func:`restrict` for a CPU (where a kernel's threads run one after another): a thread per coarse node finds its
+    fine rows and their blocks once, then loops over the handles; the same sums in the same order, the same bits.
+    Launch (coarse rows,)."""
+    m = wp.tid()
+    c = coarse_ijk[m]
+    rows = _row_list27()
+    entries = _row_list27()
+    count = int(0)
+    for s in range(27):
+        d = neighbour_offset(s)
+        row = node_row(fine_index, n_fine, 2 * c + d + shift)
+        if row >= 0:
+            rows[count] = row
+            entries[count] = parent_entry(d)
+            count += 1
+    for h in range(b.shape[1]):
+        acc = wp.vec4f(0.0)
+        for k in range(count):
+            acc += wp.transpose(table[entries[k]]) * r[rows[k], h]
+        b[m, h] = acc
+
+
+@wp.kernel
+def prolong_add_rows(
+    table: wp.array(dtype=wp.mat44f),
+    fine_ijk: wp.array(dtype=wp.vec3i),
+    coarse_index: wp.array3d(dtype=wp.int32),
+    shift: wp.vec3i,
+    xc: wp.array2d(dtype=wp.vec4f),
+    x: wp.array2d(dtype=wp.vec4f),
+):
+    """:func:`prolong_add` for a CPU: a thread per fine node finds its kept parents once, then loops over the
+    handles; the same bits. Launch (fine rows,)."""
+    n = wp.tid()
+    f = fine_ijk[n] - shift
+    cols = _row_list8()
+    entries = _row_list8()
+    count = int(0)
+    for slot in range(8):
+        parent = parent_slot(f, slot)
+        if parent[3] != 0:
+            d = wp.vec3i(parent[0], parent[1], parent[2])
+            col = node_row(coarse_index, xc.shape[0], (f - d) / 2)
+            if col >= 0:
+                cols[count] = col
+                entries[count] = parent_entry(d)
+                count += 1
+    for h in range(x.shape[1]):
+        acc = wp.vec4f(0.0)
+        for k in range(count):
+            acc += table[entries[k]] * xc[cols[k], h]
+        x[n, h] = x[n, h] + acc
+
+
 @wp.kernel
 def diagonal_inverse(blocks: wp.array2d(dtype=wp.mat44f), inverse: wp.array(dtype=wp.mat44f)):
     """Inverses of the centre blocks of a 27-point block stencil."""

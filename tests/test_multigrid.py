@@ -241,19 +241,30 @@ def test_a_thin_sheet_keeps_coarsening_on_a_shifted_lattice(device):
     for depth in range(len(n) - 1):
         fine, coarse = mg.levels[depth], mg.levels[depth + 1]
         P = to_scipy(mg.prolongation_triplets(depth), fine.n, coarse.n)
-        r = rng.standard_normal((fine.n, 1, 4)).astype(np.float32)
-        xc = rng.standard_normal((coarse.n, 1, 4)).astype(np.float32)
-        b = wp.zeros((coarse.n, 1), dtype=wp.vec4f, device=device)
-        x = wp.zeros((fine.n, 1), dtype=wp.vec4f, device=device)
+        r = rng.standard_normal((fine.n, 3, 4)).astype(np.float32)
+        xc = rng.standard_normal((coarse.n, 3, 4)).astype(np.float32)
         shift = wp.vec3i(*coarse.shift)
-        wp.launch(mg_kernels.restrict, dim=b.shape, device=device, outputs=[b],
-                  inputs=[mg.table32, coarse.ijk_device, fine.index, fine.n, shift,
-                          wp.array(r, dtype=wp.vec4f, device=device)])
-        wp.launch(mg_kernels.prolong_add, dim=x.shape, device=device, outputs=[x],
-                  inputs=[mg.table32, fine.ijk_device, coarse.index, shift,
-                          wp.array(xc, dtype=wp.vec4f, device=device)])
-        for got, expected in ((b, P.T @ r.reshape(-1)), (x, P @ xc.reshape(-1))):
-            assert np.abs(got.numpy().reshape(-1) - expected).max() <= 1e-6 * np.abs(expected).max(), depth
+        # the (node, handle) launches a GPU runs, and the CPU's thread per node looping over the handles
+        transfers = {}
+        for form, by_row in (("gpu", False), ("cpu", True)):
+            b = wp.zeros((coarse.n, 3), dtype=wp.vec4f, device=device)
+            x = wp.array(np.ones((fine.n, 3, 4), np.float32), dtype=wp.vec4f, device=device)  # added to
+            wp.launch(mg_kernels.restrict_rows if by_row else mg_kernels.restrict,
+                      dim=coarse.n if by_row else b.shape, device=device, outputs=[b],
+                      inputs=[mg.table32, coarse.ijk_device, fine.index, fine.n, shift,
+                              wp.array(r, dtype=wp.vec4f, device=device)])
+            wp.launch(mg_kernels.prolong_add_rows if by_row else mg_kernels.prolong_add,
+                      dim=fine.n if by_row else x.shape, device=device, outputs=[x],
+                      inputs=[mg.table32, fine.ijk_device, coarse.index, shift,
+                              wp.array(xc, dtype=wp.vec4f, device=device)])
+            transfers[form] = b.numpy(), x.numpy() - 1.0
+            for h in range(3):
+                for got, expected in ((b.numpy()[:, h], P.T @ r[:, h].reshape(-1)),
+                                      (x.numpy()[:, h] - 1.0, P @ xc[:, h].reshape(-1))):
+                    error = np.abs(got.reshape(-1) - expected).max()
+                    assert error <= 1e-6 * np.abs(expected).max(), (depth, form, h)
+        for gpu, cpu in zip(transfers["gpu"], transfers["cpu"]):
+            np.testing.assert_array_equal(cpu, gpu)  # the same sums in the same order
     known = np.zeros(grid.shape + (2, 4))
     ring = grid.labels >= 2
     known[ring] = rng.uniform(-1, 1, size=(ring.sum(), 2, 4))

@@ -471,10 +471,14 @@ class Multigrid:
         self._smooth(depth, b, x, r, d, x_is_zero=True, residual=True)
         coarse = self._work(depth + 1, n_cols)
         shift = wp.vec3i(*coarse_level.shift)
-        wp.launch(mg_kernels.restrict, dim=coarse["b"].shape,
+        # a CPU runs a thread per node looping over the handles (a kernel's threads run there one after another):
+        # the transfers' look-ups are made once per node instead of once per node and handle
+        on_cpu = self.device.is_cpu
+        wp.launch(mg_kernels.restrict_rows if on_cpu else mg_kernels.restrict,
+                  dim=coarse_level.n if on_cpu else coarse["b"].shape,
                   inputs=[self.table32, coarse_level.ijk_device, lev.index, lev.n, shift, r], outputs=[coarse["b"]])
         self._cycle(depth + 1, coarse["b"], coarse["x"])
-        wp.launch(mg_kernels.prolong_add, dim=x.shape,
+        wp.launch(mg_kernels.prolong_add_rows if on_cpu else mg_kernels.prolong_add, dim=lev.n if on_cpu else x.shape,
                   inputs=[self.table32, lev.ijk_device, coarse_level.index, shift, coarse["x"]], outputs=[x])
         self._smooth(depth, b, x, r, d, x_is_zero=False, residual=False)
 
