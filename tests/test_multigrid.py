@@ -186,6 +186,31 @@ def test_chebyshev_steps_in_one_pass_match_the_residual_and_the_step_against_sci
         ws.solver.operator.chebyshev_step(grid, x, b, d, ca, cb, x, n_rows=n, device=device)
 
 
+def test_the_cpus_row_loops_give_the_bits_of_the_node_handle_launches(arm_hierarchy, device):
+    # a CPU smooths the coarse levels by a thread per row looping over the handles, a GPU by a thread per row and
+    # handle: the same sums in the same order (the residual and the Chebyshev step), on every coarse level
+    from warp_stokes.kernels import multigrid as mg_kernels
+
+    grid, mg = arm_hierarchy
+    rng = np.random.default_rng(8)
+    for depth in range(1, len(mg.levels) - 1):
+        lev, n = mg.levels[depth], mg.level_sizes[depth]
+        x, b, d = (wp.array(rng.standard_normal((n, 5, 4)).astype(np.float32), dtype=wp.vec4f, device=device)
+                   for _ in range(3))
+        out = {}
+        for form, by_row in (("gpu", False), ("cpu", True)):
+            r, x_next, d_form = wp.empty_like(b), wp.empty_like(x), wp.clone(d)
+            wp.launch(mg_kernels.stencil_residual_rows if by_row else mg_kernels.stencil_residual,
+                      dim=n if by_row else b.shape, inputs=[lev.blocks, lev.rows, b, x], outputs=[r], device=device)
+            wp.launch(mg_kernels.stencil_chebyshev_step_rows if by_row else mg_kernels.stencil_chebyshev_step,
+                      dim=n if by_row else b.shape, inputs=[lev.blocks, lev.rows, b, x, lev.inv_diag, 0.3, 0.7, d_form],
+                      outputs=[x_next], device=device)
+            out[form] = (r.numpy(), x_next.numpy(), d_form.numpy())
+        assert not np.array_equal(out["cpu"][0], b.numpy())  # the operator did something
+        for gpu, cpu in zip(out["gpu"], out["cpu"]):
+            np.testing.assert_array_equal(cpu, gpu)
+
+
 def test_hermite_prolongation_is_exact_for_cubics_along_axes(device):
     v, f = box_cage(lo=(-1, -1, -1), hi=(1, 1, 1))
     grid = ws.voxelize(ws.check_cage((v, f)), resolution=24, device=device)

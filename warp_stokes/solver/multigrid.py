@@ -441,7 +441,9 @@ class Multigrid:
         level, through a stored residual (in ``spare``) with x updated in place (False)."""
         lev = self.levels[depth]
         if depth > 0:
-            wp.launch(mg_kernels.stencil_chebyshev_step, dim=x.shape,
+            on_cpu = self.device.is_cpu  # a thread per row looping over the handles (see _cycle)
+            wp.launch(mg_kernels.stencil_chebyshev_step_rows if on_cpu else mg_kernels.stencil_chebyshev_step,
+                      dim=lev.n if on_cpu else x.shape,
                       inputs=[lev.blocks, lev.rows, b, x, lev.inv_diag, ca, cb, d], outputs=[spare])
             return True
         if self.equation == "biharmonic":
@@ -457,6 +459,8 @@ class Multigrid:
         if depth == 0:
             apply_operator(self.grid, x, r, n_rows=lev.n, device=self.device, precise=False, equation=self.equation,
                            rhs=b)
+        elif self.device.is_cpu:  # a thread per row looping over the handles (see _cycle)
+            wp.launch(mg_kernels.stencil_residual_rows, dim=lev.n, inputs=[lev.blocks, lev.rows, b, x], outputs=[r])
         else:
             wp.launch(mg_kernels.stencil_residual, dim=x.shape, inputs=[lev.blocks, lev.rows, b, x], outputs=[r])
 
