@@ -528,16 +528,17 @@ def test_a_column_that_is_not_finite_is_restarted_alone(arm_cage, device):
 
     grid = ws.voxelize(arm_cage, 16, device=device)
     field = ws.boundary_field(grid, arm_cage, device=device)
-    clean = BatchedCG(grid, wp.clone(field), None, ws.solver.solve._jacobi("biharmonic", device), device).start()
-    data = field.numpy()
-    data[: grid.n_interior, 7] = np.nan
-    broken = BatchedCG(grid, wp.array(data, dtype=wp.vec4f, device=device), None,
-                       ws.solver.solve._jacobi("biharmonic", device), device)
-    rel = broken.start()
-    assert np.isnan(rel[7]) and np.isfinite(np.delete(rel, 7)).all()
-    np.testing.assert_allclose(np.delete(rel, 7), np.delete(clean, 7), rtol=1e-6)
-    broken.clear(~np.isfinite(rel))
-    assert np.isfinite(broken.start()).all()
+    with wp.ScopedDevice(device):  # as the solve runs it (its vectors on its device, not the default one)
+        clean = BatchedCG(grid, wp.clone(field), None, ws.solver.solve._jacobi("biharmonic", device), device).start()
+        data = field.numpy()
+        data[: grid.n_interior, 7] = np.nan
+        broken = BatchedCG(grid, wp.array(data, dtype=wp.vec4f, device=device), None,
+                           ws.solver.solve._jacobi("biharmonic", device), device)
+        rel = broken.start()
+        assert np.isnan(rel[7]) and np.isfinite(np.delete(rel, 7)).all()
+        np.testing.assert_allclose(np.delete(rel, 7), np.delete(clean, 7), rtol=1e-6)
+        broken.clear(~np.isfinite(rel))
+        assert np.isfinite(broken.start()).all()
 
 
 def test_a_chunked_bind_whose_weights_break_linear_precision_is_refused(monkeypatch):

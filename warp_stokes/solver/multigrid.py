@@ -379,7 +379,7 @@ class Multigrid:
             return apply_operator(self.grid, x, out, n_rows=lev.n, device=self.device, precise=False,
                                   equation=self.equation, record_cmd=record_cmd)
         return wp.launch(mg_kernels.stencil_apply, dim=x.shape, inputs=[lev.blocks, lev.rows, x], outputs=[out],
-                         record_cmd=record_cmd)
+                         device=self.device, record_cmd=record_cmd)  # a recorded launch keeps its device
 
     def _work(self, depth: int, n_cols: int) -> dict:
         """The level's work vectors for ``n_cols`` columns: kept from one solve to the next (chunks), and only
@@ -418,10 +418,12 @@ class Multigrid:
         sigma = theta / delta
         rho = 1.0 / sigma
         if x_is_zero:  # x's old values are never read: the first step writes it
-            wp.launch(mg_kernels.chebyshev_first, dim=shape, inputs=[b, lev.inv_diag, 1.0 / theta], outputs=[x, d])
+            wp.launch(mg_kernels.chebyshev_first, dim=shape, inputs=[b, lev.inv_diag, 1.0 / theta], outputs=[x, d],
+                      device=self.device)
         else:
             self._residual(depth, b, x, r)
-            wp.launch(mg_kernels.chebyshev_start, dim=shape, inputs=[r, lev.inv_diag, 1.0 / theta], outputs=[x, d])
+            wp.launch(mg_kernels.chebyshev_start, dim=shape, inputs=[r, lev.inv_diag, 1.0 / theta], outputs=[x, d],
+                      device=self.device)
         degrees = DEEP_SMOOTHER_DEGREES if len(self.levels) >= DEEP_LEVELS else SMOOTHER_DEGREES
         # the steps take the residual where they form it (one pass each), writing the next iterate to the other
         # of x and r (r is free: the residual is never stored), so the iterate alternates between them
@@ -444,13 +446,14 @@ class Multigrid:
             on_cpu = self.device.is_cpu  # a thread per row looping over the handles (see _cycle)
             wp.launch(mg_kernels.stencil_chebyshev_step_rows if on_cpu else mg_kernels.stencil_chebyshev_step,
                       dim=lev.n if on_cpu else x.shape,
-                      inputs=[lev.blocks, lev.rows, b, x, lev.inv_diag, ca, cb, d], outputs=[spare])
+                      inputs=[lev.blocks, lev.rows, b, x, lev.inv_diag, ca, cb, d], outputs=[spare], device=self.device)
             return True
         if self.equation == "biharmonic":
             chebyshev_step(self.grid, x, b, d, ca, cb, spare, n_rows=lev.n, device=self.device)
             return True
         self._residual(depth, b, x, spare)
-        wp.launch(mg_kernels.chebyshev_step, dim=x.shape, inputs=[spare, lev.inv_diag, ca, cb], outputs=[x, d])
+        wp.launch(mg_kernels.chebyshev_step, dim=x.shape, inputs=[spare, lev.inv_diag, ca, cb], outputs=[x, d],
+                  device=self.device)
         return False
 
     def _residual(self, depth, b, x, r):
@@ -460,14 +463,17 @@ class Multigrid:
             apply_operator(self.grid, x, r, n_rows=lev.n, device=self.device, precise=False, equation=self.equation,
                            rhs=b)
         elif self.device.is_cpu:  # a thread per row looping over the handles (see _cycle)
-            wp.launch(mg_kernels.stencil_residual_rows, dim=lev.n, inputs=[lev.blocks, lev.rows, b, x], outputs=[r])
+            wp.launch(mg_kernels.stencil_residual_rows, dim=lev.n, inputs=[lev.blocks, lev.rows, b, x], outputs=[r],
+                      device=self.device)
         else:
-            wp.launch(mg_kernels.stencil_residual, dim=x.shape, inputs=[lev.blocks, lev.rows, b, x], outputs=[r])
+            wp.launch(mg_kernels.stencil_residual, dim=x.shape, inputs=[lev.blocks, lev.rows, b, x], outputs=[r],
+                      device=self.device)
 
     def _cycle(self, depth: int, b: wp.array, x: wp.array) -> None:
         n_cols = b.shape[1]
         if depth == len(self.levels) - 1:
-            wp.launch(mg_kernels.dense_apply, dim=b.shape, inputs=[self.coarse_inverse, b], outputs=[x])
+            wp.launch(mg_kernels.dense_apply, dim=b.shape, inputs=[self.coarse_inverse, b], outputs=[x],
+                      device=self.device)
             return
         lev, coarse_level = self.levels[depth], self.levels[depth + 1]
         work = self._work(depth, n_cols)
@@ -480,10 +486,12 @@ class Multigrid:
         on_cpu = self.device.is_cpu
         wp.launch(mg_kernels.restrict_rows if on_cpu else mg_kernels.restrict,
                   dim=coarse_level.n if on_cpu else coarse["b"].shape,
-                  inputs=[self.table32, coarse_level.ijk_device, lev.index, lev.n, shift, r], outputs=[coarse["b"]])
+                  inputs=[self.table32, coarse_level.ijk_device, lev.index, lev.n, shift, r], outputs=[coarse["b"]],
+                  device=self.device)
         self._cycle(depth + 1, coarse["b"], coarse["x"])
         wp.launch(mg_kernels.prolong_add_rows if on_cpu else mg_kernels.prolong_add, dim=lev.n if on_cpu else x.shape,
-                  inputs=[self.table32, lev.ijk_device, coarse_level.index, shift, coarse["x"]], outputs=[x])
+                  inputs=[self.table32, lev.ijk_device, coarse_level.index, shift, coarse["x"]], outputs=[x],
+                  device=self.device)
         self._smooth(depth, b, x, r, d, x_is_zero=False, residual=False)
 
     def apply(self, r: wp.array, z: wp.array) -> None:
