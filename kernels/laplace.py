@@ -18,6 +18,7 @@ import warp as wp
 wp.set_module_options({"enable_backward": False})
 
 from .stencil import node_value
+from .stencil_cpu import column_at, visible
 
 
 def laplace_kernel(scalar):
@@ -51,10 +52,48 @@ def laplace_kernel(scalar):
     return apply_laplacian
 
 
+def laplace_rows_kernel(scalar):
+    """:func:`laplace_kernel` for a CPU (where a kernel's threads run one after another): a thread per interior node
+    takes its face neighbours' rows from the grid's neighbour table (``stencil_cpu.neighbour_rows``: its first six
+    columns) and loops over the handles; the same sums in the same order, the same bits. Launch (interior rows,)."""
+
+    @wp.kernel(module="unique", enable_backward=False)
+    def apply_laplacian_rows(
+        field: wp.array2d(dtype=wp.vec4f),
+        rows: wp.array2d(dtype=wp.int32),
+        n_rows: int,
+        out: wp.array2d(dtype=wp.vec4f),
+    ):
+        n = wp.tid()
+        xp = visible(rows[n, 0], n_rows)
+        xm = visible(rows[n, 1], n_rows)
+        yp = visible(rows[n, 2], n_rows)
+        ym = visible(rows[n, 3], n_rows)
+        zp = visible(rows[n, 4], n_rows)
+        zm = visible(rows[n, 5], n_rows)
+        for h in range(out.shape[1]):
+            centre = field[n, h]
+            faces = scalar(0.0)
+            faces += scalar(column_at(field, xp, h)[0]) + scalar(column_at(field, xm, h)[0])
+            faces += scalar(column_at(field, yp, h)[0]) + scalar(column_at(field, ym, h)[0])
+            faces += scalar(column_at(field, zp, h)[0]) + scalar(column_at(field, zm, h)[0])
+            value = scalar(6.0) * scalar(centre[0]) - faces
+            out[n, h] = wp.vec4f(wp.float32(value), centre[1], centre[2], centre[3])
+
+    return apply_laplacian_rows
+
+
 #: residuals (float64 sums)
 apply_laplacian = laplace_kernel(wp.float64)
 #: Krylov and smoothing applications (float32 sums)
 apply_laplacian_fast = laplace_kernel(wp.float32)
+#: the same on a CPU, a thread per node looping over the handles
+apply_laplacian_rows = laplace_rows_kernel(wp.float64)
+apply_laplacian_rows_fast = laplace_rows_kernel(wp.float32)
+#: the (node, handle) launches a bind makes on a GPU only, and the node loops it makes on a CPU only: a first run
+#: compiles those of its device's kind
+CUDA_ONLY = (apply_laplacian, apply_laplacian_fast)
+CPU_ONLY = (apply_laplacian_rows, apply_laplacian_rows_fast)
 
 
 @wp.kernel

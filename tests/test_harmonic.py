@@ -132,3 +132,32 @@ def test_a_multigrid_for_another_equation_is_refused(arm_cage, device):
                             equation="laplace")
     with pytest.raises(ws.WarpStokesError, match="equation must be"):
         ws.solve_biharmonic(grid, field, device=device, equation="poisson")
+
+
+@pytest.mark.parametrize("rows", ["interior", "active"])
+def test_the_cpus_laplace_node_loop_is_the_node_handle_launch_to_the_bit(rows):
+    # a CPU applies the 7-point operator by a thread per node looping over the handles, a GPU by a thread per node
+    # and handle: the same sums in the same order (float32 and float64), rows beyond n_rows read as zero
+    from warp_stokes.kernels import laplace
+
+    grid = ball_grid("cpu")
+    n_rows = grid.n_interior if rows == "interior" else grid.n_active
+    rng = np.random.default_rng(9)
+    field = wp.array(rng.standard_normal((grid.n_active, 37, 4)).astype(np.float32), dtype=wp.vec4f, device="cpu")
+    arrays = grid.device_arrays("cpu")
+    results = []
+    for by_node, by_pair in ((laplace.apply_laplacian_rows, laplace.apply_laplacian),
+                             (laplace.apply_laplacian_rows_fast, laplace.apply_laplacian_fast)):
+        pair_out = wp.full((grid.n_interior, 37), wp.vec4f(np.nan), dtype=wp.vec4f, device="cpu")
+        wp.launch(by_pair, dim=pair_out.shape, inputs=[field, arrays["index"], arrays["active_ijk"], n_rows],
+                  outputs=[pair_out], device="cpu")
+        node_out = wp.full_like(pair_out, wp.vec4f(np.nan))
+        wp.launch(by_node, dim=grid.n_interior, inputs=[field, arrays["neighbours"], n_rows], outputs=[node_out],
+                  device="cpu")
+        np.testing.assert_array_equal(node_out.numpy(), pair_out.numpy())
+        results.append(node_out.numpy())
+    assert not np.array_equal(*results)  # float32 and float64 sums differ somewhere: the test tells them apart
+    # and what a bind calls on a CPU is the node loop
+    out = wp.empty((grid.n_interior, 37), dtype=wp.vec4f, device="cpu")
+    ws.apply_operator(grid, field, out, n_rows=n_rows, device="cpu", equation="laplace")
+    np.testing.assert_array_equal(out.numpy(), results[0])

@@ -190,7 +190,7 @@ def _warp_modules(modules, device) -> list[tuple]:
     block size their kernels launch with (None: Warp's default): each Python module's own, and the modules of its
     kernels compiled alone (``module="unique"``, e.g. the stencil's walks, launched in blocks of ``BLOCK_DIM``). A
     module that names the kinds it runs on (``DEVICE_KINDS``, e.g. the CPU's node loops) is left out elsewhere, and
-    so are kernels a module lists as ``CUDA_ONLY`` on a CPU (the GPU's patch walks)."""
+    so are kernels a module lists as ``CUDA_ONLY`` on a CPU (the GPU's patch walks) and as ``CPU_ONLY`` on a GPU."""
     import importlib
 
     kind = "cpu" if device.is_cpu else "cuda"
@@ -201,7 +201,7 @@ def _warp_modules(modules, device) -> list[tuple]:
         python_module = importlib.import_module(f"{__package__}.kernels.{name}")
         if kind not in getattr(python_module, "DEVICE_KINDS", (kind,)):
             continue
-        skipped = getattr(python_module, "CUDA_ONLY", ()) if kind == "cpu" else ()
+        skipped = getattr(python_module, "CUDA_ONLY" if kind == "cpu" else "CPU_ONLY", ())
         own = wp.get_module(python_module.__name__)
         found.append((own, None))
         block_dim = getattr(python_module, "BLOCK_DIM", None)

@@ -64,7 +64,11 @@ def apply_operator(grid: Grid, field: wp.array, out: wp.array, n_rows: int | Non
         raise ValueError("apply_operator: out may be rhs only for the biharmonic scheme with precise=False")
     if rhs is not None and not fused and record_cmd:
         raise ValueError("apply_operator: a residual in two passes cannot be recorded as one launch")
-    if equation == "laplace":
+    if equation == "laplace" and device.is_cpu:  # a thread per node looping over the handles
+        launch = wp.launch(laplace.apply_laplacian_rows if precise else laplace.apply_laplacian_rows_fast,
+                           dim=out.shape[0], inputs=[field, arrays["neighbours"], int(n_rows)], outputs=[out],
+                           device=device, record_cmd=record_cmd)
+    elif equation == "laplace":
         launch = wp.launch(laplace.apply_laplacian if precise else laplace.apply_laplacian_fast, dim=out.shape,
                            inputs=[field, arrays["index"], arrays["active_ijk"], int(n_rows)], outputs=[out],
                            device=device, record_cmd=record_cmd)
