@@ -257,7 +257,7 @@ def announce_compilation(device=None, harmonic: bool = False, stream=None, modul
     resolved = resolve_device(device)
     modules = tuple(modules) + (("laplace",) if harmonic else ())
     if not kernels_compiled(resolved, modules):
-        took = "10-40 s on a 2-core CPU" if resolved.is_cpu else "5-10 s"
+        took = "about 10 s on a 2-core CPU" if resolved.is_cpu else "5-10 s"
         print(f"warp-stokes: compiling the kernels for {resolved.alias} (first run on this machine, {took}; "
               "later runs load them from Warp's cache)", file=stream or sys.stderr, flush=True)
         compile_kernels(resolved, modules)
