@@ -174,7 +174,8 @@ def write_handles(field: wp.array2d(dtype=wp.vec4f), n: int, x: wp.vec3d, spacin
 
 # about 75 lines: one thread per (node, handle) assembles the local data of its closest face and the faces blended
 # with it; the steps share the per-face values held in registers. The same arithmetic as blend_at and write_handles
-# written out: through their struct an H100 took about twice as long (ogre: 0.007 -> 0.019 s at 128, 0.025 -> 0.045 s at 256)
+# written out: through their struct an H100 took about twice as long (ogre: 0.007 -> 0.019 s at 128, 0.025 -> 0.045 s
+# at 256)
 @wp.kernel
 def local_field(
     ijk: wp.array(dtype=wp.vec3i),
@@ -204,8 +205,7 @@ def local_field(
     if positions.shape[0] > 0:
         x = positions[n]
     else:
-        node = ijk[n]
-        x = origin + spacing * wp.vec3d(wp.float64(node[0]), wp.float64(node[1]), wp.float64(node[2]))
+        x = grid_point(ijk, n, origin, spacing)
     zero = wp.float64(0.0)
     one = wp.float64(1.0)
     nearest = wp.float64(1.0e300)

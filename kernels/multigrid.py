@@ -388,6 +388,16 @@ def block_row(blocks: wp.array2d(dtype=wp.mat44f), rows: wp.array2d(dtype=wp.int
     return acc
 
 
+@wp.func
+def block_chebyshev_step(blocks: wp.array2d(dtype=wp.mat44f), rows: wp.array2d(dtype=wp.int32),
+                         b: wp.array2d(dtype=wp.vec4f), x: wp.array2d(dtype=wp.vec4f), d_inv: wp.mat44f, ca: float,
+                         cb: float, d: wp.array2d(dtype=wp.vec4f), x_next: wp.array2d(dtype=wp.vec4f), n: int, h: int):
+    """At row n, column h of a 27-point block stencil: d = ca d + cb D^-1 (b - A x), x_next = x + d."""
+    v = ca * d[n, h] + cb * (d_inv * (b[n, h] - block_row(blocks, rows, x, n, h)))
+    d[n, h] = v
+    x_next[n, h] = x[n, h] + v
+
+
 @wp.kernel
 def stencil_apply(
     blocks: wp.array2d(dtype=wp.mat44f),
@@ -428,10 +438,7 @@ def stencil_chebyshev_step(
     """A Chebyshev step from the residual of a 27-point block stencil, in one pass: d = ca d + cb D^-1 (b - A x),
     x_next = x + d (the residual and ``chebyshev_step`` in turn, without writing the residual); x_next is not x."""
     n, h = wp.tid()
-    r = b[n, h] - block_row(blocks, rows, x, n, h)
-    v = ca * d[n, h] + cb * (diagonal_block(inv_diag, n) * r)
-    d[n, h] = v
-    x_next[n, h] = x[n, h] + v
+    block_chebyshev_step(blocks, rows, b, x, diagonal_block(inv_diag, n), ca, cb, d, x_next, n, h)
 
 
 #: a coarse node's fine rows (at most 27) and a fine node's parents (at most 8), kept by the CPU's row loops
@@ -458,10 +465,7 @@ def stencil_chebyshev_step_rows(
     n = wp.tid()
     d_inv = diagonal_block(inv_diag, n)
     for h in range(x.shape[1]):
-        r = b[n, h] - block_row(blocks, rows, x, n, h)
-        v = ca * d[n, h] + cb * (d_inv * r)
-        d[n, h] = v
-        x_next[n, h] = x[n, h] + v
+        block_chebyshev_step(blocks, rows, b, x, d_inv, ca, cb, d, x_next, n, h)
 
 
 @wp.kernel
