@@ -27,7 +27,8 @@ _PUBLIC = {
                   "classify_points", "LocalData", "COMPLEMENT_COLUMNS", "mean_value_coordinates", "boundary_field"],
     ".solver": ["Multigrid", "coarsen", "MemoryEstimate", "estimate_memory", "available_memory", "plan_chunks",
                 "SolveReport", "solve_biharmonic", "apply_operator"],
-    ".binding": ["Binding", "bind", "load_binding", "sample_weights", "deform_vertices", "inbetween"],
+    ".binding": ["Binding", "bind", "load_binding", "sample_weights", "deform_vertices", "inbetween", "write_skin",
+                 "skin_weights", "skin_error", "SkinWeights", "SkinError", "SkinReport"],
     ".quality": ["deformation_quality", "mean_value_quality"],
     ".batch": ["read_manifest", "run_batch"],
 }
@@ -44,6 +45,7 @@ __all__ = [
     "MemoryEstimate", "estimate_memory", "available_memory", "plan_chunks",
     "resolve_device", "device_name",
     "Poses", "load_poses", "write_animation", "inbetween", "read_manifest", "run_batch",
+    "write_skin", "skin_weights", "skin_error", "SkinWeights", "SkinError", "SkinReport",
     "WarpStokesError", "MeshError", "CageError", "BindingError", "ResolutionError", "ConvergenceError",
 ]
 

@@ -166,12 +166,14 @@ def _add_deform(sub) -> None:
 
 
 def _add_animate(sub) -> None:
-    p = sub.add_parser("animate", help="write the bound mesh, deformed by a sequence of cage poses, as animated USD")
+    p = sub.add_parser("animate", help="write the bound mesh, deformed by a sequence of cage poses, as animated USD "
+                                       "(baked points, or a UsdSkel rig / glTF skin that consumers play live)")
     p.add_argument("binding", help="binding file written by 'warp-stokes bind'")
     p.add_argument("poses", help="cage poses: a folder of OBJ frames, a .npy/.npz array (F, L, 3) or a USD file "
                                  "(one pose per time sample of --cage-prim)")
-    p.add_argument("-o", "--output", required=True, help="USD file to write (.usd/.usdc binary, .usda text); for a "
-                                                         "binding of a USD asset, a layer over it")
+    p.add_argument("-o", "--output", required=True, help="USD file to write (.usd/.usdc binary, .usda text; for a "
+                                                         "binding of a USD asset, a layer over it), or a glTF skin "
+                                                         "(.glb, .gltf)")
     p.add_argument("--cage-prim", default=None, metavar="PATH",
                    help="the cage's prim in the poses' USD file (default: the first mesh with the cage's point count)")
     p.add_argument("--asset", default=None, help="the bound USD asset, where it is not at the path the binding records")
@@ -187,6 +189,17 @@ def _add_animate(sub) -> None:
                    help="between keys: linear (default) or a natural cubic spline (with --key-frames or --inbetween)")
     p.add_argument("--with-cage", action="store_true", help="also write the animated cage (/Root/Cage)")
     p.add_argument("--with-weights", action="store_true", help="write the weights as a primvar")
+    p.add_argument("--skeleton", action="store_true",
+                   help="write a UsdSkel rig instead of baked points: one joint per cage handle, its translations per "
+                        "frame, the meshes skinned to it (a .glb/.gltf output is always a skin)")
+    p.add_argument("--influences", type=_number(int, 1), default=None, metavar="K",
+                   help="joints per vertex of the skin (default: all for USD, exact; 8 for glTF); fewer are chosen by "
+                        "weight and renormalised, and the error this makes is measured and printed")
+    p.add_argument("--non-negative", action="store_true",
+                   help="drop negative weights from the skin (for consumers that ignore them, e.g. Blender; glTF "
+                        "always does)")
+    p.add_argument("--max-error", type=_number(float, 0.0, low_open=True), default=None, metavar="E",
+                   help="refuse a skin further than E x the mesh's diagonal from the cage deformation over the poses")
     p.add_argument("--up-axis", choices=["Y", "Z"], default=None, help="stage up axis (Y; over an asset, the asset's)")
     p.add_argument("--meters-per-unit", type=_number(float, 0.0, low_open=True), default=None,
                    help="stage metersPerUnit (1.0; over an asset, the asset's)")

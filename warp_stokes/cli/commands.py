@@ -181,6 +181,13 @@ def animate_command(args) -> int:
     import warp_stokes as ws
 
     keyed = args.key_frames is not None or args.inbetween is not None
+    skinned = args.skeleton or os.path.splitext(args.output)[1].lower() in (".glb", ".gltf")
+    skin_options = [name for name, value in (("--influences", args.influences), ("--non-negative", args.non_negative),
+                                             ("--max-error", args.max_error)) if value not in (None, False)]
+    if skin_options and not skinned:
+        raise ws.WarpStokesError(f"{', '.join(skin_options)}: for a skin; add --skeleton (or write .glb / .gltf)")
+    if skinned and args.with_weights:
+        raise ws.WarpStokesError("--with-weights: a skin carries its weights as joint weights already")
     if args.interpolation is not None and not keyed:
         raise ws.WarpStokesError("--interpolation needs --key-frames or --inbetween (without them the poses are "
                                  "written as they are)")
@@ -193,6 +200,12 @@ def animate_command(args) -> int:
                                  f"in {poses.name}; give one per pose")
     if keyed:  # the poses are keys: the frames between them are interpolated
         poses = ws.inbetween(poses, args.key_frames, args.inbetween, args.interpolation or "linear")
+    if skinned:
+        print(ws.write_skin(args.output, binding, poses, influences=args.influences,
+                            non_negative=True if args.non_negative else None, max_error=args.max_error, fps=args.fps,
+                            with_cage=args.with_cage, up_axis=args.up_axis, meters_per_unit=args.meters_per_unit,
+                            asset=args.asset))
+        return 0
     ws.write_animation(args.output, binding, poses, fps=args.fps, with_cage=args.with_cage,
                        with_weights=args.with_weights, up_axis=args.up_axis, meters_per_unit=args.meters_per_unit,
                        asset=args.asset)

@@ -12,7 +12,7 @@ from ..files import atomic_output, same_file
 from ..normals import NormalsPlan
 from .common import deformed_frames, extent, new_stage, save_layer, set_timing, vec3f
 
-__all__ = ["write_layer"]
+__all__ = ["write_layer", "asset_context"]
 
 
 def _asset_path(binding, asset) -> str:
@@ -22,6 +22,27 @@ def _asset_path(binding, asset) -> str:
         hint = " (moved since binding? give its place with --asset)" if asset is None else ""
         raise WarpStokesError(f"{path}: the binding's USD asset is not there{hint}")
     return path
+
+
+def asset_context(path, binding, asset, up_axis, meters_per_unit) -> tuple[str, dict]:
+    """The asset a layer at ``path`` goes over (the binding's, or ``asset``) and its stage metadata, refused when the
+    output is one of the asset's files or the stage settings asked for differ from the asset's."""
+    from .asset import layer_files, open_stage, stage_metadata
+
+    asset_path = _asset_path(binding, asset)
+    for part in layer_files(asset_path):
+        if same_file(path, part):
+            what = "the asset itself" if same_file(part, asset_path) else f"a layer of the asset {asset_path} ({part})"
+            raise WarpStokesError(f"{path}: the output is {what}; write the animation layer to another file (it "
+                                  "sublayers the asset)")
+    metadata = stage_metadata(open_stage(asset_path, WarpStokesError))
+    if up_axis is not None and up_axis != metadata["up_axis"]:
+        raise WarpStokesError(f"up axis {up_axis}: a layer over {asset_path} keeps its up axis "
+                              f"{metadata['up_axis']}")
+    if meters_per_unit is not None and float(meters_per_unit) != metadata["meters_per_unit"]:
+        raise WarpStokesError(f"meters per unit {meters_per_unit:g}: a layer over {asset_path} keeps its "
+                              f"{metadata['meters_per_unit']:g}")
+    return asset_path, metadata
 
 
 class _Override:
@@ -92,21 +113,7 @@ def write_layer(path, ext, binding, positions, frames, poses, fps, with_cage, wi
     :func:`warp_stokes.io.usd.write_animation` for the arguments."""
     from pxr import Sdf, Usd, UsdGeom, Vt
 
-    from .asset import layer_files, open_stage, stage_metadata
-
-    asset_path = _asset_path(binding, asset)
-    for part in layer_files(asset_path):
-        if same_file(path, part):
-            what = "the asset itself" if same_file(part, asset_path) else f"a layer of the asset {asset_path} ({part})"
-            raise WarpStokesError(f"{path}: the output is {what}; write the animation layer to another file (it "
-                                  "sublayers the asset)")
-    metadata = stage_metadata(open_stage(asset_path, WarpStokesError))
-    if up_axis is not None and up_axis != metadata["up_axis"]:
-        raise WarpStokesError(f"up axis {up_axis}: a layer over {asset_path} keeps its up axis "
-                              f"{metadata['up_axis']}")
-    if meters_per_unit is not None and float(meters_per_unit) != metadata["meters_per_unit"]:
-        raise WarpStokesError(f"meters per unit {meters_per_unit:g}: a layer over {asset_path} keeps its "
-                              f"{metadata['meters_per_unit']:g}")
+    asset_path, metadata = asset_context(path, binding, asset, up_axis, meters_per_unit)
     rate = fps or poses.time_codes_per_second or metadata["time_codes_per_second"] or 24.0
     cage_prim = binding.settings.get("cage_prim")
     if with_cage and not cage_prim:

@@ -25,14 +25,16 @@ from ..poses import Poses, load_poses
 from .layer import write_layer
 from .standalone import write_standalone
 
-__all__ = ["write_animation"]
+__all__ = ["write_animation", "check_animation"]
 
 
-def _check(path: str, binding, poses: Poses, fps) -> tuple[str, np.ndarray, np.ndarray]:
+def check_animation(path, binding, poses: Poses, fps,
+                    extensions=(".usd", ".usdc", ".usda")) -> tuple[str, np.ndarray, np.ndarray]:
+    """The output's extension, and the poses' positions and frame numbers, checked against the binding."""
     path = os.fspath(path)
     ext = os.path.splitext(path)[1].lower()
-    if ext not in (".usd", ".usdc", ".usda"):
-        raise WarpStokesError(f"{path}: the output must end in .usd, .usdc or .usda")
+    if ext not in extensions:
+        raise WarpStokesError(f"{path}: the output must end in {', '.join(extensions[:-1])} or {extensions[-1]}")
     if fps is not None and not (isinstance(fps, (int, float, np.number)) and np.isfinite(fps) and fps > 0):
         raise WarpStokesError(f"fps must be a positive number, got {fps!r}")
     positions = np.asarray(poses.positions, dtype=np.float64)
@@ -86,7 +88,7 @@ def write_animation(path, binding, poses, fps: float | None = None, with_cage: b
     """
     if not isinstance(poses, Poses):
         poses = load_poses(poses, binding.cage_faces, binding.n_handles, binding.cage_source_index)
-    ext, positions, frames = _check(path, binding, poses, fps)
+    ext, positions, frames = check_animation(path, binding, poses, fps)
     path = os.fspath(path)
     if binding.asset is None and asset is not None:
         raise WarpStokesError(f"{asset}: the binding is not of a USD asset (it was bound from "

@@ -1,0 +1,212 @@
+"""The cage animation as a UsdSkel rig: a ``Skeleton`` of one joint per handle, a ``SkelAnimation`` of the joints'
+translations per time code, and the bound meshes skinned to it (``primvars:skel:jointIndices`` /
+``jointWeights``), instead of baked points.
+
+Spaces: the skeleton resets the transform stack, so its joints are in world space, where the binding's cage is;
+each skinned mesh's ``geomBindTransform`` is its rest local-to-world. UsdSkel then moves a rest point ``p`` (world
+space) to ``p + sum_l w_l (c'_l - c_l)``: the cage deformation with the skin's weights.
+
+Normals: translation-only joints do not turn normals, so a skinned mesh carries no authored normals (a standalone
+stage writes none; over an asset the bound prims' normals are blocked) and consumers compute them from the skinned
+points.
+
+Two forms, as :mod:`.standalone` and :mod:`.layer`: a stage ``/Root`` (the ``SkelRoot``) with the meshes, and a
+layer over an asset whose bound prims' nearest common ancestor becomes the ``SkelRoot`` (an override of its type).
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from ...errors import WarpStokesError
+from ..files import atomic_output
+from .common import extent, new_stage, save_layer, set_timing, vec3f
+
+__all__ = ["write_standalone_skeleton", "write_layer_skeleton"]
+
+
+def _matrices(points: np.ndarray):
+    """A Vt.Matrix4dArray of translations to ``points`` (L, 3) (row vectors: translation in the last row)."""
+    from pxr import Vt
+
+    matrices = np.broadcast_to(np.eye(4), (len(points), 4, 4)).copy()
+    matrices[:, 3, :3] = points
+    return Vt.Matrix4dArray.FromNumpy(matrices)
+
+
+def _define_skeleton(stage, root: str, rest_cage: np.ndarray, joints: list[str]):
+    """The ``Skeleton`` and ``SkelAnimation`` under ``root``: joints in world space (the skeleton resets the
+    transform stack), bind and rest transforms the rest cage, identity rotations and unit scales. Returns the
+    skeleton and the animation's translations attribute."""
+    from pxr import Gf, UsdGeom, UsdSkel, Vt
+
+    skeleton = UsdSkel.Skeleton.Define(stage, _free_path(stage, f"{root}/CageSkeleton"))
+    UsdGeom.Xformable(skeleton).SetResetXformStack(True)
+    skeleton.CreateJointsAttr(joints)
+    skeleton.CreateBindTransformsAttr(_matrices(rest_cage))
+    skeleton.CreateRestTransformsAttr(_matrices(rest_cage))
+    animation = UsdSkel.Animation.Define(stage, _free_path(stage, f"{root}/CageAnimation"))
+    animation.CreateJointsAttr(joints)
+    animation.CreateRotationsAttr(Vt.QuatfArray([Gf.Quatf(1.0)] * len(joints)))
+    animation.CreateScalesAttr(Vt.Vec3hArray([Gf.Vec3h(1.0, 1.0, 1.0)] * len(joints)))
+    translations = animation.CreateTranslationsAttr(vec3f(rest_cage))
+    UsdSkel.BindingAPI.Apply(skeleton.GetPrim()).CreateAnimationSourceRel().SetTargets([animation.GetPath()])
+    return skeleton, translations
+
+
+def _free_path(stage, path: str) -> str:
+    """``path``, or ``path_2``, ``path_3``, ... where a prim is already there."""
+    candidate, k = path, 1
+    while stage.GetPrimAtPath(candidate).IsValid():
+        k += 1
+        candidate = f"{path}_{k}"
+    return candidate
+
+
+def _skin_prim(prim, skeleton, indices: np.ndarray, weights: np.ndarray, to_world) -> None:
+    """Bind a mesh prim to the skeleton: the binding API, its joints and weights per vertex (element size K) and
+    its rest local-to-world as the geom bind transform."""
+    from pxr import Gf, UsdSkel, Vt
+
+    binding = UsdSkel.BindingAPI.Apply(prim)
+    binding.CreateSkeletonRel().SetTargets([skeleton.GetPath()])
+    k = indices.shape[1]
+    binding.CreateJointIndicesPrimvar(False, k).Set(Vt.IntArray.FromNumpy(indices.astype(np.int32).ravel()))
+    binding.CreateJointWeightsPrimvar(False, k).Set(Vt.FloatArray.FromNumpy(weights.astype(np.float32).ravel()))
+    binding.CreateGeomBindTransformAttr(Gf.Matrix4d(np.asarray(to_world, dtype=np.float64).tolist()))
+
+
+def _key_frames(binding, positions, frames, translations, root_extent, to_local, pad: float, layer, path, ext):
+    """The joints' translations per time code, and the SkelRoot's extent (the deformed points' box in its local
+    space, widened by the skin's measured error ``pad``) per time code."""
+    from pxr import Usd
+
+    from .common import deformed_frames
+
+    for t, pose, deformed in deformed_frames(binding, positions, frames, layer, path, ext):
+        time = Usd.TimeCode(t)
+        translations.Set(vec3f(pose), time)
+        local = to_local(deformed, time)
+        lo, hi = local.min(axis=0) - pad, local.max(axis=0) + pad
+        root_extent.Set(extent(np.stack([lo, hi])), time)
+
+
+def write_standalone_skeleton(path, ext, binding, skin, joints, positions, frames, rate, with_cage, up_axis,
+                              meters_per_unit, pad: float, metadata: dict) -> str:
+    """``/Root`` (SkelRoot) with the skeleton, its animation and one skinned mesh per part (``/Root/Mesh`` for one);
+    see :func:`warp_stokes.binding.skin.write_skin` for the arguments."""
+    from pxr import UsdGeom, UsdSkel
+
+    from .common import define_mesh
+    from .standalone import _define_parts
+
+    with atomic_output(path, ext) as tmp:
+        layer, stage = new_stage(tmp, ext)
+        UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y if up_axis == "Y" else UsdGeom.Tokens.z)
+        UsdGeom.SetStageMetersPerUnit(stage, float(meters_per_unit))
+        set_timing(stage, frames, rate)
+        layer.customLayerData = {"warpStokes": metadata}
+        root = UsdSkel.Root.Define(stage, "/Root")
+        stage.SetDefaultPrim(root.GetPrim())
+        skeleton, translations = _define_skeleton(stage, "/Root", binding.cage_vertices, joints)
+        # the parts' points are the binding's, in world space: their geom bind transform is the identity
+        for rows, points, *_ in _define_parts(stage, binding, None, False):
+            _skin_prim(points.GetPrim(), skeleton, skin.indices[rows], skin.weights[rows], np.eye(4))
+        if with_cage:
+            cage = define_mesh(stage, "/Root/Cage", np.full(len(binding.cage_faces), 3), binding.cage_faces.ravel(),
+                               binding.cage_vertices)
+            UsdGeom.Imageable(cage).CreatePurposeAttr(UsdGeom.Tokens.guide)
+            n = binding.n_handles
+            _skin_prim(cage.GetPrim(), skeleton, np.arange(n)[:, None], np.ones((n, 1)), np.eye(4))
+        _key_frames(binding, positions, frames, translations, root.CreateExtentAttr(), lambda p, t: p, pad, layer,
+                    path, ext)
+        save_layer(layer, path)
+        del stage, layer
+    return path
+
+
+def _common_ancestor(paths) -> str:
+    """The deepest prim path above all ``paths`` (each excluded itself), or "/" when they share none."""
+    from pxr import Sdf
+
+    parents = [Sdf.Path(p).GetParentPath() for p in paths]
+    common = parents[0]
+    for p in parents[1:]:
+        common = common.GetCommonPrefix(p)
+    return str(common)
+
+
+def write_layer_skeleton(path, ext, binding, skin, joints, positions, frames, rate, with_cage, asset_path: str,
+                         metadata_of_asset: dict, pad: float, metadata: dict) -> str:
+    """A layer over the asset: the bound prims' nearest common ancestor made the ``SkelRoot``, the skeleton and
+    animation under it, the bound prims (and with ``with_cage`` the cage prim, rigidly) skinned by overrides."""
+    from pxr import Usd, UsdGeom, UsdSkel
+
+    paths = [part["path"] for part in binding.parts]
+    cage_prim = binding.settings.get("cage_prim")
+    if with_cage and not cage_prim:
+        raise WarpStokesError("--with-cage: the binding's cage is not a prim of its asset; over an asset only its "
+                              "own prims are skinned (write a standalone stage from a binding of the mesh file)")
+    root_path = _common_ancestor(paths + ([cage_prim] if with_cage else []))
+    if root_path == "/":
+        raise WarpStokesError(f"{asset_path}: the bound prims ({', '.join(paths)}) have no common ancestor prim to "
+                              "become the SkelRoot; put them under one Xform in the asset")
+    relative = os.path.relpath(asset_path, os.path.dirname(os.path.abspath(path))).replace(os.sep, "/")
+    rest_time = (binding.asset or {}).get("rest_time")
+    with atomic_output(path, ext) as tmp:
+        layer, _ = new_stage(tmp, ext)
+        layer.subLayerPaths.append(relative)
+        stage = Usd.Stage.Open(layer)
+        if metadata_of_asset["default_prim"]:
+            layer.defaultPrim = metadata_of_asset["default_prim"]
+        UsdGeom.SetStageUpAxis(stage, metadata_of_asset["up_axis"])
+        UsdGeom.SetStageMetersPerUnit(stage, metadata_of_asset["meters_per_unit"])
+        set_timing(stage, frames, rate)
+        layer.customLayerData = {"warpStokes": metadata}
+        root_prim = stage.GetPrimAtPath(root_path)
+        root_prim.SetTypeName("SkelRoot")  # an override of the ancestor's type, in this layer
+        root = UsdSkel.Root(root_prim)
+        skeleton, translations = _define_skeleton(stage, root_path, binding.cage_vertices, joints)
+        for part, rows in zip(binding.parts, binding.part_slices()):
+            mesh = _bound_mesh(stage, asset_path, part["path"], rows.stop - rows.start, rest_time)
+            for attribute in (mesh.GetNormalsAttr(), UsdGeom.PrimvarsAPI(mesh).GetPrimvar("normals").GetAttr()):
+                if attribute and attribute.HasAuthoredValue():
+                    attribute.Block()  # stale under translation-only joints: consumers compute them
+            _skin_prim(mesh.GetPrim(), skeleton, skin.indices[rows], skin.weights[rows], part["to_world"])
+        if with_cage:
+            cage = _bound_mesh(stage, asset_path, cage_prim, binding.n_handles, rest_time)
+            time = Usd.TimeCode.EarliestTime() if rest_time is None else Usd.TimeCode(rest_time)
+            # a default in this layer outranks the asset's time samples (an animated cage): the skin moves it
+            cage.GetPointsAttr().Set(cage.GetPointsAttr().Get(time))
+            to_world = np.array(UsdGeom.XformCache(time).GetLocalToWorldTransform(cage.GetPrim()))
+            n = binding.n_handles
+            _skin_prim(cage.GetPrim(), skeleton, np.arange(n)[:, None], np.ones((n, 1)), to_world)
+
+        def to_root(points, time):
+            matrix = np.array(UsdGeom.XformCache(time).GetLocalToWorldTransform(root_prim))
+            inverse = np.linalg.inv(matrix)
+            return points.astype(np.float64) @ inverse[:3, :3] + inverse[3, :3]
+
+        _key_frames(binding, positions, frames, translations, root.CreateExtentAttr(), to_root, pad, layer, path,
+                    ext)
+        save_layer(layer, path)
+        del stage, layer
+    return path
+
+
+def _bound_mesh(stage, asset_path: str, prim_path: str, n_points: int, rest_time):
+    """The asset's mesh at ``prim_path``, checked against the binding (the asset may have changed since)."""
+    from pxr import Usd, UsdGeom
+
+    prim = stage.GetPrimAtPath(prim_path)
+    if not prim.IsValid() or not prim.IsA(UsdGeom.Mesh):
+        raise WarpStokesError(f"{asset_path}: the bound prim {prim_path} is no longer a mesh in the asset")
+    mesh = UsdGeom.Mesh(prim)
+    time = Usd.TimeCode.EarliestTime() if rest_time is None else Usd.TimeCode(rest_time)
+    rest = mesh.GetPointsAttr().Get(time)
+    if rest is None or len(rest) != n_points:
+        raise WarpStokesError(f"{asset_path}: {prim_path} has {0 if rest is None else len(rest)} points, the "
+                              f"binding {n_points}: the asset changed since binding; bind it again")
+    return mesh
