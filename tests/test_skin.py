@@ -148,11 +148,17 @@ def test_usd_rig_over_an_asset_is_an_override_that_pxr_plays(asset, tmp_path):
     assert path.read_bytes() == before
     layer = Sdf.Layer.FindOrOpen(str(out))
     # the asset's prims are overrides in the layer; only the skeleton and its animation are defined there
-    specs = {p: layer.GetPrimAtPath(Sdf.Path(p)).specifier for p in (BODY, BAND, CAGE, "/Char")}
+    specs = {p: layer.GetPrimAtPath(Sdf.Path(p)).specifier for p in (BODY, BAND, CAGE, "/Char/Geo")}
     assert set(specs.values()) == {Sdf.SpecifierOver}
-    assert layer.GetPrimAtPath(Sdf.Path("/Char")).typeName == "SkelRoot"
+    # the SkelRoot is the meshes' common parent (rotated and scaled in the asset), the joints in its space: the
+    # meshes' geom bind transforms are their transforms relative to it (here none), as Blender's importer reads them
+    assert layer.GetPrimAtPath(Sdf.Path("/Char/Geo")).typeName == "SkelRoot"
     stage = Usd.Stage.Open(str(out))
     assert not _validation_errors(stage)
+    for prim in (BODY, BAND):
+        bind = UsdSkel.BindingAPI(stage.GetPrimAtPath(prim)).GetGeomBindTransformAttr().Get()
+        np.testing.assert_allclose(np.array(bind), np.eye(4), atol=1e-12)
+    assert not UsdGeom.Xformable(stage.GetPrimAtPath("/Char/Geo/CageSkeleton")).GetResetXformStack()
     body = UsdGeom.Mesh(stage.GetPrimAtPath(BODY))
     assert body.GetNormalsAttr().Get() is None  # blocked: translation-only joints leave normals stale
     # pxr's skinning of the truncated rig is as far from the deformation as reported (float32 rounding aside)
@@ -298,6 +304,8 @@ def test_animate_writes_skins_from_the_command_line(arm_npz, tmp_path):
     proc = warp_stokes("animate", str(arm_npz), poses, "-o", str(rig), "--skeleton", "--device", "cpu")
     assert proc.returncode == 0, proc.stderr
     assert "UsdSkel stage" in proc.stdout and "all influences" in proc.stdout and "of the diagonal" in proc.stdout
+    # Stokes weights go negative: what consumers that drop them play is measured and said
+    assert "consumers that drop negative weights (Blender) play it" in proc.stdout
     binding = ws.load_binding(arm_npz, device="cpu")
     positions = np.load(poses)
     baked = _baked_world(rig, ["/Root/Mesh"], np.arange(1.0, 25.0))
@@ -330,3 +338,76 @@ def test_animate_refuses_skin_options_it_cannot_honour(arm_npz, tmp_path, args, 
     proc = warp_stokes("animate", str(arm_npz), str(EXAMPLE / "bend_poses.npy"), *args, "--device", "cpu")
     assert proc.returncode == 2 and message in one_error_line(proc)
     assert not os.listdir(tmp_path)
+
+
+def test_batch_writes_skins_and_records_their_error(tmp_path):
+    import json
+
+    manifest = tmp_path / "skins.toml"
+    manifest.write_text(f"""
+[defaults]
+resolution = 16
+mesh = "{EXAMPLE / 'arm.obj'}"
+cage = "{EXAMPLE / 'arm_cage.obj'}"
+poses = "{EXAMPLE / 'bend_poses.npy'}"
+
+[[asset]]
+name = "arm_glb"
+skin = "glb"
+influences = 4
+
+[[asset]]
+name = "arm_rig"
+skin = "usd"
+""")
+    proc = warp_stokes("batch", str(manifest), "-o", str(tmp_path / "out"), "--device", "cpu")
+    assert proc.returncode == 0, proc.stderr
+    assert sorted(os.listdir(tmp_path / "out")) == ["arm_glb.glb", "arm_glb.npz", "arm_rig.npz", "arm_rig.usd",
+                                                    "summary.json"]
+    records = {a["name"]: a for a in json.loads((tmp_path / "out" / "summary.json").read_text())["assets"]}
+    assert records["arm_glb"]["skin_error"]["influences"] == 4 and records["arm_glb"]["skin_error"]["max"] > 1e-3
+    assert records["arm_rig"]["skin_error"]["influences"] == 58 and records["arm_rig"]["skin_error"]["max"] < 1e-5
+    binding = ws.load_binding(tmp_path / "out" / "arm_rig.npz", device="cpu")
+    baked = _baked_world(tmp_path / "out" / "arm_rig.usd", ["/Root/Mesh"], np.arange(1.0, 25.0))
+    deformed = binding.deform(np.load(EXAMPLE / "bend_poses.npy"))
+    assert np.linalg.norm(baked - deformed, axis=2).max() / _diagonal(binding) < 1e-5
+
+
+@pytest.mark.parametrize("entry,message", [
+    ('skin = "fbx"', "'skin' must be one of"),
+    ("influences = 4", "'influences' set without 'skin'"),
+    ('skin = "glb"\nwith_cage = true', "only a USD rig carries the cage"),
+    ('skin = "usd"\ninfluences = 0', "'influences' must be a positive integer"),
+])
+def test_batch_refuses_skin_keys_before_any_work(tmp_path, entry, message):
+    manifest = tmp_path / "bad.toml"
+    manifest.write_text(f'[[asset]]\nmesh = "{EXAMPLE / "arm.obj"}"\ncage = "{EXAMPLE / "arm_cage.obj"}"\n'
+                        f'poses = "{EXAMPLE / "bend_poses.npy"}"\n{entry}\n')
+    proc = warp_stokes("batch", str(manifest), "-o", str(tmp_path / "out"), "--device", "cpu")
+    assert proc.returncode == 2 and message in one_error_line(proc)
+    assert not (tmp_path / "out").exists() or not os.listdir(tmp_path / "out")
+
+
+def test_usd_rig_is_the_deformation_where_the_skel_root_moves(tmp_path):
+    """The joints are in the SkelRoot's space per time code: a root animated in the asset (turning and moving) leaves
+    the skinned points where the deformation puts them in world space."""
+    from pxr import Gf
+
+    mesh, cage = ws.load_surface(EXAMPLE / "arm.obj"), ws.load_surface(EXAMPLE / "arm_cage.obj")
+    diagonal = float(np.linalg.norm(np.ptp(cage.vertices, axis=0)))
+    path = tmp_path / "moving.usda"
+    write_asset(path, mesh, cage, cage.vertices.mean(axis=0), 0.03 * diagonal)
+    stage = Usd.Stage.Open(str(path))
+    op = UsdGeom.Xformable(stage.GetPrimAtPath("/Char/Geo")).GetOrderedXformOps()[0]
+    rest = op.Get()
+    for k, t in enumerate(TIMES):
+        op.Set(Gf.Matrix4d(rest) * Gf.Matrix4d().SetRotate(Gf.Rotation(Gf.Vec3d(1, 0, 0), 7.0 * k)) *
+               Gf.Matrix4d().SetTranslate(Gf.Vec3d(0.3 * k, 0, 0)), t)
+    stage.GetRootLayer().Save()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        binding = ws.bind(path, cage_prim=CAGE, resolution=16, device="cpu")
+    poses = ws.load_poses(path, binding.cage_faces, binding.n_handles, cage_prim=CAGE)
+    ws.write_skin(tmp_path / "rig.usda", binding, poses)
+    baked = _baked_world(tmp_path / "rig.usda", [BODY, BAND], poses.frames)
+    assert np.linalg.norm(baked - binding.deform(poses.positions), axis=2).max() / _diagonal(binding) < 1e-5

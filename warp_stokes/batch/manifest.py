@@ -12,7 +12,10 @@ from ..errors import WarpStokesError
 __all__ = ["Asset", "ManifestError", "read_manifest", "ASSET_KEYS"]
 
 ASSET_KEYS = {"name", "mesh", "cage", "poses", "resolution", "fps", "tol", "with_cage", "with_weights", "boundary",
-              "sampling", "cage_prim", "mesh_prims", "rest_time", "method"}
+              "sampling", "cage_prim", "mesh_prims", "rest_time", "method", "skin", "influences", "non_negative",
+              "max_error"}
+#: ``skin`` values: the animation as a UsdSkel rig (``<name>.usd``) or a glTF skin (``<name>.glb`` / ``.gltf``)
+SKINS = ("usd", "glb", "gltf")
 
 
 class ManifestError(WarpStokesError):
@@ -36,6 +39,10 @@ class Asset:
     method: str = "stokes"
     with_cage: bool = False
     with_weights: bool = False
+    skin: str | None = None
+    influences: int | None = None
+    non_negative: bool | None = None
+    max_error: float | None = None
 
 
 def _read_data(path: str) -> dict:
@@ -84,8 +91,21 @@ def _checked_entry(merged: dict, where: str) -> None:
         raise ManifestError(f"{where}: 'method' must be \"stokes\", \"harmonic\" or \"mvc\"")
     if merged.get("sampling", "hermite") not in ("hermite", "trilinear"):
         raise ManifestError(f"{where}: 'sampling' must be \"hermite\" or \"trilinear\"")
+    if merged.get("skin") is not None and merged["skin"] not in SKINS:
+        raise ManifestError(f"{where}: 'skin' must be one of {', '.join(repr(s) for s in SKINS)} (a UsdSkel rig or a "
+                            f"glTF skin instead of baked points), got {merged['skin']!r}")
+    skin_keys = [key for key in ("influences", "non_negative", "max_error") if merged.get(key) is not None]
+    if skin_keys and merged.get("skin") is None:
+        raise ManifestError(f"{where}: {', '.join(repr(k) for k in skin_keys)} set without 'skin'")
+    if merged.get("skin") is not None and merged.get("with_weights"):
+        raise ManifestError(f"{where}: 'with_weights' with 'skin': a skin carries its weights as joint weights")
+    if merged.get("skin") in ("glb", "gltf") and merged.get("with_cage"):
+        raise ManifestError(f"{where}: 'with_cage' with a glTF skin: only a USD rig carries the cage")
+    if merged.get("skin") is not None and merged.get("poses") is None:
+        raise ManifestError(f"{where}: 'skin' animates the poses; give 'poses'")
     for key, kind in (("resolution", (int, str)), ("fps", (int, float)), ("tol", (int, float)),
-                      ("with_cage", bool), ("with_weights", bool), ("rest_time", (int, float))):
+                      ("with_cage", bool), ("with_weights", bool), ("rest_time", (int, float)),
+                      ("influences", int), ("non_negative", bool), ("max_error", (int, float))):
         value = merged.get(key)
         if key in merged and (not isinstance(value, kind) or (kind is not bool and isinstance(value, bool))):
             raise ManifestError(f"{where}: '{key}' has the wrong type ({type(merged[key]).__name__})")
@@ -94,7 +114,9 @@ def _checked_entry(merged: dict, where: str) -> None:
                                "\"auto\" or an integer from 8 to 2048"),
                               ("tol", lambda v: 0 < v <= 0.1, "in (0, 0.1]"),
                               ("fps", lambda v: math.isfinite(v) and v > 0, "a positive number"),
-                              ("rest_time", math.isfinite, "a finite time code")):
+                              ("rest_time", math.isfinite, "a finite time code"),
+                              ("influences", lambda v: v >= 1, "a positive integer"),
+                              ("max_error", lambda v: math.isfinite(v) and v > 0, "a positive fraction of the diagonal")):
         if key in merged and not ok(merged[key]):
             raise ManifestError(f"{where}: '{key}' must be {expected}, got {merged[key]!r}")
 

@@ -37,6 +37,7 @@ class Result:
     host: str = ""  # where it was bound: machine, process and Warp device
     pid: int | None = None
     device: str = ""
+    skin_error: dict | None = None  # a skin's distance from the deformation: max, rms (over the diagonal), influences
 
 
 def _mtime(path: str) -> float:
@@ -165,9 +166,11 @@ def refuse_outputs_over_inputs(assets: list[Asset], outdir: str, manifest) -> No
 
 
 def outputs_of(asset: Asset, outdir: str) -> list[str]:
-    """The files an asset writes: ``<name>.npz`` and, with poses, ``<name>.usd``."""
+    """The files an asset writes: ``<name>.npz`` and, with poses, ``<name>.usd`` (baked points, or a UsdSkel rig with
+    ``skin = "usd"``) or the glTF skin ``<name>.glb`` / ``.gltf``."""
     npz = os.path.join(outdir, f"{asset.name}.npz")
-    return [npz] + ([os.path.join(outdir, f"{asset.name}.usd")] if asset.poses else [])
+    ext = asset.skin if asset.skin in ("glb", "gltf") else "usd"
+    return [npz] + ([os.path.join(outdir, f"{asset.name}.{ext}")] if asset.poses else [])
 
 
 def earlier_records(outdir: str) -> dict:
@@ -301,7 +304,16 @@ def _bind_asset(asset, pending: dict, device, progress, k: int, total: int, resu
                         f"partition of unity within {stats['partition_of_unity_error']:.2g}, linear precision within "
                         f"{stats['linear_precision_error']:.2g} of the diagonal")
     binding.save(pending[npz])
-    if poses is not None:
+    if poses is not None and asset.skin:
+        from ..binding.skin import write_skin
+
+        if progress:
+            _progress(progress, k, total, asset.name, f"writing a skin of {len(poses.frames)} frames")
+        report = write_skin(pending[usd[0]], binding, poses, influences=asset.influences,
+                            non_negative=asset.non_negative, max_error=asset.max_error, fps=asset.fps,
+                            with_cage=asset.with_cage)
+        result.skin_error = {"max": report.error.max, "rms": report.error.rms, "influences": report.influences}
+    elif poses is not None:
         if progress:
             _progress(progress, k, total, asset.name, f"writing {len(poses.frames)} frames of USD")
         write_animation(pending[usd[0]], binding, poses, fps=asset.fps, with_cage=asset.with_cage,

@@ -223,6 +223,8 @@ class SkinReport:
     non_negative : bool, negative weights dropped
     frames : int, poses written
     error : SkinError, the skin against the cage deformation over the poses
+    without_negatives : SkinError or None, for a skin with negative weights: the same skin as played by consumers
+        that drop them and renormalise (Blender's USD importer does), which ``non_negative=True`` would write
     """
 
     path: str
@@ -232,12 +234,17 @@ class SkinReport:
     non_negative: bool
     frames: int
     error: SkinError
+    without_negatives: SkinError | None = None
 
     def __str__(self) -> str:
         kept = "all" if self.influences == self.joints else str(self.influences)
         sign = ", non-negative" if self.non_negative else ""
-        return (f"wrote {self.path} ({self.form}): {self.joints} joints, {kept} influences per vertex{sign}, "
+        text = (f"wrote {self.path} ({self.form}): {self.joints} joints, {kept} influences per vertex{sign}, "
                 f"{self.frames} frames; skin against the cage deformation: {self.error}")
+        if self.without_negatives is not None:
+            text += (f"\nconsumers that drop negative weights (Blender) play it {self.without_negatives.max:.2e} of "
+                     "the diagonal from it at most; --non-negative writes that skin and measures it")
+        return text
 
 
 def write_skin(path, binding, poses, influences: int | None = None, non_negative: bool | None = None,
@@ -339,4 +346,8 @@ def write_skin(path, binding, poses, influences: int | None = None, non_negative
         write_standalone_skeleton(path, ext, binding, skin, joints, positions, frames, rate, with_cage,
                                   up_axis or "Y", 1.0 if meters_per_unit is None else meters_per_unit, pad, metadata)
         form = "UsdSkel stage"
-    return SkinReport(path, form, binding.n_handles, skin.influences, non_negative, len(positions), error)
+    without_negatives = None
+    if np.any(skin.weights < 0):
+        without_negatives = skin_error(binding, skin_weights(binding, skin.influences, True), positions)
+    return SkinReport(path, form, binding.n_handles, skin.influences, non_negative, len(positions), error,
+                      without_negatives)

@@ -2,16 +2,22 @@
 translations per time code, and the bound meshes skinned to it (``primvars:skel:jointIndices`` /
 ``jointWeights``), instead of baked points.
 
-Spaces: the skeleton resets the transform stack, so its joints are in world space, where the binding's cage is;
-each skinned mesh's ``geomBindTransform`` is its rest local-to-world. UsdSkel then moves a rest point ``p`` (world
-space) to ``p + sum_l w_l (c'_l - c_l)``: the cage deformation with the skin's weights.
+Spaces: the joints live in the space of the ``SkelRoot`` (the skeleton is its child, with no transform of its own):
+bind transforms ``translate(S0^-1 c_l)`` with ``S0`` the root's rest local-to-world, animated translations
+``S(t)^-1 c'_l(t)``, and each skinned mesh's ``geomBindTransform`` its rest transform relative to the root. UsdSkel
+then moves a rest point ``p`` to ``S(t) (S0^-1 p + sum_l w_l (S(t)^-1 c'_l - S0^-1 c_l))``, which is
+``sum_l w_l c'_l + S(t) S0^-1 (p - sum_l w_l c_l)`` in world space: the cage deformation, up to the skin's own rest
+error (zero with all influences, to the binding's linear precision), also where the root moves. (World-space joints
+through ``!resetXformStack!`` would be simpler, but Blender's importer ignores it, and takes ``geomBindTransform`` as
+the mesh's transform under its parent: the root is therefore the bound meshes' nearest common parent.)
 
 Normals: translation-only joints do not turn normals, so a skinned mesh carries no authored normals (a standalone
 stage writes none; over an asset the bound prims' normals are blocked) and consumers compute them from the skinned
 points.
 
-Two forms, as :mod:`.standalone` and :mod:`.layer`: a stage ``/Root`` (the ``SkelRoot``) with the meshes, and a
-layer over an asset whose bound prims' nearest common ancestor becomes the ``SkelRoot`` (an override of its type).
+Two forms, as :mod:`.standalone` and :mod:`.layer`: a stage ``/Root`` (the ``SkelRoot``) with the meshes (and the
+cage, skinned rigidly), and a layer over an asset whose bound prims' nearest common ancestor becomes the ``SkelRoot``
+(an override of its type); there the cage prim, wherever it is, gets its points per time code (a few hundred points).
 """
 
 from __future__ import annotations
@@ -37,13 +43,12 @@ def _matrices(points: np.ndarray):
 
 
 def _define_skeleton(stage, root: str, rest_cage: np.ndarray, joints: list[str]):
-    """The ``Skeleton`` and ``SkelAnimation`` under ``root``: joints in world space (the skeleton resets the
-    transform stack), bind and rest transforms the rest cage, identity rotations and unit scales. Returns the
-    skeleton and the animation's translations attribute."""
-    from pxr import Gf, UsdGeom, UsdSkel, Vt
+    """The ``Skeleton`` and ``SkelAnimation`` under ``root``: joints in the root's space (``rest_cage`` given in it),
+    bind and rest transforms the rest cage, identity rotations and unit scales. Returns the skeleton and the
+    animation's translations attribute."""
+    from pxr import Gf, UsdSkel, Vt
 
     skeleton = UsdSkel.Skeleton.Define(stage, _free_path(stage, f"{root}/CageSkeleton"))
-    UsdGeom.Xformable(skeleton).SetResetXformStack(True)
     skeleton.CreateJointsAttr(joints)
     skeleton.CreateBindTransformsAttr(_matrices(rest_cage))
     skeleton.CreateRestTransformsAttr(_matrices(rest_cage))
@@ -78,19 +83,50 @@ def _skin_prim(prim, skeleton, indices: np.ndarray, weights: np.ndarray, to_worl
     binding.CreateGeomBindTransformAttr(Gf.Matrix4d(np.asarray(to_world, dtype=np.float64).tolist()))
 
 
-def _key_frames(binding, positions, frames, translations, root_extent, to_local, pad: float, layer, path, ext):
-    """The joints' translations per time code, and the SkelRoot's extent (the deformed points' box in its local
-    space, widened by the skin's measured error ``pad``) per time code."""
-    from pxr import Usd
+def _key_frames(binding, positions, frames, translations, root_extent, to_root, pad: float, layer, path, ext,
+                cage=None):
+    """The joints' translations per time code, in the root's space (``to_root(world points, time)``), and the
+    SkelRoot's extent (the deformed points' box in its space, widened by the skin's measured error ``pad``, itself
+    scaled to the root's space); ``cage``: an override that writes the cage prim's points per time code."""
+    from pxr import Usd, UsdGeom
 
     from .common import deformed_frames
 
     for t, pose, deformed in deformed_frames(binding, positions, frames, layer, path, ext):
         time = Usd.TimeCode(t)
-        translations.Set(vec3f(pose), time)
-        local = to_local(deformed, time)
-        lo, hi = local.min(axis=0) - pad, local.max(axis=0) + pad
+        translations.Set(vec3f(to_root(pose, time)), time)
+        local, scale = to_root(deformed, time), to_root.scale(time)
+        lo, hi = local.min(axis=0) - pad * scale, local.max(axis=0) + pad * scale
         root_extent.Set(extent(np.stack([lo, hi])), time)
+        if cage is not None:
+            cage.write(pose, UsdGeom.XformCache(time), time)
+
+
+class _RootSpace:
+    """World points into a prim's space at a time code (its local-to-world inverted), and how much that map can
+    stretch a length (to widen extents)."""
+
+    def __init__(self, prim=None):
+        self.prim = prim
+
+    def _inverse(self, time) -> np.ndarray:
+        from pxr import UsdGeom
+
+        if self.prim is None:
+            return np.eye(4)
+        matrix = np.array(UsdGeom.XformCache(time).GetLocalToWorldTransform(self.prim))
+        try:
+            return np.linalg.inv(matrix)
+        except np.linalg.LinAlgError:
+            raise WarpStokesError(f"{self.prim.GetPath()}: its local-to-world transform at time {time.GetValue():g} "
+                                  "is singular (scaled to zero?); it cannot be the skin's SkelRoot") from None
+
+    def __call__(self, points: np.ndarray, time) -> np.ndarray:
+        inverse = self._inverse(time)
+        return np.asarray(points, dtype=np.float64) @ inverse[:3, :3] + inverse[3, :3]
+
+    def scale(self, time) -> float:
+        return float(np.linalg.norm(self._inverse(time)[:3, :3], ord=2))
 
 
 def write_standalone_skeleton(path, ext, binding, skin, joints, positions, frames, rate, with_cage, up_axis,
@@ -120,7 +156,7 @@ def write_standalone_skeleton(path, ext, binding, skin, joints, positions, frame
             UsdGeom.Imageable(cage).CreatePurposeAttr(UsdGeom.Tokens.guide)
             n = binding.n_handles
             _skin_prim(cage.GetPrim(), skeleton, np.arange(n)[:, None], np.ones((n, 1)), np.eye(4))
-        _key_frames(binding, positions, frames, translations, root.CreateExtentAttr(), lambda p, t: p, pad, layer,
+        _key_frames(binding, positions, frames, translations, root.CreateExtentAttr(), _RootSpace(), pad, layer,
                     path, ext)
         save_layer(layer, path)
         del stage, layer
@@ -141,20 +177,24 @@ def _common_ancestor(paths) -> str:
 def write_layer_skeleton(path, ext, binding, skin, joints, positions, frames, rate, with_cage, asset_path: str,
                          metadata_of_asset: dict, pad: float, metadata: dict) -> str:
     """A layer over the asset: the bound prims' nearest common ancestor made the ``SkelRoot``, the skeleton and
-    animation under it, the bound prims (and with ``with_cage`` the cage prim, rigidly) skinned by overrides."""
+    animation under it, the bound prims skinned by overrides, and with ``with_cage`` the cage prim's points per time
+    code."""
     from pxr import Usd, UsdGeom, UsdSkel
+
+    from .layer import _Override
 
     paths = [part["path"] for part in binding.parts]
     cage_prim = binding.settings.get("cage_prim")
     if with_cage and not cage_prim:
         raise WarpStokesError("--with-cage: the binding's cage is not a prim of its asset; over an asset only its "
-                              "own prims are skinned (write a standalone stage from a binding of the mesh file)")
-    root_path = _common_ancestor(paths + ([cage_prim] if with_cage else []))
+                              "own prims are written (write a standalone stage from a binding of the mesh file)")
+    root_path = _common_ancestor(paths)
     if root_path == "/":
         raise WarpStokesError(f"{asset_path}: the bound prims ({', '.join(paths)}) have no common ancestor prim to "
                               "become the SkelRoot; put them under one Xform in the asset")
     relative = os.path.relpath(asset_path, os.path.dirname(os.path.abspath(path))).replace(os.sep, "/")
     rest_time = (binding.asset or {}).get("rest_time")
+    rest = Usd.TimeCode.EarliestTime() if rest_time is None else Usd.TimeCode(rest_time)
     with atomic_output(path, ext) as tmp:
         layer, _ = new_stage(tmp, ext)
         layer.subLayerPaths.append(relative)
@@ -166,31 +206,28 @@ def write_layer_skeleton(path, ext, binding, skin, joints, positions, frames, ra
         set_timing(stage, frames, rate)
         layer.customLayerData = {"warpStokes": metadata}
         root_prim = stage.GetPrimAtPath(root_path)
+        if root_prim.IsA(UsdGeom.Gprim):
+            raise WarpStokesError(f"{asset_path}: the bound prims' common parent {root_path} is a "
+                                  f"{root_prim.GetTypeName()}, which cannot become the SkelRoot")
         root_prim.SetTypeName("SkelRoot")  # an override of the ancestor's type, in this layer
         root = UsdSkel.Root(root_prim)
-        skeleton, translations = _define_skeleton(stage, root_path, binding.cage_vertices, joints)
+        to_root = _RootSpace(root_prim)
+        skeleton, translations = _define_skeleton(stage, root_path, to_root(binding.cage_vertices, rest), joints)
+        root_inverse = to_root._inverse(rest)
         for part, rows in zip(binding.parts, binding.part_slices()):
             mesh = _bound_mesh(stage, asset_path, part["path"], rows.stop - rows.start, rest_time)
             for attribute in (mesh.GetNormalsAttr(), UsdGeom.PrimvarsAPI(mesh).GetPrimvar("normals").GetAttr()):
                 if attribute and attribute.HasAuthoredValue():
                     attribute.Block()  # stale under translation-only joints: consumers compute them
-            _skin_prim(mesh.GetPrim(), skeleton, skin.indices[rows], skin.weights[rows], part["to_world"])
+            # the mesh's rest transform relative to the root (row vectors: local -> world -> root)
+            relative_to_root = np.asarray(part["to_world"], dtype=np.float64) @ root_inverse
+            _skin_prim(mesh.GetPrim(), skeleton, skin.indices[rows], skin.weights[rows], relative_to_root)
+        cage = None
         if with_cage:
-            cage = _bound_mesh(stage, asset_path, cage_prim, binding.n_handles, rest_time)
-            time = Usd.TimeCode.EarliestTime() if rest_time is None else Usd.TimeCode(rest_time)
-            # a default in this layer outranks the asset's time samples (an animated cage): the skin moves it
-            cage.GetPointsAttr().Set(cage.GetPointsAttr().Get(time))
-            to_world = np.array(UsdGeom.XformCache(time).GetLocalToWorldTransform(cage.GetPrim()))
-            n = binding.n_handles
-            _skin_prim(cage.GetPrim(), skeleton, np.arange(n)[:, None], np.ones((n, 1)), to_world)
-
-        def to_root(points, time):
-            matrix = np.array(UsdGeom.XformCache(time).GetLocalToWorldTransform(root_prim))
-            inverse = np.linalg.inv(matrix)
-            return points.astype(np.float64) @ inverse[:3, :3] + inverse[3, :3]
-
+            cage = _Override(_bound_mesh(stage, asset_path, cage_prim, binding.n_handles, rest_time),
+                             slice(0, binding.n_handles))
         _key_frames(binding, positions, frames, translations, root.CreateExtentAttr(), to_root, pad, layer, path,
-                    ext)
+                    ext, cage)
         save_layer(layer, path)
         del stage, layer
     return path
