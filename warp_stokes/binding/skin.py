@@ -191,23 +191,27 @@ def skin_error(binding, skin: SkinWeights, poses, frames_per_chunk: int = 64) ->
     dense = skin.dense()
     offset = rest - dense @ cage  # the skin's error at rest
     change = dense - np.asarray(binding.weights, dtype=np.float64)
+    if not change.any():  # the binding's own weights: the difference is the rest error, the same in every pose
+        squared = np.einsum("vi,vi->v", offset, offset)
+        return SkinError(float(np.sqrt(squared.max())) / diagonal, float(np.sqrt(squared.mean())) / diagonal, 0)
+    shift = change.sum(axis=1)  # zero to rounding for weights with partition of unity
     worst, worst_frame, squares = -1.0, 0, 0.0
     for start in range(0, len(batch), frames_per_chunk):
         chunk = batch[start : start + frames_per_chunk]
         n = len(chunk)
         # centred poses: the products stay small where the cage sits far from the origin
         centred = chunk - chunk.mean(axis=1, keepdims=True)
-        moved = change @ centred.transpose(1, 0, 2).reshape(len(cage), 3 * n)  # (V, 3n)
-        shift = change.sum(axis=1)  # zero to rounding for weights with partition of unity
-        diff = moved.reshape(len(rest), n, 3) + offset[:, None] + shift[:, None, None] * chunk.mean(axis=1)[None]
-        distance = np.linalg.norm(diff, axis=2)  # (V, n)
-        squares += float(np.sum(distance**2))
-        frame_max = distance.max(axis=0)
+        diff = (change @ centred.transpose(1, 0, 2).reshape(len(cage), 3 * n)).reshape(len(rest), n, 3)
+        diff += offset[:, None]
+        diff += shift[:, None, None] * chunk.mean(axis=1)[None]
+        squared = np.einsum("vni,vni->vn", diff, diff)  # (V, n)
+        squares += float(squared.sum())
+        frame_max = squared.max(axis=0)
         k = int(np.argmax(frame_max))
         if frame_max[k] > worst:
             worst, worst_frame = float(frame_max[k]), start + k
     rms = np.sqrt(squares / (len(rest) * len(batch)))
-    return SkinError(worst / diagonal, float(rms) / diagonal, worst_frame)
+    return SkinError(float(np.sqrt(worst)) / diagonal, float(rms) / diagonal, worst_frame)
 
 
 @dataclass

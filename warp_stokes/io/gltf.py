@@ -174,7 +174,6 @@ def write_gltf_skin(path, ext, binding, skin, joints, positions, frames, rate, m
     animation = Animation(name="CageAnimation")
     for joint in range(n_handles):
         output = buffer.accessor(translations[joint], view=view, offset=joint * translations[joint].nbytes)
-        gltf.bufferViews[view].byteStride = None
         animation.samplers.append(AnimationSampler(input=times, output=output, interpolation="LINEAR"))
         animation.channels.append(AnimationChannel(sampler=joint, target=AnimationChannelTarget(node=joint + 1,
                                                                                                  path="translation")))

@@ -70,9 +70,9 @@ def _free_path(stage, path: str) -> str:
     return candidate
 
 
-def _skin_prim(prim, skeleton, indices: np.ndarray, weights: np.ndarray, to_world) -> None:
+def _skin_prim(prim, skeleton, indices: np.ndarray, weights: np.ndarray, bind_transform) -> None:
     """Bind a mesh prim to the skeleton: the binding API, its joints and weights per vertex (element size K) and
-    its rest local-to-world as the geom bind transform."""
+    ``bind_transform`` (4 x 4, row vectors: its rest points into the skeleton's space) as the geom bind transform."""
     from pxr import Gf, UsdSkel, Vt
 
     binding = UsdSkel.BindingAPI.Apply(prim)
@@ -80,7 +80,7 @@ def _skin_prim(prim, skeleton, indices: np.ndarray, weights: np.ndarray, to_worl
     k = indices.shape[1]
     binding.CreateJointIndicesPrimvar(False, k).Set(Vt.IntArray.FromNumpy(indices.astype(np.int32).ravel()))
     binding.CreateJointWeightsPrimvar(False, k).Set(Vt.FloatArray.FromNumpy(weights.astype(np.float32).ravel()))
-    binding.CreateGeomBindTransformAttr(Gf.Matrix4d(np.asarray(to_world, dtype=np.float64).tolist()))
+    binding.CreateGeomBindTransformAttr(Gf.Matrix4d(np.asarray(bind_transform, dtype=np.float64).tolist()))
 
 
 def _key_frames(binding, positions, frames, translations, root_extent, to_root, pad: float, layer, path, ext,
