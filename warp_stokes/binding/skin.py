@@ -298,7 +298,7 @@ def write_skin(path, binding, poses, influences: int | None = None, non_negative
     if not isinstance(poses, Poses):
         poses = load_poses(poses, binding.cage_faces, binding.n_handles, binding.cage_source_index)
     ext, positions, frames = check_animation(path, binding, poses, fps,
-                                             (".usd", ".usdc", ".usda") + GLTF_EXTENSIONS)
+                                             (".usd", ".usdc", ".usda") + GLTF_EXTENSIONS, asset)
     path = os.fspath(path)
     gltf = ext in GLTF_EXTENSIONS
     if gltf and non_negative is False:
@@ -306,9 +306,6 @@ def write_skin(path, binding, poses, influences: int | None = None, non_negative
     if gltf and (with_cage or up_axis is not None or meters_per_unit is not None or asset is not None):
         raise WarpStokesError(f"{path}: a glTF skin takes no cage, up axis, units or asset (glTF is Y-up in metres; "
                               "a USD asset's own are converted)")
-    if binding.asset is None and asset is not None:
-        raise WarpStokesError(f"{asset}: the binding is not of a USD asset (it was bound from "
-                              f"{binding.settings.get('mesh')}); an asset can only be given for a binding of one")
     if max_error is not None and not (np.isfinite(max_error) and max_error > 0):
         raise WarpStokesError(f"max error must be a positive fraction of the diagonal, got {max_error!r}")
     if influences is None:

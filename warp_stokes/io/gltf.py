@@ -15,7 +15,7 @@ import numpy as np
 
 from ..errors import WarpStokesError
 from .files import atomic_output
-from .load import fan_triangles
+from .load import fan_triangles, polygons_by_part
 
 __all__ = ["write_gltf_skin", "GLTF_EXTENSIONS"]
 
@@ -75,12 +75,10 @@ def _to_gltf_space(asset: dict | None) -> np.ndarray | None:
     return None if np.allclose(matrix, np.eye(4)) else matrix
 
 
-def _part_primitive(binding, rows: slice, face_part: np.ndarray, corner_part: np.ndarray, k: int):
+def _part_primitive(binding, rows: slice, faces: np.ndarray, corners: np.ndarray):
     """The glTF vertices of one part (its vertices split where a vertex has several UVs), as (source vertex per glTF
     vertex, UVs per glTF vertex or None, triangles over glTF vertices)."""
-    counts, indices = binding.mesh_face_counts, binding.mesh_face_indices
-    faces, corners = np.flatnonzero(face_part == k), np.flatnonzero(corner_part == k)
-    vertex = indices[corners]
+    vertex = binding.mesh_face_indices[corners]
     if binding.mesh_uvs is not None:
         st, st_indices = binding.mesh_uvs
         pairs = np.stack([vertex, st_indices[corners]], axis=1)
@@ -94,7 +92,7 @@ def _part_primitive(binding, rows: slice, face_part: np.ndarray, corner_part: np
     if len(unused):
         source = np.concatenate([source, unused])
         uvs = None if uvs is None else np.concatenate([uvs, np.zeros((len(unused), 2))])
-    triangles, _ = fan_triangles(counts[faces], np.asarray(corner_vertex).ravel())
+    triangles, _ = fan_triangles(binding.mesh_face_counts[faces], np.asarray(corner_vertex).ravel())
     return source, uvs, triangles
 
 
@@ -136,15 +134,11 @@ def write_gltf_skin(path, ext, binding, skin, joints, positions, frames, rate, m
     padded_indices[:, :k], padded_weights[:, :k] = skin.indices, skin.weights
     padded_indices[padded_weights == 0] = 0  # glTF: joints of zero weight set to zero
 
-    counts = binding.mesh_face_counts
-    first_corner = np.concatenate([[0], np.cumsum(counts)[:-1]])
     slices = binding.part_slices()
-    face_part = np.searchsorted(np.array([s.stop for s in slices]), binding.mesh_face_indices[first_corner],
-                                side="right")
-    corner_part = np.repeat(face_part, counts)
+    polygons = polygons_by_part(binding.mesh_face_counts, binding.mesh_face_indices, slices)
     mesh_nodes = []
-    for p, (part, rows) in enumerate(zip(binding.parts, slices)):
-        source, uvs, triangles = _part_primitive(binding, rows, face_part, corner_part, p)
+    for p, (part, rows, (faces, corners)) in enumerate(zip(binding.parts, slices, polygons)):
+        source, uvs, triangles = _part_primitive(binding, rows, faces, corners)
         attributes = Attributes(POSITION=buffer.accessor(binding.mesh_vertices[source].astype(np.float32),
                                                          _ARRAY_BUFFER, bounds=True))
         if binding.mesh_normals is not None:

@@ -13,7 +13,7 @@ import numpy as np
 from ..errors import MeshError
 from .obj import read_obj
 
-__all__ = ["Surface", "load_surface", "fan_triangles"]
+__all__ = ["Surface", "load_surface", "fan_triangles", "polygons_by_part"]
 
 
 @dataclass(frozen=True)
@@ -57,6 +57,23 @@ class Surface:
         if self.face_counts is not None:
             return self.face_counts, self.face_indices
         return np.full(len(self.faces), 3, dtype=np.int64), self.faces.ravel()
+
+
+def polygons_by_part(face_counts, face_indices, part_slices) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Each part's polygons and their corners, for polygons in part order each over its own part's vertices (a
+    binding's layout): per part, (polygon numbers, corner positions in ``face_indices``).
+
+    Examples
+    --------
+    >>> [(f.tolist(), c.tolist()) for f, c in polygons_by_part([3, 3], [0, 1, 2, 3, 4, 5], [slice(0, 3), slice(3, 6)])]
+    [([0], [0, 1, 2]), ([1], [3, 4, 5])]
+    """
+    counts = np.asarray(face_counts, dtype=np.int64)
+    indices = np.asarray(face_indices, dtype=np.int64)
+    first_corner = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+    face_part = np.searchsorted(np.array([s.stop for s in part_slices]), indices[first_corner], side="right")
+    corner_part = np.repeat(face_part, counts)
+    return [(np.flatnonzero(face_part == k), np.flatnonzero(corner_part == k)) for k in range(len(part_slices))]
 
 
 def fan_triangles(face_counts, face_indices) -> tuple[np.ndarray, np.ndarray]:

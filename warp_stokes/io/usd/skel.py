@@ -28,7 +28,7 @@ import numpy as np
 
 from ...errors import WarpStokesError
 from ..files import atomic_output
-from .common import extent, new_stage, save_layer, set_timing, vec3f
+from .common import deformed_frames, define_mesh, extent, new_stage, save_layer, set_timing, vec3f
 
 __all__ = ["write_standalone_skeleton", "write_layer_skeleton"]
 
@@ -83,50 +83,36 @@ def _skin_prim(prim, skeleton, indices: np.ndarray, weights: np.ndarray, bind_tr
     binding.CreateGeomBindTransformAttr(Gf.Matrix4d(np.asarray(bind_transform, dtype=np.float64).tolist()))
 
 
-def _key_frames(binding, positions, frames, translations, root_extent, to_root, pad: float, layer, path, ext,
+def _key_frames(binding, positions, frames, translations, root_extent, root, pad: float, layer, path, ext,
                 cage=None):
-    """The joints' translations per time code, in the root's space (``to_root(world points, time)``), and the
-    SkelRoot's extent (the deformed points' box in its space, widened by the skin's measured error ``pad``, itself
-    scaled to the root's space); ``cage``: an override that writes the cage prim's points per time code."""
+    """The joints' translations per time code, in the space of the ``root`` prim (None: world space), and the
+    SkelRoot's extent (the deformed points' box in that space, widened by the skin's measured error ``pad``, scaled
+    into it); ``cage``: an override that writes the cage prim's points per time code."""
     from pxr import Usd, UsdGeom
-
-    from .common import deformed_frames
 
     for t, pose, deformed in deformed_frames(binding, positions, frames, layer, path, ext):
         time = Usd.TimeCode(t)
-        translations.Set(vec3f(to_root(pose, time)), time)
-        local, scale = to_root(deformed, time), to_root.scale(time)
-        lo, hi = local.min(axis=0) - pad * scale, local.max(axis=0) + pad * scale
-        root_extent.Set(extent(np.stack([lo, hi])), time)
+        cache = UsdGeom.XformCache(time)
+        inverse = np.eye(4) if root is None else _world_to_local(root, cache, time)
+        translations.Set(vec3f(_transform(pose, inverse)), time)
+        local, scale = _transform(deformed, inverse), float(np.linalg.norm(inverse[:3, :3], ord=2))
+        root_extent.Set(extent(np.stack([local.min(axis=0) - pad * scale, local.max(axis=0) + pad * scale])), time)
         if cage is not None:
-            cage.write(pose, UsdGeom.XformCache(time), time)
+            cage.write(pose, cache, time)
 
 
-class _RootSpace:
-    """World points into a prim's space at a time code (its local-to-world inverted), and how much that map can
-    stretch a length (to widen extents)."""
+def _world_to_local(prim, cache, time) -> np.ndarray:
+    """The inverse of ``prim``'s local-to-world transform (4 x 4, row vectors) at ``time``."""
+    try:
+        return np.linalg.inv(np.array(cache.GetLocalToWorldTransform(prim)))
+    except np.linalg.LinAlgError:
+        raise WarpStokesError(f"{prim.GetPath()}: its local-to-world transform at time {time.GetValue():g} is "
+                              "singular (scaled to zero?); it cannot be the skin's SkelRoot") from None
 
-    def __init__(self, prim=None):
-        self.prim = prim
 
-    def _inverse(self, time) -> np.ndarray:
-        from pxr import UsdGeom
-
-        if self.prim is None:
-            return np.eye(4)
-        matrix = np.array(UsdGeom.XformCache(time).GetLocalToWorldTransform(self.prim))
-        try:
-            return np.linalg.inv(matrix)
-        except np.linalg.LinAlgError:
-            raise WarpStokesError(f"{self.prim.GetPath()}: its local-to-world transform at time {time.GetValue():g} "
-                                  "is singular (scaled to zero?); it cannot be the skin's SkelRoot") from None
-
-    def __call__(self, points: np.ndarray, time) -> np.ndarray:
-        inverse = self._inverse(time)
-        return np.asarray(points, dtype=np.float64) @ inverse[:3, :3] + inverse[3, :3]
-
-    def scale(self, time) -> float:
-        return float(np.linalg.norm(self._inverse(time)[:3, :3], ord=2))
+def _transform(points: np.ndarray, matrix: np.ndarray) -> np.ndarray:
+    """Points (N, 3) through a 4 x 4 affine transform in row-vector form."""
+    return np.asarray(points, dtype=np.float64) @ matrix[:3, :3] + matrix[3, :3]
 
 
 def write_standalone_skeleton(path, ext, binding, skin, joints, positions, frames, rate, with_cage, up_axis,
@@ -135,7 +121,6 @@ def write_standalone_skeleton(path, ext, binding, skin, joints, positions, frame
     see :func:`warp_stokes.binding.skin.write_skin` for the arguments."""
     from pxr import UsdGeom, UsdSkel
 
-    from .common import define_mesh
     from .standalone import _define_parts
 
     with atomic_output(path, ext) as tmp:
@@ -156,8 +141,7 @@ def write_standalone_skeleton(path, ext, binding, skin, joints, positions, frame
             UsdGeom.Imageable(cage).CreatePurposeAttr(UsdGeom.Tokens.guide)
             n = binding.n_handles
             _skin_prim(cage.GetPrim(), skeleton, np.arange(n)[:, None], np.ones((n, 1)), np.eye(4))
-        _key_frames(binding, positions, frames, translations, root.CreateExtentAttr(), _RootSpace(), pad, layer,
-                    path, ext)
+        _key_frames(binding, positions, frames, translations, root.CreateExtentAttr(), None, pad, layer, path, ext)
         save_layer(layer, path)
         del stage, layer
     return path
@@ -211,9 +195,9 @@ def write_layer_skeleton(path, ext, binding, skin, joints, positions, frames, ra
                                   f"{root_prim.GetTypeName()}, which cannot become the SkelRoot")
         root_prim.SetTypeName("SkelRoot")  # an override of the ancestor's type, in this layer
         root = UsdSkel.Root(root_prim)
-        to_root = _RootSpace(root_prim)
-        skeleton, translations = _define_skeleton(stage, root_path, to_root(binding.cage_vertices, rest), joints)
-        root_inverse = to_root._inverse(rest)
+        root_inverse = _world_to_local(root_prim, UsdGeom.XformCache(rest), rest)
+        skeleton, translations = _define_skeleton(stage, root_path, _transform(binding.cage_vertices, root_inverse),
+                                                  joints)
         for part, rows in zip(binding.parts, binding.part_slices()):
             mesh = _bound_mesh(stage, asset_path, part["path"], rows.stop - rows.start, rest_time)
             for attribute in (mesh.GetNormalsAttr(), UsdGeom.PrimvarsAPI(mesh).GetPrimvar("normals").GetAttr()):
@@ -226,7 +210,7 @@ def write_layer_skeleton(path, ext, binding, skin, joints, positions, frames, ra
         if with_cage:
             cage = _Override(_bound_mesh(stage, asset_path, cage_prim, binding.n_handles, rest_time),
                              slice(0, binding.n_handles))
-        _key_frames(binding, positions, frames, translations, root.CreateExtentAttr(), to_root, pad, layer, path,
+        _key_frames(binding, positions, frames, translations, root.CreateExtentAttr(), root_prim, pad, layer, path,
                     ext, cage)
         save_layer(layer, path)
         del stage, layer

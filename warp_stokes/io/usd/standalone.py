@@ -9,6 +9,7 @@ import numpy as np
 
 from ...errors import WarpStokesError
 from ..files import atomic_output
+from ..load import polygons_by_part
 from ..normals import NormalsPlan
 from .common import define_mesh, deformed_frames, extent, new_stage, save_layer, set_timing, vec3f
 
@@ -78,13 +79,8 @@ def _define_parts(stage, binding, normals, with_weights: bool) -> list:
 
     slices = binding.part_slices()
     counts, indices = binding.mesh_face_counts, binding.mesh_face_indices
-    # the polygons are in part order, each over its part's vertices
-    first_corner = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    face_part = np.searchsorted(np.array([s.stop for s in slices]), indices[first_corner], side="right")
-    corner_part = np.repeat(face_part, counts)
     taken, writers = set(), []
-    for k, (part, rows) in enumerate(zip(binding.parts, slices)):
-        faces, corners = np.flatnonzero(face_part == k), np.flatnonzero(corner_part == k)
+    for (part, rows), (faces, corners) in zip(zip(binding.parts, slices), polygons_by_part(counts, indices, slices)):
         part_counts, part_indices = counts[faces], indices[corners] - rows.start
         name = "Mesh" if len(slices) == 1 else _prim_name(part["path"], taken)
         mesh = define_mesh(stage, f"/Root/{name}", part_counts, part_indices, binding.mesh_vertices[rows])

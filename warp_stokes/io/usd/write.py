@@ -28,9 +28,10 @@ from .standalone import write_standalone
 __all__ = ["write_animation", "check_animation"]
 
 
-def check_animation(path, binding, poses: Poses, fps,
-                    extensions=(".usd", ".usdc", ".usda")) -> tuple[str, np.ndarray, np.ndarray]:
-    """The output's extension, and the poses' positions and frame numbers, checked against the binding."""
+def check_animation(path, binding, poses: Poses, fps, extensions=(".usd", ".usdc", ".usda"),
+                    asset=None) -> tuple[str, np.ndarray, np.ndarray]:
+    """The output's extension, and the poses' positions and frame numbers, checked against the binding (and an
+    ``asset`` to layer over, which only a binding of a USD asset takes)."""
     path = os.fspath(path)
     ext = os.path.splitext(path)[1].lower()
     if ext not in extensions:
@@ -46,6 +47,9 @@ def check_animation(path, binding, poses: Poses, fps,
         raise WarpStokesError(f"{poses.name}: need at least one pose and one distinct frame number per pose")
     if len(binding.mesh_faces) == 0:
         raise WarpStokesError("the bound mesh has no faces: there is nothing to write as a USD mesh")
+    if binding.asset is None and asset is not None:
+        raise WarpStokesError(f"{asset}: the binding is not of a USD asset (it was bound from "
+                              f"{binding.settings.get('mesh')}); an asset can only be given for a binding of one")
     return ext, positions, frames
 
 
@@ -88,11 +92,8 @@ def write_animation(path, binding, poses, fps: float | None = None, with_cage: b
     """
     if not isinstance(poses, Poses):
         poses = load_poses(poses, binding.cage_faces, binding.n_handles, binding.cage_source_index)
-    ext, positions, frames = check_animation(path, binding, poses, fps)
+    ext, positions, frames = check_animation(path, binding, poses, fps, asset=asset)
     path = os.fspath(path)
-    if binding.asset is None and asset is not None:
-        raise WarpStokesError(f"{asset}: the binding is not of a USD asset (it was bound from "
-                              f"{binding.settings.get('mesh')}); an asset can only be given for a binding of one")
     if binding.asset is not None:
         if normals is not None:
             raise WarpStokesError("normals: a layer over an asset recomputes the normals the asset authors")
