@@ -24,7 +24,8 @@ _PUBLIC = {
     ".device": ["resolve_device", "device_name"],
     ".io": ["Surface", "load_surface", "Poses", "load_poses", "write_animation"],
     ".geometry": ["Cage", "check_cage", "signed_volume", "Grid", "voxelize", "wedge_resolution", "grid_from_mask",
-                  "classify_points", "LocalData", "COMPLEMENT_COLUMNS", "mean_value_coordinates", "boundary_field"],
+                  "classify_points", "LocalData", "COMPLEMENT_COLUMNS", "mean_value_coordinates", "boundary_field",
+                  "make_cage", "MadeCage"],
     ".solver": ["Multigrid", "coarsen", "MemoryEstimate", "estimate_memory", "available_memory", "plan_chunks",
                 "SolveReport", "solve_biharmonic", "apply_operator"],
     ".binding": ["Binding", "bind", "load_binding", "sample_weights", "deform_vertices", "inbetween", "write_skin",
@@ -37,7 +38,7 @@ _SUBPACKAGES = {"errors", "device", "io", "geometry", "solver", "binding", "qual
 
 __all__ = [
     "bind", "load_binding", "Binding",
-    "load_surface", "Surface", "check_cage", "Cage", "signed_volume",
+    "load_surface", "Surface", "check_cage", "Cage", "signed_volume", "make_cage", "MadeCage",
     "voxelize", "wedge_resolution", "grid_from_mask", "Grid", "classify_points",
     "mean_value_coordinates", "boundary_field", "COMPLEMENT_COLUMNS", "LocalData",
     "solve_biharmonic", "apply_operator", "SolveReport", "Multigrid", "coarsen",

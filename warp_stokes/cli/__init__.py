@@ -1,4 +1,4 @@
-"""Command line: ``warp-stokes bind | deform | animate | encode | batch | sweep | show``."""
+"""Command line: ``warp-stokes cage | bind | deform | animate | encode | batch | sweep | show``."""
 
 from __future__ import annotations
 
@@ -112,9 +112,24 @@ def _parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="warp-stokes", description="Stokes cage coordinates with NVIDIA Warp.")
     parser.add_argument("--version", action="version", version=f"warp-stokes {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
-    for add in (_add_bind, _add_deform, _add_animate, _add_encode, _add_batch, _add_sweep, _add_show):
+    for add in (_add_cage, _add_bind, _add_deform, _add_animate, _add_encode, _add_batch, _add_sweep, _add_show):
         add(sub)
     return parser
+
+
+def _add_cage(sub) -> None:
+    p = sub.add_parser("cage", help="make a cage for a mesh that has none: closed, enclosing every vertex, with about "
+                                    "the handles asked for")
+    p.add_argument("mesh", help="mesh file (OBJ, PLY, OFF, STL, glTF/GLB, ...) or a USD asset (all its meshes, in "
+                                "world space); open, self-intersecting and many-piece meshes are fine")
+    p.add_argument("-o", "--output", required=True, help="cage file to write (obj, ply or off)")
+    p.add_argument("--handles", type=_number(int, 8), default=None,
+                   help="the cage's vertex count (default: chosen from the mesh's shape, and printed)")
+    p.add_argument("--offset", type=_number(float, 0.0, 0.5, low_open=True), default=0.02,
+                   help="how far the cage starts from the mesh, as a fraction of its bounding diagonal (default "
+                        "0.02): larger leaves more room to simplify, smaller fits tighter")
+    p.add_argument("--device", default=None, help="cpu, cuda or cuda:N (default: CUDA when present)")
+    p.set_defaults(run=commands.cage_command)
 
 
 def _add_bind(sub) -> None:

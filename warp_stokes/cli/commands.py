@@ -7,7 +7,7 @@ import os
 import sys
 import tempfile
 
-__all__ = ["format_stats", "check_output", "announce_compilation", "bind_command", "deform_command",
+__all__ = ["format_stats", "check_output", "announce_compilation", "cage_command", "bind_command", "deform_command",
            "animate_command", "encode_command", "sweep_command", "show_command", "batch_command"]
 
 
@@ -97,6 +97,28 @@ def announce_compilation(device, harmonic: bool = False) -> None:
     from warp_stokes.device import announce_compilation as announce
 
     announce(device, harmonic=harmonic)
+
+
+def cage_command(args) -> int:
+    import trimesh
+
+    import warp_stokes as ws
+
+    ext = os.path.splitext(args.output)[1].lower().lstrip(".")
+    if ext not in ("obj", "ply", "off"):  # formats that keep the handles' order (STL keeps a triangle soup)
+        raise ws.WarpStokesError(f"{args.output}: unsupported cage format {ext!r} (use obj, ply or off)")
+    check_output(args.output, (args.mesh,))
+    made = ws.make_cage(args.mesh, handles=args.handles, offset=args.offset, device=args.device)
+    from warp_stokes.io.files import atomic_output
+
+    cage = trimesh.Trimesh(vertices=made.cage.vertices, faces=made.cage.faces, process=False)
+    with atomic_output(args.output, "." + ext) as tmp:
+        cage.export(tmp, file_type=ext)
+    for note in made.notes:
+        print(f"note: {note}")
+    print(made.summary())
+    print(f"wrote {args.output}")
+    return 0
 
 
 def bind_command(args) -> int:

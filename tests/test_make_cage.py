@@ -1,0 +1,149 @@
+"""Made cages (`warp-stokes cage`, ws.make_cage): valid by the package's own checks, every vertex inside, the handles
+asked for, and bindable; on an open real mesh, on meshes in pieces, self-intersecting, thin and holed, and through
+the command line."""
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import trimesh
+
+import warp_stokes as ws
+from conftest import EXAMPLE
+from warp_stokes.geometry.cage import check_cage, crossing_faces
+from warp_stokes.geometry.make_cage import default_handles, make_cage
+from warp_stokes.geometry.shapes import box_pair, dumbbell_pair, latitude_longitude_sphere, slab_pair, torus_pair
+from warp_stokes.geometry.simplify import simplify_enclosing
+
+
+def assert_valid(made, vertices, handles=None):
+    """What every made cage must be: a cage the package accepts as it is (closed, outward, manifold, no crossing
+    faces), every vertex of the mesh inside at the margin, the handles asked for."""
+    cage = made.cage
+    again = check_cage((cage.vertices, cage.faces))
+    assert not again.flipped and len(crossing_faces(cage.vertices, cage.faces)) == 0
+    inside, distance = ws.classify_points(cage, vertices, device="cpu")
+    assert inside.all()
+    assert distance.min() >= 0.99 * made.margin
+    if handles is not None:
+        assert cage.n_handles == handles
+
+
+def sphere(centre=(0.0, 0.0, 0.0), radius=1.0):
+    v, f = latitude_longitude_sphere(12, 16, radius=radius)
+    return v + np.asarray(centre), f
+
+
+def test_arm_open_mesh_binds_exactly():
+    """The arm is open (20 boundary edges); its made cage encloses it, and a bind to it has partition of unity and
+    linear precision."""
+    mesh = ws.load_surface(EXAMPLE / "arm.obj")
+    made = make_cage(EXAMPLE / "arm.obj", handles=58, device="cpu")
+    assert_valid(made, mesh.vertices, handles=58)
+    assert made.distance[1] < 0.05  # tight: no vertex farther than 5 % of the diagonal from the cage
+    binding = ws.bind(EXAMPLE / "arm.obj", made.cage, resolution=32, device="cpu")
+    assert binding.stats["partition_of_unity_error"] <= 1e-5
+    assert binding.stats["linear_precision_error"] <= 1e-5
+
+
+def test_pieces_get_their_own_shells():
+    """Two separate balls: a cage of two closed shells, one around each; two overlapping balls in one mesh
+    (self-intersecting): one shell around both."""
+    a, fa = sphere((0, 0, 0))
+    b, fb = sphere((3, 0, 0))
+    apart = (np.vstack([a, b]), np.vstack([fa, fb + len(a)]))
+    made = make_cage(apart, handles=80, device="cpu")
+    assert_valid(made, apart[0], handles=80)
+    shells = trimesh.Trimesh(made.cage.vertices, made.cage.faces, process=False).split(only_watertight=False)
+    assert len(shells) == 2
+
+    b, fb = sphere((1.2, 0, 0))
+    overlapping = (np.vstack([a, b]), np.vstack([fa, fb + len(a)]))
+    made = make_cage(overlapping, handles=60, device="cpu")
+    assert_valid(made, overlapping[0], handles=60)
+    assert len(trimesh.Trimesh(made.cage.vertices, made.cage.faces, process=False).split(only_watertight=False)) == 1
+
+
+@pytest.mark.parametrize("shape", [
+    pytest.param(lambda: slab_pair(0.05, seed=3), id="thin-slab"),
+    pytest.param(lambda: dumbbell_pair(0.08, sections=8, seed=1), id="dumbbell-thin-neck"),
+    pytest.param(lambda: torus_pair(0.15, major_sections=12, minor_sections=6, seed=2), id="torus"),
+    pytest.param(lambda: box_pair((1.0, 0.3, 0.2)), id="box"),
+])
+def test_synthetic_shapes(shape):
+    """Thin, holed and flat shapes (their cages as meshes): valid cages that keep the shape's topology (a torus's
+    cage has a hole: its Euler characteristic is 0)."""
+    pair = shape()
+    made = make_cage(pair.cage, handles=48, device="cpu")
+    assert_valid(made, pair.cage_vertices, handles=48)
+    euler = made.cage.n_handles - len(made.cage.faces) // 2 * 3 + len(made.cage.faces)
+    assert euler == (0 if "torus" in pair.name else 2)
+
+
+def test_default_handles_said_and_stopping_short_noted():
+    """Without a count, the handles come from the shape (a ball: its offset surface's roundness, 68), and are
+    said; where the margin leaves no room it stops above the count asked for, and says so."""
+    v, f = sphere()
+    made = make_cage((v, f), device="cpu")
+    assert made.chosen and made.cage.n_handles == made.handles
+    assert abs(made.handles - default_handles(4 * np.pi, 4 / 3 * np.pi)) <= 2
+    assert f"chosen from the mesh's shape: {made.handles}" in made.summary()
+    tight = make_cage((v, f), handles=8, offset=0.01, device="cpu")
+    assert_valid(tight, v)
+    assert tight.cage.n_handles == 8 or any("stopped at" in note for note in tight.notes)
+
+
+def test_simplify_keeps_points_at_the_margin():
+    """A point near the surface of a sphere: no collapse brings the surface within the margin of it, however few
+    handles are asked for."""
+    v, f = latitude_longitude_sphere(16, 24, radius=1.0)
+    point = np.array([[0.0, 0.0, 0.85]])
+    s = simplify_enclosing(v, f, 12, point, margin=0.1, device="cpu")
+    cage = check_cage((s.vertices, s.faces))
+    inside, distance = ws.classify_points(cage, point, device="cpu")
+    assert inside.all() and distance[0] >= 0.1 - 1e-9
+    assert len(s.vertices) >= 12
+
+
+def test_cli_writes_a_cage_that_binds(tmp_path):
+    out = tmp_path / "made.obj"
+    proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "cage", str(EXAMPLE / "arm.obj"), "-o", str(out),
+                           "--handles", "40", "--device", "cpu"], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    assert "cage of 40 handles" in proc.stdout and f"wrote {out}" in proc.stdout
+    read = trimesh.load(out, process=False)
+    assert len(read.vertices) == 40 and read.is_watertight and read.is_winding_consistent and read.volume > 0
+    binding = tmp_path / "arm.npz"
+    proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "bind", str(EXAMPLE / "arm.obj"), str(out), "-o",
+                           str(binding), "--resolution", "24", "--device", "cpu"], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    assert ws.load_binding(binding).weights.shape == (2089, 40)
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--handles", "5"], "must be >= 8"),
+    (["--offset", "0"], "must be > 0"),
+    (["-o", "{tmp}/cage.stl"], "unsupported cage format 'stl'"),
+    (["mesh={tmp}/points.obj"], "has no faces"),
+    (["mesh={tmp}/missing.obj"], "missing.obj: no such file"),
+])
+def test_cli_refuses_bad_input(tmp_path, args, message):
+    (tmp_path / "points.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\n")
+    mesh, output, rest = str(EXAMPLE / "arm.obj"), str(tmp_path / "cage.obj"), []
+    for a in args:
+        a = a.replace("{tmp}", str(tmp_path))
+        if a.startswith("mesh="):
+            mesh = a[5:]
+        elif a.endswith(".stl"):
+            output = a
+        else:
+            rest.append(a)
+    if "-o" in rest:
+        rest.remove("-o")
+    proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "cage", mesh, "-o", output, *rest,
+                           "--device", "cpu"], capture_output=True, text=True)
+    assert proc.returncode == 2
+    assert message in proc.stderr and "Traceback" not in proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "cage.obj").exists()

@@ -1,0 +1,339 @@
+"""Simplifying a closed surface to a cage: quadric edge collapses that keep it a closed, oriented, manifold surface
+that does not cross itself, does not fold, and keeps a set of points inside, at a margin from it.
+
+Every collapse is checked before it is made (not repaired after), on the device (:mod:`warp_stokes.kernels.cage`):
+no face turned over or with an angle below the minimum, no fold sharper than :data:`MAX_FOLD_DEGREES`, no new face
+crossing another face, and no point of the enclosed set swept out of the surface (a winding number about the region
+between the old and the new faces) or brought within the margin of it. The link condition (the surface stays a
+manifold) is checked on the host. So the surface is valid after every step; where no collapse is valid it stops
+short of the count asked for.
+
+Collapses are made in rounds: the cheapest edges (quadric error, in bins of a quarter octave, a fixed scrambled
+order within a bin), whose fans share no vertex, checked all at once against the surface as it is; of those that
+pass, one whose new faces would cross another's waits for the next round. An edge refused is tried again once its
+fan has changed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["simplify_enclosing", "Simplified", "MAX_FOLD_DEGREES", "REFUSALS"]
+
+#: no collapse makes two neighbouring faces' normals more than this many degrees apart (a cage's own check notes
+#: folds beyond 150 degrees)
+MAX_FOLD_DEGREES = 120.0
+#: no collapse makes a face with an angle below this many degrees, or turns a face by more than FLIP_DEGREES
+MIN_ANGLE_DEGREES = 1.0
+FLIP_DEGREES = 120.0
+#: why collapses were refused (the kernel's codes, in ``Simplified.refusals``)
+REFUSALS = {1: "small angle", 2: "face turned", 3: "fold", 4: "faces cross", 5: "point swept out",
+            6: "point within the margin"}
+
+
+@dataclass
+class Simplified:
+    """The simplified surface: ``vertices`` (V, 3), ``faces`` (F, 3) outward as given; ``collapses`` made,
+    ``rounds`` of them, and ``refusals``: how many times a collapse was refused, by reason (:data:`REFUSALS`)."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    collapses: int
+    rounds: int
+    refusals: dict
+
+
+def _quadrics(v: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """(V, 4, 4) sums of the area-weighted plane quadrics of each vertex's faces."""
+    n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    area2 = np.linalg.norm(n, axis=1)
+    unit = n / np.maximum(area2, 1e-300)[:, None]
+    plane = np.column_stack([unit, -np.einsum("ij,ij->i", unit, v[f[:, 0]])])
+    q = 0.5 * area2[:, None, None] * plane[:, :, None] * plane[:, None, :]
+    out = np.zeros((len(v), 4, 4))
+    for k in range(3):
+        np.add.at(out, f[:, k], q)
+    return out
+
+
+def _placements(qa: np.ndarray, qb: np.ndarray, pa: np.ndarray, pb: np.ndarray, length_weight: float):
+    """Candidate positions for collapsing edges (a, b), in order of cost: the quadric's minimiser (where it is well
+    conditioned), the midpoint, a and b. Returns positions (E, 4, 3) and costs (E, 4); the cost adds
+    ``length_weight`` x the edge's squared length, which spreads the handles over flat parts too."""
+    q = qa + qb
+    mid = 0.5 * (pa + pb)
+    a3, b3 = q[:, :3, :3], -q[:, :3, 3]
+    det = np.linalg.det(a3)
+    scale = np.maximum(np.einsum("eii->e", a3), 1e-300) ** 3
+    good = np.abs(det) > 1e-6 * scale
+    opt = mid.copy()
+    if good.any():
+        opt[good] = np.linalg.solve(a3[good], b3[good][:, :, None])[:, :, 0]
+    # a minimiser far from the edge (a nearly flat or cylindrical patch) is no placement to trust
+    far = np.linalg.norm(opt - mid, axis=1) > np.linalg.norm(pb - pa, axis=1)
+    opt[far] = mid[far]
+    cand = np.stack([opt, mid, pa, pb], axis=1)
+    h = np.concatenate([cand, np.ones(cand.shape[:2] + (1,))], axis=2)
+    cost = np.einsum("eci,eij,ecj->ec", h, q, h)
+    cost = np.maximum(cost, 0.0) + length_weight * np.sum((pb - pa) ** 2, axis=1)[:, None]
+    order = np.argsort(cost, axis=1, kind="stable")
+    return np.take_along_axis(cand, order[:, :, None], axis=1), np.take_along_axis(cost, order, axis=1)
+
+
+def _unique_edges(f: np.ndarray, n: int) -> np.ndarray:
+    """(E, 2) the undirected edges of faces f (vertex ids below n), each once, (a < b), sorted."""
+    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    keys = np.unique(np.minimum(e[:, 0], e[:, 1]) * n + np.maximum(e[:, 0], e[:, 1]))
+    return np.column_stack([keys // n, keys % n])
+
+
+def _csr(source: np.ndarray, target: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(start (n + 1,), items) listing target[k] under source[k]."""
+    order = np.argsort(source, kind="stable")
+    start = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(np.bincount(source, minlength=n), out=start[1:])
+    return start, target[order]
+
+
+def _expand(start: np.ndarray, items: np.ndarray, owners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For each owner o, the items start[o]:start[o+1]: (which owner (by position in owners), item)."""
+    counts = start[owners + 1] - start[owners]
+    which = np.repeat(np.arange(len(owners)), counts)
+    offset = np.arange(len(which)) - np.repeat(np.cumsum(counts) - counts, counts)
+    return which, items[start[owners][which] + offset]
+
+
+def _contains(sorted_keys: np.ndarray, keys: np.ndarray) -> np.ndarray:
+    if len(sorted_keys) == 0:
+        return np.zeros(len(keys), dtype=bool)
+    pos = np.minimum(np.searchsorted(sorted_keys, keys), len(sorted_keys) - 1)
+    return sorted_keys[pos] == keys
+
+
+def _link_condition(edges, nbr_start, nbr, n) -> np.ndarray:
+    """Edges whose ends share exactly two neighbours, neither of valence 3: collapsing them keeps the surface a
+    manifold (and never flattens a tetrahedron)."""
+    keys = edges[:, 0] * n + edges[:, 1]
+    valence = np.diff(nbr_start)
+    which, c = _expand(nbr_start, nbr, edges[:, 0])
+    b = edges[which, 1]
+    common = (c != b) & _contains(keys, np.minimum(b, c) * n + np.maximum(b, c))
+    count = np.bincount(which, weights=common, minlength=len(edges))
+    thin = np.bincount(which, weights=common & (valence[c] <= 3), minlength=len(edges))
+    return (count == 2) & (thin == 0)
+
+
+def _cost_bins(cost: np.ndarray) -> np.ndarray:
+    """Costs in bins a quarter of an octave wide (the cheapest hundred-millionth of the largest in one): collapses
+    are taken cheapest bin first, and within a bin in a scrambled order, so that where costs vary smoothly over the
+    surface (or are all zero, on its flat parts) the independent sets are large, not one local minimum per round."""
+    floor = 1e-8 * max(float(cost.max()), 1e-300)
+    return np.floor(4.0 * np.log2(np.maximum(cost, floor) / floor)).astype(np.int64)
+
+
+def _scramble(keys: np.ndarray) -> np.ndarray:
+    """A fixed pseudo-random order of edge keys (Knuth's multiplicative hash): deterministic, spatially uncorrelated."""
+    return (keys.astype(np.uint64) * np.uint64(2654435761)) % np.uint64(2**32)
+
+
+def _first_at_both_ends(edges, priority, n) -> np.ndarray:
+    """Edges that come first (smallest priority) among the edges at each of their two ends: no two share a vertex."""
+    big = np.iinfo(np.int64).max
+    m = np.full(n, big, dtype=np.int64)
+    np.minimum.at(m, edges[:, 0], priority)
+    np.minimum.at(m, edges[:, 1], priority)
+    return (priority < big) & (priority == m[edges[:, 0]]) & (priority == m[edges[:, 1]])
+
+
+def _disjoint_fans(which: np.ndarray, ring: np.ndarray, k: int, n: int, passes: int = 8) -> np.ndarray:
+    """Of k collapses in priority order, whose fans hold vertices ``ring`` (``which`` collapse each), a set whose
+    fans share no vertex, nearly maximal: in each pass a collapse is taken when it comes first at every vertex of
+    its fan among those still open; collapses touching a taken fan close (Luby's rounds, with priorities)."""
+    taken = np.zeros(k, dtype=bool)
+    open_ = np.ones(k, dtype=bool)
+    for _ in range(passes):
+        live = open_[which]
+        owner = np.full(n, k, dtype=np.int64)
+        np.minimum.at(owner, ring[live], which[live])
+        lost = np.bincount(which[live], weights=owner[ring[live]] != which[live], minlength=k) > 0
+        won = open_ & ~lost
+        taken |= won
+        blocked = np.zeros(n, dtype=bool)
+        blocked[ring[won[which]]] = True
+        open_ &= ~won & ~(np.bincount(which, weights=blocked[ring], minlength=k) > 0)
+        if not open_.any():
+            break
+    return taken
+
+
+def _apart(v, f, vf_start, vf, a, b, x, device) -> np.ndarray:
+    """Of collapses checked one by one against the surface as it was (fans sharing no vertex, in priority order),
+    those to make together: where the new faces of two cross, the later one waits for a later round (a collapse
+    whose own new faces cross each other is left out too)."""
+    from .cage_faults import crossing_faces
+
+    k = len(a)
+    which, face = _expand(vf_start, vf, np.concatenate([a, b]))
+    which %= k
+    faces = f[face]
+    keep = ~((faces == a[which][:, None]).any(axis=1) & (faces == b[which][:, None]).any(axis=1))
+    which, faces = which[keep], faces[keep]
+    moved = v.copy()
+    moved[a] = x
+    relabel = np.arange(len(v))
+    relabel[b] = a
+    faces = relabel[faces]
+    used, faces = np.unique(faces, return_inverse=True)
+    pairs = crossing_faces(moved[used], faces.reshape(-1, 3), device=device)
+    kept = np.ones(k, dtype=bool)
+    kept[np.maximum(which[pairs[:, 0]], which[pairs[:, 1]])] = False
+    return kept
+
+
+def simplify_enclosing(vertices: np.ndarray, faces: np.ndarray, handles: int, points: np.ndarray, margin: float,
+                       length_weight: float = 0.0, device=None) -> Simplified:
+    """Collapse edges of a closed, oriented, manifold surface until it has ``handles`` vertices, keeping it valid
+    and ``points`` inside it at least ``margin`` from it.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float array
+    faces : (F, 3) int array, a closed, consistently oriented, manifold surface that does not cross itself and has
+        every point inside it at least ``margin`` from it
+    handles : int, the vertex count to reach
+    points : (P, 3) float array, the points to keep inside (a mesh's vertices)
+    margin : float, the smallest distance allowed between a point and the surface
+    length_weight : float
+        Added to each collapse's quadric error per squared edge length: 0 follows the shape only; larger values
+        spread the vertices more evenly.
+
+    Returns
+    -------
+    Simplified
+        With ``len(vertices) > handles`` when no valid collapse was left.
+
+    Examples
+    --------
+    >>> from warp_stokes.geometry.shapes import latitude_longitude_sphere
+    >>> v, f = latitude_longitude_sphere(12, 16, radius=1.0)
+    >>> s = simplify_enclosing(v, f, 40, np.zeros((1, 3)), margin=0.5)
+    >>> len(s.vertices), len(s.faces)
+    (40, 76)
+    """
+    import warp as wp
+
+    from ..device import resolve_device
+    from ..kernels import cage as cage_kernels
+
+    v = np.array(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    n = len(v)
+    q = _quadrics(v, f)
+    alive = np.zeros(n, dtype=bool)
+    alive[np.unique(f)] = True
+    changed_at = np.full(n, -1, dtype=np.int64)   # the round when a vertex's fan last changed
+    refused_keys = np.zeros(0, dtype=np.int64)     # edges refused, and when: tried again once their fan changes
+    refused_at = np.zeros(0, dtype=np.int64)
+    centre = 0.5 * (v.min(axis=0) + v.max(axis=0))
+    pad = 1e-6 * np.linalg.norm(v.max(axis=0) - v.min(axis=0))
+    device = resolve_device(device)
+    collapses = rounds = 0
+    reasons = np.zeros(8, dtype=np.int64)
+    cos_flip, cos_fold = np.cos(np.radians(FLIP_DEGREES)), np.cos(np.radians(MAX_FOLD_DEGREES))
+    sin_angle = np.sin(np.radians(MIN_ANGLE_DEGREES))
+    with wp.ScopedDevice(device):
+        rel = (points - centre).astype(np.float32)
+        points_bvh = wp.Bvh(wp.array(rel - pad, dtype=wp.vec3), wp.array(rel + pad, dtype=wp.vec3))
+        points_d = wp.array(points, dtype=wp.vec3d)
+        while alive.sum() > handles:
+            if alive.sum() < n // 2:  # renumber the survivors: the arrays of every round are as long as n
+                keep = np.flatnonzero(alive)
+                remap = np.full(n, -1, dtype=np.int64)
+                remap[keep] = np.arange(len(keep))
+                ra, rb = remap[refused_keys // n], remap[refused_keys % n]
+                live = (ra >= 0) & (rb >= 0)
+                n = len(keep)
+                refused_keys, refused_at = np.minimum(ra, rb)[live] * n + np.maximum(ra, rb)[live], refused_at[live]
+                order = np.argsort(refused_keys)
+                refused_keys, refused_at = refused_keys[order], refused_at[order]
+                v, q, changed_at, f = v[keep], q[keep], changed_at[keep], remap[f]
+                alive = np.ones(n, dtype=bool)
+            edges = _unique_edges(f, n)
+            keys = edges[:, 0] * n + edges[:, 1]
+            src = np.concatenate([edges[:, 0], edges[:, 1]])
+            dst = np.concatenate([edges[:, 1], edges[:, 0]])
+            nbr_start, nbr = _csr(src, dst, n)
+            eligible = _link_condition(edges, nbr_start, nbr, n)
+            seen = _contains(refused_keys, keys)
+            if seen.any():
+                when = refused_at[np.searchsorted(refused_keys, keys[seen])]
+                eligible[seen] &= np.maximum(changed_at[edges[seen, 0]], changed_at[edges[seen, 1]]) > when
+            if not eligible.any():
+                break
+            index = np.flatnonzero(eligible)
+            ea, eb = edges[index, 0], edges[index, 1]
+            place = np.empty((len(edges), 4, 3))
+            cost = np.empty(len(edges))
+            place[index], c = _placements(q[ea], q[eb], v[ea], v[eb], length_weight)
+            cost[index] = c[:, 0]
+            priority = np.full(len(edges), np.iinfo(np.int64).max, dtype=np.int64)
+            priority[index[np.lexsort((_scramble(keys[index]), _cost_bins(cost[index])))]] = np.arange(len(index))
+            chosen = np.flatnonzero(_first_at_both_ends(edges, priority, n))
+            chosen = chosen[np.argsort(priority[chosen])]
+            if len(chosen) == 0:
+                break
+            # fans that share no vertex: each vertex goes to the first collapse (in priority order) whose fan holds it
+            which, ring = _expand(nbr_start, nbr, np.concatenate([edges[chosen, 0], edges[chosen, 1]]))
+            which %= len(chosen)
+            chosen = chosen[_disjoint_fans(which, ring, len(chosen), n)][: int(alive.sum()) - handles]
+            rounds += 1
+            a, b = edges[chosen, 0], edges[chosen, 1]
+            vf_start, vf = _csr(f.ravel(), np.repeat(np.arange(len(f)), 3), n)
+            rel_v = (v - centre).astype(np.float32)
+            surface = wp.Mesh(points=wp.array(rel_v, dtype=wp.vec3), indices=wp.array(f.astype(np.int32).ravel(),
+                                                                                       dtype=wp.int32))
+            choice = wp.empty(len(chosen), dtype=wp.int32)
+            reason = wp.empty(len(chosen), dtype=wp.int32)
+            wp.launch(cage_kernels.collapse_choice, dim=len(chosen),
+                      inputs=[wp.array(v, dtype=wp.vec3d), wp.array(f.astype(np.int32), dtype=wp.vec3i),
+                              wp.array(vf_start.astype(np.int32), dtype=wp.int32),
+                              wp.array(vf.astype(np.int32), dtype=wp.int32),
+                              wp.array(a.astype(np.int32), dtype=wp.int32), wp.array(b.astype(np.int32), dtype=wp.int32),
+                              wp.array(np.ascontiguousarray(place[chosen]), dtype=wp.vec3d), surface.id,
+                              wp.vec3d(*centre), points_bvh.id, points_d, float(margin), float(cos_flip),
+                              float(cos_fold), float(sin_angle)],
+                      outputs=[choice, reason])
+            choice = choice.numpy()
+            reasons += np.bincount(reason.numpy()[choice < 0], minlength=8)
+            ok = choice >= 0
+            no = ~ok
+            if no.any():
+                new_keys = keys[chosen[no]]
+                keep = ~_contains(new_keys, refused_keys) if len(refused_keys) else np.ones(0, dtype=bool)
+                refused_keys = np.concatenate([refused_keys[keep], new_keys])
+                refused_at = np.concatenate([refused_at[keep], np.full(len(new_keys), rounds)])
+                order = np.argsort(refused_keys)
+                refused_keys, refused_at = refused_keys[order], refused_at[order]
+            if ok.any():
+                a, b, x = a[ok], b[ok], place[chosen[ok], choice[ok]]
+                apart = _apart(v, f, vf_start, vf, a, b, x, device)
+                a, b, x = a[apart], b[apart], x[apart]
+                v[a] = x
+                q[a] += q[b]
+                relabel = np.arange(n)
+                relabel[b] = a
+                f = relabel[f]
+                f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 2] != f[:, 0])]
+                alive[b] = False
+                _, touched = _expand(nbr_start, nbr, np.concatenate([a, b]))
+                changed_at[touched] = rounds
+                changed_at[a] = rounds
+                collapses += int(ok.sum())
+    keep = np.flatnonzero(alive)
+    remap = np.full(n, -1, dtype=np.int64)
+    remap[keep] = np.arange(len(keep))
+    refusals = {why: int(reasons[code]) for code, why in REFUSALS.items() if reasons[code]}
+    return Simplified(vertices=v[keep], faces=remap[f], collapses=collapses, rounds=rounds, refusals=refusals)
