@@ -1,0 +1,151 @@
+"""Made cages (`warp-stokes cage`, issue 33) on every pair with an artist's cage, at the artist's handle count and at
+half and twice it: time, validity, enclosure, tightness, and how well the cage expresses the artist's deformations.
+
+    python benchmarks/bench_cage.py --device cpu                      # all pairs, scales 0.5, 1, 2
+    python benchmarks/bench_cage.py --device cuda --pairs ogre --scales 1 --json cage.json
+
+Per pair and scale (handles asked = scale x the artist's count):
+
+- time: ``make_cage`` wall time after a warm-up on a small sphere (the kernels compiled), and its stages;
+- handles made; the package's cage checks (``check_cage``: closed, outward, manifold) and crossing face pairs (must
+  be 0); vertices inside by the package's inside test (must be all);
+- tightness: mean and max distance from the mesh's vertices to the cage over the mesh's diagonal, and the volume
+  between them over the mesh's volume (both volumes counted on a 96-cell grid of the cage's box, the mesh's inside
+  by its winding number, so open meshes have one);
+- expression: the artist's deformation (SMPL: ``cage_rpose`` -> ``cage_tpose``; the ogre: ``cage_deformed_tri``; the
+  arm: every frame of ``bend_poses.npy``) applied with the artist's binding, then encoded with a binding to the made
+  cage (least squares, every frame): RMS and max error over the mesh's diagonal (the source paper's Table 1 measure),
+  beside the artist's own cage; the binding's partition of unity and linear precision; the model reduction
+  1 - handles / vertices. Both bindings at ``--resolution`` (default 64), Stokes, the package's defaults.
+
+Prints a Markdown table; ``--json`` writes every measure.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+import warp_stokes as ws
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import ARM, PAIRS, SMPL, markdown_table, select_device  # noqa: E402
+
+
+def artist_frames(name: str, artist_cage) -> np.ndarray:
+    """(F, L, 3) the artist's cage poses of a pair."""
+    if name == "smpl":
+        return ws.load_surface(SMPL / "cage_tpose.obj").vertices[None]
+    if name == "arm":
+        return np.load(ARM / "bend_poses.npy")
+    if name == "ogre":
+        return ws.load_surface(PAIRS["ogre"][1].parent / "cage_deformed_tri.obj").vertices[None]
+    raise ValueError(name)
+
+
+def volumes(mesh, cage, device, cells: int = 96) -> tuple[float, float]:
+    """(mesh volume, cage volume) counted on a grid over the cage's box: the mesh's inside by its winding number."""
+    from warp_stokes.geometry.cage import Cage
+
+    lo, hi = cage.vertices.min(axis=0), cage.vertices.max(axis=0)
+    h = (hi - lo).max() / cells
+    axes = [np.arange(lo[k] + 0.5 * h, hi[k], h) for k in range(3)]
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    in_cage, _ = ws.classify_points(cage, grid, device=device)
+    body = Cage(vertices=mesh.vertices, faces=mesh.faces, name="mesh")  # no checks: the inside test only
+    in_mesh, _ = ws.classify_points(body, grid, device=device)
+    return float(in_mesh.sum() * h ** 3), float(in_cage.sum() * h ** 3)
+
+
+def expression(binding, targets: np.ndarray, diag: float) -> tuple[float, float]:
+    """RMS and max over all frames and vertices of the least-squares fit's error, over the diagonal."""
+    w = binding.weights.astype(np.float64)
+    errors = []
+    for target in targets:
+        poses, *_ = np.linalg.lstsq(w, target, rcond=None)
+        errors.append(np.linalg.norm(w @ poses - target, axis=1) / diag)
+    e = np.concatenate(errors)
+    return float(np.sqrt(np.mean(e ** 2))), float(e.max())
+
+
+def measure(name: str, scales, device, resolution: int) -> list[dict]:
+    from warp_stokes.geometry.cage import crossing_faces
+    from warp_stokes.geometry.topology import bounding_diagonal
+
+    mesh_path, cage_path = PAIRS[name]
+    mesh = ws.load_surface(mesh_path)
+    artist = ws.check_cage(cage_path)
+    diag = bounding_diagonal(mesh.vertices)
+    reference = ws.bind(mesh_path, cage_path, resolution=resolution, device=device)
+    targets = np.stack([reference.deform(pose) for pose in artist_frames(name, artist)])
+    artist_rms, artist_max = expression(reference, targets, diag)
+    mesh_volume, artist_volume = volumes(mesh, artist, device)
+    rows = [dict(pair=name, cage="artist", asked=artist.n_handles, handles=artist.n_handles, seconds=None,
+                 inside=1.0, crossing=0, mean_distance=None, max_distance=None,
+                 volume_between=(artist_volume - mesh_volume) / mesh_volume, rms=artist_rms, max=artist_max,
+                 pu=reference.stats["partition_of_unity_error"], lp=reference.stats["linear_precision_error"],
+                 reduction=1 - artist.n_handles / len(mesh.vertices), moved=float(
+                     np.linalg.norm(targets - mesh.vertices, axis=2).max() / diag))]
+    for scale in scales:
+        asked = int(round(scale * artist.n_handles))
+        t = time.perf_counter()
+        made = ws.make_cage(mesh_path, handles=asked, device=device)
+        seconds = time.perf_counter() - t
+        cage = made.cage
+        inside, _ = ws.classify_points(cage, mesh.vertices, device=device)
+        _, cage_volume = volumes(mesh, cage, device)
+        binding = ws.bind(mesh_path, cage, resolution=resolution, device=device)
+        rms, worst = expression(binding, targets, diag)
+        rows.append(dict(pair=name, cage=f"made x{scale:g}", asked=asked, handles=cage.n_handles, seconds=seconds,
+                         stages={k: round(v, 3) for k, v in made.seconds.items()}, inside=float(inside.mean()),
+                         crossing=int(len(crossing_faces(cage.vertices, cage.faces))),
+                         mean_distance=made.distance[0], max_distance=made.distance[1],
+                         volume_between=(cage_volume - mesh_volume) / mesh_volume, rms=rms, max=worst,
+                         pu=binding.stats["partition_of_unity_error"], lp=binding.stats["linear_precision_error"],
+                         reduction=1 - cage.n_handles / len(mesh.vertices), notes=made.notes))
+        print(f"{name} x{scale:g}: {made.summary()}", file=sys.stderr, flush=True)
+    return rows
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--pairs", default="arm,smpl,ogre")
+    parser.add_argument("--scales", default="0.5,1,2")
+    parser.add_argument("--resolution", type=int, default=64)
+    parser.add_argument("--device", default=None)
+    parser.add_argument("--json", default=None)
+    args = parser.parse_args(argv)
+    device, device_label = select_device(args.device)
+    warnings.simplefilter("ignore")
+    from warp_stokes.geometry.shapes import latitude_longitude_sphere
+
+    ws.make_cage(latitude_longitude_sphere(12, 16), handles=60, device=device)  # compile the kernels
+    rows = []
+    for name in args.pairs.split(","):
+        rows += measure(name, [float(s) for s in args.scales.split(",")], device, args.resolution)
+
+    def pct(x):
+        return "" if x is None else f"{100 * x:.2f}"
+
+    print(f"device: {device_label}, bindings at n = {args.resolution}; distances and errors in % of the "
+          "mesh's diagonal")
+    print(markdown_table(
+        ["pair", "cage", "asked", "handles", "s", "inside", "crossing", "dist mean", "dist max", "vol between %",
+         "RMS", "max", "PU", "LP", "reduction"],
+        [[r["pair"], r["cage"], r["asked"], r["handles"], "" if r["seconds"] is None else f"{r['seconds']:.2f}",
+          f"{r['inside']:.4f}", r["crossing"], pct(r["mean_distance"]), pct(r["max_distance"]),
+          f"{100 * r['volume_between']:.0f}", f"{100 * r['rms']:.3f}", f"{100 * r['max']:.2f}", f"{r['pu']:.1e}",
+          f"{r['lp']:.1e}", f"{100 * r['reduction']:.1f}%"] for r in rows]))
+    if args.json:
+        Path(args.json).write_text(json.dumps(rows, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
