@@ -1,7 +1,7 @@
 """Simplifying a closed surface to a cage: quadric edge collapses that keep it a closed, oriented, manifold surface
 that does not cross itself, does not fold, and keeps a set of points inside, at a margin from it.
 
-Every collapse is checked before it is made (not repaired after), on the device (:mod:`warp_stokes.kernels.cage`):
+Every collapse is checked before it is made (not repaired after), on the device (:mod:`warp_stokes.kernels.collapse`):
 no face turned over or with an angle below the minimum, no fold sharper than :data:`MAX_FOLD_DEGREES`, no new face
 crossing another face, and no point of the enclosed set swept out of the surface (a winding number about the region
 between the old and the new faces) or brought within the margin of it. The link condition (the surface stays a
@@ -28,6 +28,9 @@ MAX_FOLD_DEGREES = 120.0
 #: no collapse makes a face with an angle below this many degrees, or turns a face by more than FLIP_DEGREES
 MIN_ANGLE_DEGREES = 1.0
 FLIP_DEGREES = 120.0
+#: threads per CUDA block of the collapse checks: each of their two BVH queries keeps its stack in shared memory,
+#: which 256 threads would overflow (66 KB of the 48 KB a block may have)
+COLLAPSE_BLOCK = 64
 #: why collapses were refused (the kernel's codes, in ``Simplified.refusals``)
 REFUSALS = {1: "small angle", 2: "face turned", 3: "fold", 4: "faces cross", 5: "point swept out",
             6: "point within the margin"}
@@ -225,7 +228,7 @@ def simplify_enclosing(vertices: np.ndarray, faces: np.ndarray, handles: int, po
     import warp as wp
 
     from ..device import resolve_device
-    from ..kernels import cage as cage_kernels
+    from ..kernels import collapse
 
     v = np.array(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
@@ -297,7 +300,7 @@ def simplify_enclosing(vertices: np.ndarray, faces: np.ndarray, handles: int, po
                                                                                        dtype=wp.int32))
             choice = wp.empty(len(chosen), dtype=wp.int32)
             reason = wp.empty(len(chosen), dtype=wp.int32)
-            wp.launch(cage_kernels.collapse_choice, dim=len(chosen),
+            wp.launch(collapse.collapse_choice, dim=len(chosen),
                       inputs=[wp.array(v, dtype=wp.vec3d), wp.array(f.astype(np.int32), dtype=wp.vec3i),
                               wp.array(vf_start.astype(np.int32), dtype=wp.int32),
                               wp.array(vf.astype(np.int32), dtype=wp.int32),
@@ -305,7 +308,7 @@ def simplify_enclosing(vertices: np.ndarray, faces: np.ndarray, handles: int, po
                               wp.array(np.ascontiguousarray(place[chosen]), dtype=wp.vec3d), surface.id,
                               wp.vec3d(*centre), points_bvh.id, points_d, float(margin), float(cos_flip),
                               float(cos_fold), float(sin_angle)],
-                      outputs=[choice, reason])
+                      outputs=[choice, reason], block_dim=COLLAPSE_BLOCK)
             choice = choice.numpy()
             reasons += np.bincount(reason.numpy()[choice < 0], minlength=8)
             ok = choice >= 0
