@@ -35,14 +35,14 @@ def sphere(centre=(0.0, 0.0, 0.0), radius=1.0):
     return v + np.asarray(centre), f
 
 
-def test_arm_open_mesh_binds_exactly():
+def test_arm_open_mesh_binds_exactly(device):
     """The arm is open (20 boundary edges); its made cage encloses it, and a bind to it has partition of unity and
-    linear precision."""
+    linear precision (on the CPU, and on CUDA when present: the field and marching cubes run there)."""
     mesh = ws.load_surface(EXAMPLE / "arm.obj")
-    made = make_cage(EXAMPLE / "arm.obj", handles=58, device="cpu")
+    made = make_cage(EXAMPLE / "arm.obj", handles=58, device=device)
     assert_valid(made, mesh.vertices, handles=58)
     assert made.distance[1] < 0.05  # tight: no vertex farther than 5 % of the diagonal from the cage
-    binding = ws.bind(EXAMPLE / "arm.obj", made.cage, resolution=32, device="cpu")
+    binding = ws.bind(EXAMPLE / "arm.obj", made.cage, resolution=32, device=device)
     assert binding.stats["partition_of_unity_error"] <= 1e-5
     assert binding.stats["linear_precision_error"] <= 1e-5
 
@@ -147,3 +147,21 @@ def test_cli_refuses_bad_input(tmp_path, args, message):
     assert message in proc.stderr and "Traceback" not in proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "cage.obj").exists()
+
+
+def test_bind_auto_makes_and_records_the_cage(tmp_path):
+    """`bind MESH auto`: the cage made with the defaults, written beside the binding (B.cage.obj), recorded in the
+    binding's stats; the binding deforms by that file's vertices exactly as by its own cage."""
+    out = tmp_path / "arm.npz"
+    proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "bind", str(EXAMPLE / "arm.obj"), "auto", "-o",
+                           str(out), "--resolution", "24", "--device", "cpu"], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    cage_file = tmp_path / "arm.cage.obj"
+    assert "made a cage of" in proc.stdout and str(cage_file) in proc.stdout
+    binding = ws.load_binding(out)
+    record = binding.stats["made_cage"]
+    assert record["chosen"] and record["handles"] == binding.n_handles == len(ws.load_surface(cage_file).vertices)
+    np.testing.assert_allclose(ws.load_surface(cage_file).vertices, binding.cage_vertices, atol=1e-6)
+    assert binding.stats["partition_of_unity_error"] <= 1e-5 and binding.stats["linear_precision_error"] <= 1e-5
+    with pytest.raises(ws.CageError, match="give one of them"):
+        ws.bind(EXAMPLE / "arm.usda", "auto", cage_prim="/Arm/Rig/Cage")

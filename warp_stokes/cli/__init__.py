@@ -137,7 +137,8 @@ def _add_bind(sub) -> None:
     p.add_argument("mesh", help="mesh file (OBJ, PLY, OFF, STL, glTF/GLB, ...) or a USD asset (all its meshes)")
     p.add_argument("cage", nargs="?", default=None,
                    help="closed cage mesh file, or a USD file with --cage-prim (optional when --cage-prim names a prim "
-                        "of the mesh's USD asset)")
+                        "of the mesh's USD asset), or 'auto': a cage made for the mesh (as 'warp-stokes cage' makes it "
+                        "with its defaults), written beside the binding as OUTPUT.cage.obj")
     p.add_argument("--cage-prim", default=None, metavar="PATH", help="the cage's mesh prim in the USD stage")
     p.add_argument("--mesh-prim", action="append", default=None, metavar="PATH",
                    help="a mesh prim of the USD asset to bind (repeat for several; default: all but the cage)")

@@ -121,12 +121,20 @@ def cage_command(args) -> int:
     return 0
 
 
+def made_cage_path(binding_path: str) -> str:
+    """Where ``bind MESH auto -o B.npz`` writes the cage it made: ``B.cage.obj`` beside the binding."""
+    return os.path.splitext(binding_path)[0] + ".cage.obj"
+
+
 def bind_command(args) -> int:
     import warp_stokes as ws
 
     check_output(args.output, (args.mesh, args.cage))
     if not args.output.lower().endswith(".npz"):  # a binding under another format's name misleads every reader
         raise ws.WarpStokesError(f"{args.output}: a binding is written as .npz")
+    made_cage = made_cage_path(args.output) if args.cage == "auto" else None
+    if made_cage is not None:
+        check_output(made_cage, (args.mesh,))
     from warp_stokes.binding.spread import spread_devices
 
     if spread_devices(args.device) is None:  # spread: the Ray workers compile, on their devices
@@ -140,8 +148,18 @@ def bind_command(args) -> int:
                           boundary=args.boundary, sampling=args.sampling, cage_prim=args.cage_prim,
                           mesh_prims=args.mesh_prim, rest_time=args.rest_time, method=args.method,
                           progress=progress, threads=args.threads)
+    if made_cage is not None:  # first: a binding is never left without the cage it was bound to
+        import trimesh
+
+        from warp_stokes.io.files import atomic_output
+
+        with atomic_output(made_cage, ".obj") as tmp:
+            trimesh.Trimesh(binding.cage_vertices, binding.cage_faces, process=False).export(tmp, file_type="obj")
     binding.save(args.output)
     print(format_stats(binding.stats))
+    if made_cage is not None:
+        record = binding.stats["made_cage"]
+        print(f"made a cage of {record['handles']} handles: {made_cage}")
     if len(binding.parts) > 1:
         print(f"{len(binding.parts)} meshes: " + ", ".join(f"{p['path']} ({p['vertices']})" for p in binding.parts))
     print(f"wrote {args.output}")

@@ -24,7 +24,7 @@ from .cage import Cage, check_cage, signed_volume
 from .simplify import simplify_enclosing
 from .topology import bounding_diagonal
 
-__all__ = ["make_cage", "MadeCage", "default_handles", "DEFAULT_OFFSET"]
+__all__ = ["make_cage", "MadeCage", "default_handles", "made_cage_record", "DEFAULT_OFFSET"]
 
 #: the offset surface's distance from the mesh, as a fraction of the mesh's bounding diagonal
 DEFAULT_OFFSET = 0.02
@@ -256,3 +256,17 @@ def make_cage(mesh, handles: int | None = None, offset: float = DEFAULT_OFFSET, 
 
 def _area(v: np.ndarray, f: np.ndarray) -> float:
     return float(0.5 * np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1).sum())
+
+
+def made_cage_record(made: MadeCage) -> dict:
+    """What a binding records of a cage made for it (``stats["made_cage"]``): plain numbers and strings.
+
+    Examples
+    --------
+    >>> from warp_stokes.geometry.shapes import latitude_longitude_sphere
+    >>> sorted(made_cage_record(make_cage(latitude_longitude_sphere(12, 16), handles=60, device="cpu")))
+    ['chosen', 'distance_max', 'distance_mean', 'handles', 'handles_asked', 'margin', 'notes', 'offset', 'seconds']
+    """
+    return {"handles": made.cage.n_handles, "handles_asked": made.handles, "chosen": made.chosen,
+            "offset": made.offset, "margin": made.margin, "distance_mean": made.distance[0],
+            "distance_max": made.distance[1], "seconds": dict(made.seconds), "notes": list(made.notes)}
