@@ -3,6 +3,7 @@ half and twice it: time, validity, enclosure, tightness, and how well the cage e
 
     python benchmarks/bench_cage.py --device cpu                      # all pairs, scales 0.5, 1, 2
     python benchmarks/bench_cage.py --device cuda --pairs ogre --scales 1 --json cage.json
+    python benchmarks/bench_cage.py --device cpu --pairs "" --synthetic 0,1    # the synthetic shapes only
 
 Per pair and scale (handles asked = scale x the artist's count):
 
@@ -18,7 +19,11 @@ Per pair and scale (handles asked = scale x the artist's count):
   beside the artist's own cage; the binding's partition of unity and linear precision; the model reduction
   1 - handles / vertices. Both bindings at ``--resolution`` (default 64), Stokes, the package's defaults.
 
-Prints a Markdown table; ``--json`` writes every measure.
+``--synthetic SEEDS``: also the synthetic shapes of ``stress_pairs(seed, detail=1)`` (boxes, noisy ellipsoids, stars,
+thin slabs, dumbbells with thin necks, tori; their cages taken as the meshes), ``--synthetic-handles`` each (40),
+bound at n = 32: handles, seconds (make and bind), distances, PU and LP, notes.
+
+Prints Markdown tables; ``--json`` writes every measure.
 """
 
 from __future__ import annotations
@@ -113,12 +118,31 @@ def measure(name: str, scales, device, resolution: int) -> list[dict]:
     return rows
 
 
+def synthetic(seeds, handles: int, device) -> list[dict]:
+    from warp_stokes.geometry.shapes import stress_pairs
+
+    rows = []
+    for seed in seeds:
+        for pair in stress_pairs(seed=seed, detail=1):
+            t = time.perf_counter()
+            made = ws.make_cage(pair.cage, handles=handles, device=device)
+            inside, _ = ws.classify_points(made.cage, pair.cage_vertices, device=device)
+            binding = ws.bind(pair.cage, made.cage, resolution=32, device=device)
+            rows.append(dict(shape=pair.name, seed=seed, handles=made.cage.n_handles, seconds=time.perf_counter() - t,
+                             inside=float(inside.mean()), mean_distance=made.distance[0],
+                             max_distance=made.distance[1], pu=binding.stats["partition_of_unity_error"],
+                             lp=binding.stats["linear_precision_error"], notes=made.notes))
+    return rows
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--pairs", default="arm,smpl,ogre")
     parser.add_argument("--scales", default="0.5,1,2")
     parser.add_argument("--resolution", type=int, default=64)
     parser.add_argument("--device", default=None)
+    parser.add_argument("--synthetic", default="", help="seeds of stress_pairs, e.g. 0,1 (default: none)")
+    parser.add_argument("--synthetic-handles", type=int, default=40)
     parser.add_argument("--json", default=None)
     args = parser.parse_args(argv)
     device, device_label = select_device(args.device)
@@ -127,7 +151,7 @@ def main(argv=None) -> int:
 
     ws.make_cage(latitude_longitude_sphere(12, 16), handles=60, device=device)  # compile the kernels
     rows = []
-    for name in args.pairs.split(","):
+    for name in filter(None, args.pairs.split(",")):
         rows += measure(name, [float(s) for s in args.scales.split(",")], device, args.resolution)
 
     def pct(x):
@@ -135,15 +159,22 @@ def main(argv=None) -> int:
 
     print(f"device: {device_label}, bindings at n = {args.resolution}; distances and errors in % of the "
           "mesh's diagonal")
-    print(markdown_table(
-        ["pair", "cage", "asked", "handles", "s", "inside", "crossing", "dist mean", "dist max", "vol between %",
-         "RMS", "max", "PU", "LP", "reduction"],
-        [[r["pair"], r["cage"], r["asked"], r["handles"], "" if r["seconds"] is None else f"{r['seconds']:.2f}",
-          f"{r['inside']:.4f}", r["crossing"], pct(r["mean_distance"]), pct(r["max_distance"]),
-          f"{100 * r['volume_between']:.0f}", f"{100 * r['rms']:.3f}", f"{100 * r['max']:.2f}", f"{r['pu']:.1e}",
-          f"{r['lp']:.1e}", f"{100 * r['reduction']:.1f}%"] for r in rows]))
+    if rows:
+        print(markdown_table(
+            ["pair", "cage", "asked", "handles", "s", "inside", "crossing", "dist mean", "dist max", "vol between %",
+             "RMS", "max", "PU", "LP", "reduction"],
+            [[r["pair"], r["cage"], r["asked"], r["handles"], "" if r["seconds"] is None else f"{r['seconds']:.2f}",
+              f"{r['inside']:.4f}", r["crossing"], pct(r["mean_distance"]), pct(r["max_distance"]),
+              f"{100 * r['volume_between']:.0f}", f"{100 * r['rms']:.3f}", f"{100 * r['max']:.2f}", f"{r['pu']:.1e}",
+              f"{r['lp']:.1e}", f"{100 * r['reduction']:.1f}%"] for r in rows]))
+    shapes = synthetic([int(x) for x in filter(None, args.synthetic.split(","))], args.synthetic_handles, device)
+    if shapes:
+        print(markdown_table(
+            ["shape", "seed", "handles", "s (make + bind)", "inside", "dist mean", "dist max", "PU", "LP", "notes"],
+            [[r["shape"], r["seed"], r["handles"], f"{r['seconds']:.2f}", f"{r['inside']:.4f}", pct(r["mean_distance"]),
+              pct(r["max_distance"]), f"{r['pu']:.1e}", f"{r['lp']:.1e}", len(r["notes"])] for r in shapes]))
     if args.json:
-        Path(args.json).write_text(json.dumps(rows, indent=1))
+        Path(args.json).write_text(json.dumps({"pairs": rows, "synthetic": shapes}, indent=1))
     return 0
 
 

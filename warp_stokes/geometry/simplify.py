@@ -61,10 +61,10 @@ def _quadrics(v: np.ndarray, f: np.ndarray) -> np.ndarray:
     return out
 
 
-def _placements(qa: np.ndarray, qb: np.ndarray, pa: np.ndarray, pb: np.ndarray, length_weight: float):
-    """Candidate positions for collapsing edges (a, b), in order of cost: the quadric's minimiser (where it is well
-    conditioned), the midpoint, a and b. Returns positions (E, 4, 3) and costs (E, 4); the cost adds
-    ``length_weight`` x the edge's squared length, which spreads the handles over flat parts too."""
+def _placements(qa: np.ndarray, qb: np.ndarray, pa: np.ndarray, pb: np.ndarray):
+    """Candidate positions for collapsing edges (a, b), in order of their quadric error: the quadric's minimiser
+    (where it is well conditioned and near the edge), the midpoint, a and b. Returns positions (E, 4, 3) and
+    errors (E, 4)."""
     q = qa + qb
     mid = 0.5 * (pa + pb)
     a3, b3 = q[:, :3, :3], -q[:, :3, 3]
@@ -80,7 +80,7 @@ def _placements(qa: np.ndarray, qb: np.ndarray, pa: np.ndarray, pb: np.ndarray, 
     cand = np.stack([opt, mid, pa, pb], axis=1)
     h = np.concatenate([cand, np.ones(cand.shape[:2] + (1,))], axis=2)
     cost = np.einsum("eci,eij,ecj->ec", h, q, h)
-    cost = np.maximum(cost, 0.0) + length_weight * np.sum((pb - pa) ** 2, axis=1)[:, None]
+    cost = np.maximum(cost, 0.0)
     order = np.argsort(cost, axis=1, kind="stable")
     return np.take_along_axis(cand, order[:, :, None], axis=1), np.take_along_axis(cost, order, axis=1)
 
@@ -109,6 +109,7 @@ def _expand(start: np.ndarray, items: np.ndarray, owners: np.ndarray) -> tuple[n
 
 
 def _contains(sorted_keys: np.ndarray, keys: np.ndarray) -> np.ndarray:
+    """Which keys are in the sorted array."""
     if len(sorted_keys) == 0:
         return np.zeros(len(keys), dtype=bool)
     pos = np.minimum(np.searchsorted(sorted_keys, keys), len(sorted_keys) - 1)
@@ -171,10 +172,10 @@ def _disjoint_fans(which: np.ndarray, ring: np.ndarray, k: int, n: int, passes: 
     return taken
 
 
-def _apart(v, f, vf_start, vf, a, b, x, device) -> np.ndarray:
+def _apart(v, f, vf_start, vf, a, b, x, device) -> tuple[np.ndarray, np.ndarray]:
     """Of collapses checked one by one against the surface as it was (fans sharing no vertex, in priority order),
-    those to make together: where the new faces of two cross, the later one waits for a later round (a collapse
-    whose own new faces cross each other is left out too)."""
+    those to make together (``kept``): where the new faces of two cross, the later one waits for a later round; a
+    collapse whose own new faces cross each other is left out and returned as ``tangled`` (refused)."""
     from .cage_faults import crossing_faces
 
     k = len(a)
@@ -190,13 +191,16 @@ def _apart(v, f, vf_start, vf, a, b, x, device) -> np.ndarray:
     faces = relabel[faces]
     used, faces = np.unique(faces, return_inverse=True)
     pairs = crossing_faces(moved[used], faces.reshape(-1, 3), device=device)
+    first, second = which[pairs[:, 0]], which[pairs[:, 1]]
     kept = np.ones(k, dtype=bool)
-    kept[np.maximum(which[pairs[:, 0]], which[pairs[:, 1]])] = False
-    return kept
+    kept[np.maximum(first, second)] = False
+    tangled = np.zeros(k, dtype=bool)
+    tangled[first[first == second]] = True
+    return kept, tangled
 
 
 def simplify_enclosing(vertices: np.ndarray, faces: np.ndarray, handles: int, points: np.ndarray, margin: float,
-                       length_weight: float = 0.0, device=None) -> Simplified:
+                       device=None) -> Simplified:
     """Collapse edges of a closed, oriented, manifold surface until it has ``handles`` vertices, keeping it valid
     and ``points`` inside it at least ``margin`` from it.
 
@@ -208,9 +212,7 @@ def simplify_enclosing(vertices: np.ndarray, faces: np.ndarray, handles: int, po
     handles : int, the vertex count to reach
     points : (P, 3) float array, the points to keep inside (a mesh's vertices)
     margin : float, the smallest distance allowed between a point and the surface
-    length_weight : float
-        Added to each collapse's quadric error per squared edge length: 0 follows the shape only; larger values
-        spread the vertices more evenly.
+    device : None | str, the Warp device of the collapse checks (default: CUDA when present, else the CPU)
 
     Returns
     -------
@@ -280,7 +282,7 @@ def simplify_enclosing(vertices: np.ndarray, faces: np.ndarray, handles: int, po
             ea, eb = edges[index, 0], edges[index, 1]
             place = np.empty((len(edges), 4, 3))
             cost = np.empty(len(edges))
-            place[index], c = _placements(q[ea], q[eb], v[ea], v[eb], length_weight)
+            place[index], c = _placements(q[ea], q[eb], v[ea], v[eb])
             cost[index] = c[:, 0]
             priority = np.full(len(edges), np.iinfo(np.int64).max, dtype=np.int64)
             priority[index[np.lexsort((_scramble(keys[index]), _cost_bins(cost[index])))]] = np.arange(len(index))
@@ -311,8 +313,14 @@ def simplify_enclosing(vertices: np.ndarray, faces: np.ndarray, handles: int, po
                       outputs=[choice, reason], block_dim=COLLAPSE_BLOCK)
             choice = choice.numpy()
             reasons += np.bincount(reason.numpy()[choice < 0], minlength=8)
-            ok = choice >= 0
-            no = ~ok
+            passed = np.flatnonzero(choice >= 0)
+            made, tangled = passed[:0], passed[:0]
+            if len(passed):
+                kept, knot = _apart(v, f, vf_start, vf, a[passed], b[passed], place[chosen[passed], choice[passed]],
+                                    device)
+                made, tangled = passed[kept], passed[knot]
+            no = choice < 0
+            no[tangled] = True
             if no.any():
                 new_keys = keys[chosen[no]]
                 keep = ~_contains(new_keys, refused_keys) if len(refused_keys) else np.ones(0, dtype=bool)
@@ -320,10 +328,8 @@ def simplify_enclosing(vertices: np.ndarray, faces: np.ndarray, handles: int, po
                 refused_at = np.concatenate([refused_at[keep], np.full(len(new_keys), rounds)])
                 order = np.argsort(refused_keys)
                 refused_keys, refused_at = refused_keys[order], refused_at[order]
-            if ok.any():
-                a, b, x = a[ok], b[ok], place[chosen[ok], choice[ok]]
-                apart = _apart(v, f, vf_start, vf, a, b, x, device)
-                a, b, x = a[apart], b[apart], x[apart]
+            if len(made):
+                a, b, x = a[made], b[made], place[chosen[made], choice[made]]
                 v[a] = x
                 q[a] += q[b]
                 relabel = np.arange(n)
@@ -334,7 +340,7 @@ def simplify_enclosing(vertices: np.ndarray, faces: np.ndarray, handles: int, po
                 _, touched = _expand(nbr_start, nbr, np.concatenate([a, b]))
                 changed_at[touched] = rounds
                 changed_at[a] = rounds
-                collapses += int(ok.sum())
+                collapses += len(made)
     keep = np.flatnonzero(alive)
     remap = np.full(n, -1, dtype=np.int64)
     remap[keep] = np.arange(len(keep))
