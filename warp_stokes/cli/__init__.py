@@ -225,7 +225,9 @@ def _add_animate(sub) -> None:
 
 def _add_encode(sub) -> None:
     p = sub.add_parser("encode", help="the cage poses that best reproduce a sequence of meshes (least squares)")
-    p.add_argument("binding", help="binding file written by 'warp-stokes bind'")
+    p.add_argument("binding", help="binding file written by 'warp-stokes bind', or 'auto': a sequence without a cage "
+                                   "(OBJ frames or a USD file): a cage made for its first frame, bound, and both "
+                                   "written beside the poses (OUTPUT.cage.obj, OUTPUT.binding.npz)")
     p.add_argument("frames", help="meshes with the bound mesh's topology: a folder of OBJ frames, a .npy/.npz array "
                                   "(F, V, 3) or a USD file (time samples)")
     p.add_argument("-o", "--output", required=True, help="poses to write: .npy (F, L, 3) or USD (an animated cage)")

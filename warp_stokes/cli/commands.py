@@ -272,7 +272,10 @@ def encode_command(args) -> int:
     if ext not in (".npy", ".usd", ".usda", ".usdc"):
         raise ws.WarpStokesError(f"{args.output}: the poses are written as .npy or USD (.usd, .usda, .usdc)")
     check_output(args.output, (args.binding, args.frames))
-    binding = ws.load_binding(args.binding, device=args.device)
+    if args.binding == "auto":
+        binding = _bind_first_frame(args)
+    else:
+        binding = ws.load_binding(args.binding, device=args.device)
     prims = args.mesh_prim or ([p["path"] for p in binding.parts] if binding.asset else None)
     frames = load_mesh_frames(args.frames, binding.mesh_faces, binding.n_vertices, prims=prims)
     poses, rms = encode_poses(binding, frames, smoothness=args.smooth)
@@ -285,6 +288,41 @@ def encode_command(args) -> int:
     print(f"wrote {args.output}: {len(rms)} cage poses; RMS error over the cage's diagonal: mean {rms.mean():.2e}, "
           f"max {rms[worst]:.2e} (frame {poses.frames[worst]:g})")
     return 0
+
+
+def _bind_first_frame(args):
+    """For ``encode auto FRAMES``: the first frame of the sequence bound to a cage made for it; the cage and the
+    binding written beside the poses (OUTPUT.cage.obj, OUTPUT.binding.npz), both checked before any work."""
+    import trimesh
+
+    import warp_stokes as ws
+    from warp_stokes.io.files import atomic_output
+    from warp_stokes.io.poses import natural_key
+    from warp_stokes.io.scene import is_usd
+
+    frames = args.frames
+    if os.path.isdir(frames):
+        names = sorted((f for f in os.listdir(frames) if f.lower().endswith(".obj")), key=natural_key)
+        if not names:
+            raise ws.BindingError(f"{frames}: the folder has no .obj frames")
+        first = os.path.join(frames, names[0])
+    elif is_usd(frames):
+        first = frames  # its meshes at the earliest time sample
+    else:
+        raise ws.WarpStokesError(f"{frames}: 'encode auto' makes the cage around the first frame's surface: give a "
+                                 "folder of OBJ frames or a USD file (an array of positions has no faces)")
+    stem = os.path.splitext(args.output)[0]
+    cage_path, binding_path = stem + ".cage.obj", stem + ".binding.npz"
+    for path in (cage_path, binding_path):
+        check_output(path, (frames,))
+    binding = ws.bind(first, "auto", device=args.device, mesh_prims=args.mesh_prim)
+    with atomic_output(cage_path, ".obj") as tmp:
+        trimesh.Trimesh(binding.cage_vertices, binding.cage_faces, process=False).export(tmp, file_type="obj")
+    binding.save(binding_path)
+    record = binding.stats["made_cage"]
+    print(f"made a cage of {record['handles']} handles around {first}: {cage_path}; bound at n = "
+          f"{binding.settings['resolution']}: {binding_path}")
+    return binding
 
 
 def sweep_command(args) -> int:
