@@ -128,14 +128,16 @@ def _marching_cubes(field, spacing: float, origin: np.ndarray):
     """(vertices, faces) of the zero level set of a Warp 3D array (Warp's marching cubes, on the array's device)."""
     import warp as wp
 
-    try:
-        from warp.geometry import IsoSurfaceMarchingCubes as cubes
-    except ImportError:  # Warp before warp.geometry
-        cubes = wp.MarchingCubes
     shape = np.array(field.shape)
     lower = wp.vec3(*origin.astype(np.float32))
     upper = wp.vec3(*(origin + spacing * (shape - 1)).astype(np.float32))
-    verts, tris = cubes.extract(field, threshold=0.0, lower=lower, upper=upper)
+    try:
+        from warp.geometry import IsoSurfaceMarchingCubes
+    except ImportError:  # Warp 1.9-1.17: the same marching cubes (CPU and CUDA since 1.9) under its former name
+        verts, tris = wp.MarchingCubes.extract_surface_marching_cubes(
+            field, threshold=0.0, domain_bounds_lower_corner=lower, domain_bounds_upper_corner=upper)
+    else:
+        verts, tris = IsoSurfaceMarchingCubes.extract(field, threshold=0.0, lower=lower, upper=upper)
     return verts.numpy().astype(np.float64), tris.numpy().reshape(-1, 3).astype(np.int64)
 
 
