@@ -2,6 +2,7 @@
 asked for, and bindable; on an open real mesh, on meshes in pieces, self-intersecting, thin and holed, and through
 the command line."""
 
+import importlib
 import subprocess
 import sys
 
@@ -94,6 +95,18 @@ def test_default_handles_said_and_stopping_short_noted():
     assert_valid(few, v)
     assert few.cage.n_handles > 8 and any(f"stopped at {few.cage.n_handles} handles (asked 8)" in note
                                           for note in few.notes)
+
+
+def test_offset_finer_than_the_grid_is_raised(monkeypatch):
+    """An offset the grid cannot resolve is raised to what it can (1.5 cells), said in a note; the cage stays
+    valid with every vertex inside at the raised offset's margin."""
+    module = importlib.import_module("warp_stokes.geometry.make_cage")  # the package exports the function by this name
+    monkeypatch.setattr(module, "MAX_CELLS", 24)
+    v, f = sphere()
+    made = make_cage((v, f), handles=60, offset=0.01, device="cpu")
+    assert any("needs a grid finer than 24 cells" in note for note in made.notes)
+    assert made.offset > 0.01 * 2 * np.sqrt(3) and made.margin == pytest.approx(0.25 * made.offset)
+    assert_valid(made, v)
 
 
 def test_simplify_keeps_points_at_the_margin():

@@ -32,8 +32,8 @@ DEFAULT_OFFSET = 0.02
 MARGIN = 0.25
 #: grid cells per offset: the level set resolves the offset (marching cubes places it within a cell)
 CELLS_PER_OFFSET = 1.5
-#: the grid's largest side, in cells (a smaller offset than the grid resolves is coarsened to it, with a note)
-MAX_CELLS = 192
+#: the grid's largest side, in cells (an offset smaller than such a grid resolves is raised to it, with a note)
+MAX_CELLS = 128
 #: field values this close to the level (in cells) are moved off it: marching cubes then makes no slivers
 SNAP = 0.15
 
@@ -204,10 +204,11 @@ def make_cage(mesh, handles: int | None = None, offset: float = DEFAULT_OFFSET, 
     distance = offset * diag
     lo, hi = points.min(axis=0), points.max(axis=0)
     spacing = distance / CELLS_PER_OFFSET
-    if (hi - lo).max() / spacing > MAX_CELLS:
+    if (hi - lo).max() / spacing > MAX_CELLS:  # the grid would be too fine: its cells set the offset instead
         spacing = (hi - lo).max() / MAX_CELLS
-        notes.append(f"{name}: an offset of {offset:g} of the diagonal is finer than a {MAX_CELLS}-cell grid "
-                     f"resolves; the grid's cells are {spacing / diag:.2g} of the diagonal")
+        distance = CELLS_PER_OFFSET * spacing
+        notes.append(f"{name}: an offset of {offset:g} of the diagonal needs a grid finer than {MAX_CELLS} cells; "
+                     f"the offset is {distance / diag:.3g} of the diagonal")
     pad = distance + 2.0 * spacing
     origin = lo - pad
     shape = tuple(int(s) for s in np.ceil((hi - lo + 2.0 * pad) / spacing).astype(int) + 1)
@@ -237,6 +238,7 @@ def make_cage(mesh, handles: int | None = None, offset: float = DEFAULT_OFFSET, 
         handles, chosen = int(handles), False
     t = time.perf_counter()
     margin = MARGIN * distance
+    _check_start(v, f, points, margin, name, device)
     # the collapse checks run on the CPU whatever the device: a round holds a few hundred candidates, too few for a
     # GPU, whose copies and launches per round then cost more than the checks (ogre on an H100: 3.7 s on CUDA,
     # 1.6 s on the host's CPU)
@@ -254,6 +256,18 @@ def make_cage(mesh, handles: int | None = None, offset: float = DEFAULT_OFFSET, 
     return MadeCage(cage=cage, handles=handles, chosen=chosen, offset=distance, margin=margin, grid=shape,
                     distance=(float(gap.mean() / diag), float(gap.max() / diag)), seconds=seconds,
                     notes=notes + list(cage.notes))
+
+
+def _check_start(v, f, points, margin, name, device) -> None:
+    """The simplification keeps every vertex inside at the margin, so the offset surface it starts from must:
+    marching cubes places the surface within a cell of the offset, and the cells are two thirds of it."""
+    from .inside import classify_points
+
+    start = Cage(vertices=v, faces=f, name="the offset surface")  # closed and outward by construction
+    inside, gap = classify_points(start, points, device=device)
+    if not (inside.all() and gap.min() >= margin):
+        raise CageError(f"{name}: the offset surface leaves {int((~inside).sum())} vertex(es) outside or within "
+                        f"{margin:.3g} of it; a larger --offset resolves the mesh")
 
 
 def _area(v: np.ndarray, f: np.ndarray) -> float:
