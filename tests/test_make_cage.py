@@ -136,6 +136,21 @@ def test_cli_writes_a_cage_that_binds(tmp_path):
     assert ws.load_binding(binding).weights.shape == (2089, 40)
 
 
+def test_cli_usd_asset_named_prims(tmp_path):
+    """A USD asset: its named mesh prims, in world space (the arm's skin sits under a transform; its cage prim is
+    left out by naming the skin)."""
+    out = tmp_path / "made.obj"
+    proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "cage", str(EXAMPLE / "arm.usda"), "-o", str(out),
+                           "--mesh-prim", "/Arm/Geo/Skin", "--handles", "40", "--device", "cpu"],
+                          capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    skin = ws.bind(EXAMPLE / "arm.usda", out, mesh_prims=["/Arm/Geo/Skin"], resolution=24, device="cpu")
+    assert skin.n_handles == 40 and skin.stats["partition_of_unity_error"] <= 1e-5
+    world = skin.mesh_vertices
+    inside, _ = ws.classify_points(ws.check_cage(out), world, device="cpu")
+    assert inside.all()
+
+
 @pytest.mark.parametrize("args, message", [
     (["--handles", "5"], "must be >= 8"),
     (["--offset", "0"], "must be > 0"),

@@ -128,6 +128,8 @@ def _add_cage(sub) -> None:
     p.add_argument("--offset", type=_number(float, 0.0, 0.5, low_open=True), default=0.02,
                    help="how far the cage starts from the mesh, as a fraction of its bounding diagonal (default "
                         "0.02): larger leaves more room to simplify, smaller fits tighter")
+    p.add_argument("--mesh-prim", action="append", default=None, metavar="PATH",
+                   help="a mesh prim of the USD asset to enclose (repeat for several; default: all its meshes)")
     p.add_argument("--device", default=None, help="cpu, cuda or cuda:N (default: CUDA when present)")
     p.set_defaults(run=commands.cage_command)
 

@@ -108,7 +108,8 @@ def cage_command(args) -> int:
     if ext not in ("obj", "ply", "off"):  # formats that keep the handles' order (STL keeps a triangle soup)
         raise ws.WarpStokesError(f"{args.output}: unsupported cage format {ext!r} (use obj, ply or off)")
     check_output(args.output, (args.mesh,))
-    made = ws.make_cage(args.mesh, handles=args.handles, offset=args.offset, device=args.device)
+    made = ws.make_cage(args.mesh, handles=args.handles, offset=args.offset, device=args.device,
+                        mesh_prims=args.mesh_prim)
     from warp_stokes.io.files import atomic_output
 
     cage = trimesh.Trimesh(vertices=made.cage.vertices, faces=made.cage.faces, process=False)

@@ -141,7 +141,8 @@ def _marching_cubes(field, spacing: float, origin: np.ndarray):
     return verts.numpy().astype(np.float64), tris.numpy().reshape(-1, 3).astype(np.int64)
 
 
-def make_cage(mesh, handles: int | None = None, offset: float = DEFAULT_OFFSET, device=None) -> MadeCage:
+def make_cage(mesh, handles: int | None = None, offset: float = DEFAULT_OFFSET, device=None,
+              mesh_prims=None) -> MadeCage:
     """Make a cage for a mesh: closed, outward, manifold, not crossing itself, every vertex of the mesh inside.
 
     Parameters
@@ -159,6 +160,8 @@ def make_cage(mesh, handles: int | None = None, offset: float = DEFAULT_OFFSET, 
     device : None | str
         The Warp device of the voxel work and the final inside test (default: CUDA when present, else the CPU);
         the collapses are checked on the CPU.
+    mesh_prims : list of str, optional
+        For a USD asset, the mesh prims to enclose (default: all its meshes; name them to leave a cage prim out).
 
     Returns
     -------
@@ -168,6 +171,9 @@ def make_cage(mesh, handles: int | None = None, offset: float = DEFAULT_OFFSET, 
     ------
     MeshError
         When the mesh cannot be read, has no faces or no extent.
+    CageError
+        For a handle count below 8 or an offset outside (0, 0.5], and where the offset surface does not hold every
+        vertex at the margin (a mesh finer than the grid resolves: a larger offset does).
 
     Examples
     --------
@@ -187,7 +193,7 @@ def make_cage(mesh, handles: int | None = None, offset: float = DEFAULT_OFFSET, 
         raise CageError(f"handles: a made cage needs at least 8 handles, got {handles}")
     if not (np.isfinite(offset) and 0 < offset <= 0.5):
         raise CageError(f"offset: a fraction of the mesh's diagonal in (0, 0.5], got {offset}")
-    surface = load_scene(mesh).surface()
+    surface = load_scene(mesh, mesh_prims=mesh_prims).surface()
     name = surface.name
     points = np.asarray(surface.vertices, dtype=np.float64)
     faces = np.asarray(surface.faces, dtype=np.int64)
