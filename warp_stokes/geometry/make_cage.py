@@ -236,6 +236,8 @@ def make_cage(mesh, handles: int | None = None, offset: float = DEFAULT_OFFSET, 
         v, f = _marching_cubes(wp.array(level, dtype=float), spacing, origin - centre)
     v += centre
     f = _outer_shells(v, f)
+    if len(f) == 0:  # nothing at the offset: the grid saw no surface (never for a mesh with faces and extent)
+        raise MeshError(f"{name}: no surface at the offset around the mesh")
     seconds["surface"] = time.perf_counter() - t
     if handles is None:
         handles = default_handles(_area(v, f), signed_volume(v, f))
