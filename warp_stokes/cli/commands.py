@@ -7,7 +7,7 @@ import os
 import sys
 import tempfile
 
-__all__ = ["format_stats", "check_output", "announce_compilation", "cage_command", "bind_command", "deform_command",
+__all__ = ["format_stats", "check_output", "announce_compilation", "write_cage_file", "cage_command", "bind_command", "deform_command",
            "animate_command", "encode_command", "sweep_command", "show_command", "batch_command"]
 
 
@@ -99,9 +99,18 @@ def announce_compilation(device, harmonic: bool = False) -> None:
     announce(device, harmonic=harmonic)
 
 
-def cage_command(args) -> int:
+def write_cage_file(path: str, vertices, faces) -> None:
+    """A cage as a mesh file (its format from the extension: obj, ply or off), written whole or not at all."""
     import trimesh
 
+    from warp_stokes.io.files import atomic_output
+
+    ext = os.path.splitext(path)[1].lower().lstrip(".")
+    with atomic_output(path, "." + ext) as tmp:
+        trimesh.Trimesh(vertices=vertices, faces=faces, process=False).export(tmp, file_type=ext)
+
+
+def cage_command(args) -> int:
     import warp_stokes as ws
 
     ext = os.path.splitext(args.output)[1].lower().lstrip(".")
@@ -110,11 +119,7 @@ def cage_command(args) -> int:
     check_output(args.output, (args.mesh,))
     made = ws.make_cage(args.mesh, handles=args.handles, offset=args.offset, device=args.device,
                         mesh_prims=args.mesh_prim)
-    from warp_stokes.io.files import atomic_output
-
-    cage = trimesh.Trimesh(vertices=made.cage.vertices, faces=made.cage.faces, process=False)
-    with atomic_output(args.output, "." + ext) as tmp:
-        cage.export(tmp, file_type=ext)
+    write_cage_file(args.output, made.cage.vertices, made.cage.faces)
     for note in made.notes:
         print(f"note: {note}")
     print(made.summary())
@@ -150,12 +155,7 @@ def bind_command(args) -> int:
                           mesh_prims=args.mesh_prim, rest_time=args.rest_time, method=args.method,
                           progress=progress, threads=args.threads)
     if made_cage is not None:  # first: a binding is never left without the cage it was bound to
-        import trimesh
-
-        from warp_stokes.io.files import atomic_output
-
-        with atomic_output(made_cage, ".obj") as tmp:
-            trimesh.Trimesh(binding.cage_vertices, binding.cage_faces, process=False).export(tmp, file_type="obj")
+        write_cage_file(made_cage, binding.cage_vertices, binding.cage_faces)
     binding.save(args.output)
     print(format_stats(binding.stats))
     if made_cage is not None:
@@ -294,10 +294,7 @@ def encode_command(args) -> int:
 def _bind_first_frame(args):
     """For ``encode auto FRAMES``: the first frame of the sequence bound to a cage made for it; the cage and the
     binding written beside the poses (OUTPUT.cage.obj, OUTPUT.binding.npz), both checked before any work."""
-    import trimesh
-
     import warp_stokes as ws
-    from warp_stokes.io.files import atomic_output
     from warp_stokes.io.poses import natural_key
     from warp_stokes.io.scene import is_usd
 
@@ -317,8 +314,7 @@ def _bind_first_frame(args):
     for path in (cage_path, binding_path):
         check_output(path, (frames,))
     binding = ws.bind(first, "auto", device=args.device, mesh_prims=args.mesh_prim)
-    with atomic_output(cage_path, ".obj") as tmp:
-        trimesh.Trimesh(binding.cage_vertices, binding.cage_faces, process=False).export(tmp, file_type="obj")
+    write_cage_file(cage_path, binding.cage_vertices, binding.cage_faces)
     binding.save(binding_path)
     record = binding.stats["made_cage"]
     print(f"made a cage of {record['handles']} handles around {first}: {cage_path}; bound at n = "
