@@ -90,7 +90,9 @@ def test_the_peak_memory_column_is_each_binds_own_on_a_cpu():
             peak, estimate = row["peak_memory_bytes"], row["memory_estimate_bytes"]
             assert 0.5 * estimate <= peak <= 1.25 * estimate + 8 * 2**20, (method, row["resolution"], peak, estimate)
         peaks = [row["peak_memory_bytes"] for row in mine]
-        assert peaks == sorted(peaks), (method, peaks)
+        # n = 16 and 20 plan nearly the same memory: a first use of a library in the first row (0.4 MB on CI: 11.85
+        # then 11.46 MB) may not flip them into a failure; a drop like the old 41 -> 13 MB still fails
+        assert all(b >= a - max(2**20, 0.05 * a) for a, b in zip(peaks, peaks[1:])), (method, peaks)
     # on 2 threads (whose largest stages may or may not overlap) each peak is within the plan's, which grows
     rows = sweep(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", [20, 32], device="cpu", threads=2)
     estimates = [row["memory_estimate_bytes"] for row in rows]
