@@ -11,6 +11,7 @@ import warp as wp
 wp.set_module_options({"enable_backward": False})
 
 from .intersect import triangles_cross
+from .local_boundary import closest_on_triangle
 
 
 @wp.func
@@ -29,36 +30,9 @@ def solid_angle(p: wp.vec3d, a: wp.vec3d, b: wp.vec3d, c: wp.vec3d):
 
 @wp.func
 def triangle_distance(p: wp.vec3d, a: wp.vec3d, b: wp.vec3d, c: wp.vec3d):
-    """The distance from p to triangle abc (the closest point by Voronoi region, Ericson 5.1.5)."""
-    zero = wp.float64(0.0)
-    ab = b - a
-    ac = c - a
-    ap = p - a
-    d1 = wp.dot(ab, ap)
-    d2 = wp.dot(ac, ap)
-    if d1 <= zero and d2 <= zero:
-        return wp.length(ap)
-    bp = p - b
-    d3 = wp.dot(ab, bp)
-    d4 = wp.dot(ac, bp)
-    if d3 >= zero and d4 <= d3:
-        return wp.length(bp)
-    vc = d1 * d4 - d3 * d2
-    if vc <= zero and d1 >= zero and d3 <= zero:
-        return wp.length(p - (a + ab * (d1 / (d1 - d3))))
-    cp = p - c
-    d5 = wp.dot(ab, cp)
-    d6 = wp.dot(ac, cp)
-    if d6 >= zero and d5 <= d6:
-        return wp.length(cp)
-    vb = d5 * d2 - d1 * d6
-    if vb <= zero and d2 >= zero and d6 <= zero:
-        return wp.length(p - (a + ac * (d2 / (d2 - d6))))
-    va = d3 * d6 - d5 * d4
-    if va <= zero and (d4 - d3) >= zero and (d5 - d6) >= zero:
-        return wp.length(p - (b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)))))
-    denom = wp.float64(1.0) / (va + vb + vc)
-    return wp.length(p - (a + ab * (vb * denom) + ac * (vc * denom)))
+    """The distance from p to triangle abc."""
+    w = closest_on_triangle(p, a, b, c)
+    return wp.length(p - (w[0] * a + w[1] * b + w[2] * c))
 
 
 @wp.func
