@@ -18,9 +18,14 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+import warp as wp
 
+from ..device import resolve_device
 from ..errors import CageError, MeshError
+from ..io.scene import load_scene
+from ..kernels import cage as cage_kernels
 from .cage import Cage, check_cage, signed_volume
+from .inside import WINDING_ACCURACY, classify_points
 from .simplify import simplify_enclosing
 from .topology import bounding_diagonal
 
@@ -102,32 +107,24 @@ def _components(faces: np.ndarray, n: int) -> np.ndarray:
         label = new
 
 
-def _winding(p: np.ndarray, v: np.ndarray, f: np.ndarray) -> float:
-    """The winding number of point p about the closed surface (v, f)."""
-    r = v[f] - p
-    a, b, c = r[:, 0], r[:, 1], r[:, 2]
-    la, lb, lc = (np.linalg.norm(x, axis=1) for x in (a, b, c))
-    num = np.einsum("ij,ij->i", a, np.cross(b, c))
-    den = la * lb * lc + np.einsum("ij,ij->i", a, b) * lc + np.einsum("ij,ij->i", b, c) * la \
-        + np.einsum("ij,ij->i", c, a) * lb
-    return float(2.0 * np.arctan2(num, den).sum() / (4.0 * np.pi))
-
-
-def _outer_shells(v: np.ndarray, f: np.ndarray) -> np.ndarray:
+def _outer_shells(v: np.ndarray, f: np.ndarray, device) -> np.ndarray:
     """The faces of the surface's components that bound the solid from outside: cavities (inward, negative
-    volume) and pieces inside another piece are dropped."""
+    volume) and pieces inside another piece (a vertex of it inside, by the package's inside test) are dropped."""
     label = _components(f, len(v))[f[:, 0]]
     shells = [np.flatnonzero(label == k) for k in np.unique(label)]
     shells = [s for s in shells if signed_volume(v, f[s]) > 0]
-    kept = [s for i, s in enumerate(shells)
-            if not any(_winding(v[f[s[0], 0]], v, f[t]) > 0.5 for j, t in enumerate(shells) if j != i)]
+    firsts = v[[f[s[0], 0] for s in shells]]
+    enclosed = np.zeros(len(shells), dtype=bool)
+    for j, s in enumerate(shells if len(shells) > 1 else []):
+        inside, _ = classify_points(Cage(vertices=v, faces=f[s], name="a shell"), firsts, device=device)
+        inside[j] = False
+        enclosed |= inside
+    kept = [s for s, inner in zip(shells, enclosed) if not inner]
     return f[np.concatenate(kept)] if kept else f[:0]
 
 
 def _marching_cubes(field, spacing: float, origin: np.ndarray):
     """(vertices, faces) of the zero level set of a Warp 3D array (Warp's marching cubes, on the array's device)."""
-    import warp as wp
-
     shape = np.array(field.shape)
     lower = wp.vec3(*origin.astype(np.float32))
     upper = wp.vec3(*(origin + spacing * (shape - 1)).astype(np.float32))
@@ -182,13 +179,6 @@ def make_cage(mesh, handles: int | None = None, offset: float = DEFAULT_OFFSET, 
     >>> made.cage.n_handles, made.distance[1] < 0.03
     (60, True)
     """
-    import warp as wp
-
-    from ..device import resolve_device
-    from ..io.scene import load_scene
-    from ..kernels import cage as cage_kernels
-    from .inside import WINDING_ACCURACY, classify_points
-
     if handles is not None and (int(handles) != handles or handles < 8):
         raise CageError(f"handles: a made cage needs at least 8 handles, got {handles}")
     if not (np.isfinite(offset) and 0 < offset <= 0.5):
@@ -235,7 +225,7 @@ def make_cage(mesh, handles: int | None = None, offset: float = DEFAULT_OFFSET, 
         t = time.perf_counter()
         v, f = _marching_cubes(wp.array(level, dtype=float), spacing, origin - centre)
     v += centre
-    f = _outer_shells(v, f)
+    f = _outer_shells(v, f, device)
     if len(f) == 0:  # nothing at the offset: the grid saw no surface (never for a mesh with faces and extent)
         raise MeshError(f"{name}: no surface at the offset around the mesh")
     seconds["surface"] = time.perf_counter() - t
@@ -269,8 +259,6 @@ def make_cage(mesh, handles: int | None = None, offset: float = DEFAULT_OFFSET, 
 def _check_start(v, f, points, margin, name, device) -> None:
     """The simplification keeps every vertex inside at the margin, so the offset surface it starts from must:
     marching cubes places the surface within a cell of the offset, and the cells are two thirds of it."""
-    from .inside import classify_points
-
     start = Cage(vertices=v, faces=f, name="the offset surface")  # closed and outward by construction
     inside, gap = classify_points(start, points, device=device)
     if not (inside.all() and gap.min() >= margin):
