@@ -249,8 +249,10 @@ def make_cage(mesh, handles: int | None = None, offset: float = DEFAULT_OFFSET, 
     if not inside.all():  # the collapses keep every vertex inside: this would be a bug, never a cage to return
         raise CageError(f"{name}: the made cage leaves {int((~inside).sum())} vertex(es) outside")
     if cage.n_handles > handles:
+        refused = ", ".join(f"{why} {count}" for why, count in sorted(simplified.refusals.items(), key=lambda x: -x[1]))
         notes.append(f"{name}: stopped at {cage.n_handles} handles (asked {handles}): no further collapse keeps the "
-                     "cage valid with every vertex inside; a larger offset leaves more room")
+                     f"cage valid with every vertex inside (collapses refused: {refused}); a larger offset leaves more "
+                     "room")
     return MadeCage(cage=cage, handles=handles, chosen=chosen, offset=distance, margin=margin, grid=shape,
                     distance=(float(gap.mean() / diag), float(gap.max() / diag)), seconds=seconds,
                     notes=notes + list(cage.notes))

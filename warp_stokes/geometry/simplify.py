@@ -20,6 +20,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .cage_faults import crossing_faces
+from .topology import face_edges
+
 __all__ = ["simplify_enclosing", "Simplified", "MAX_FOLD_DEGREES", "REFUSALS"]
 
 #: no collapse makes two neighbouring faces' normals more than this many degrees apart (a cage's own check notes
@@ -38,12 +41,11 @@ REFUSALS = {1: "small angle", 2: "face turned", 3: "fold", 4: "faces cross", 5: 
 
 @dataclass
 class Simplified:
-    """The simplified surface: ``vertices`` (V, 3), ``faces`` (F, 3) outward as given; ``collapses`` made,
-    ``rounds`` of them, and ``refusals``: how many times a collapse was refused, by reason (:data:`REFUSALS`)."""
+    """The simplified surface: ``vertices`` (V, 3), ``faces`` (F, 3) outward as given; the ``rounds`` of collapses
+    made, and ``refusals``: how many times a collapse was refused, by reason (:data:`REFUSALS`)."""
 
     vertices: np.ndarray
     faces: np.ndarray
-    collapses: int
     rounds: int
     refusals: dict
 
@@ -87,7 +89,7 @@ def _placements(qa: np.ndarray, qb: np.ndarray, pa: np.ndarray, pb: np.ndarray):
 
 def _unique_edges(f: np.ndarray, n: int) -> np.ndarray:
     """(E, 2) the undirected edges of faces f (vertex ids below n), each once, (a < b), sorted."""
-    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    e = face_edges(f)
     keys = np.unique(np.minimum(e[:, 0], e[:, 1]) * n + np.maximum(e[:, 0], e[:, 1]))
     return np.column_stack([keys // n, keys % n])
 
@@ -176,8 +178,6 @@ def _apart(v, f, vf_start, vf, a, b, x, device) -> tuple[np.ndarray, np.ndarray]
     """Of collapses checked one by one against the surface as it was (fans sharing no vertex, in priority order),
     those to make together (``kept``): where the new faces of two cross, the later one waits for a later round; a
     collapse whose own new faces cross each other is left out and returned as ``tangled`` (refused)."""
-    from .cage_faults import crossing_faces
-
     k = len(a)
     which, face = _expand(vf_start, vf, np.concatenate([a, b]))
     which %= k
@@ -245,7 +245,7 @@ def simplify_enclosing(vertices: np.ndarray, faces: np.ndarray, handles: int, po
     centre = 0.5 * (v.min(axis=0) + v.max(axis=0))
     pad = 1e-6 * np.linalg.norm(v.max(axis=0) - v.min(axis=0))
     device = resolve_device(device)
-    collapses = rounds = 0
+    rounds = 0
     reasons = np.zeros(8, dtype=np.int64)
     cos_flip, cos_fold = np.cos(np.radians(FLIP_DEGREES)), np.cos(np.radians(MAX_FOLD_DEGREES))
     sin_angle = np.sin(np.radians(MIN_ANGLE_DEGREES))
@@ -306,7 +306,8 @@ def simplify_enclosing(vertices: np.ndarray, faces: np.ndarray, handles: int, po
                       inputs=[wp.array(v, dtype=wp.vec3d), wp.array(f.astype(np.int32), dtype=wp.vec3i),
                               wp.array(vf_start.astype(np.int32), dtype=wp.int32),
                               wp.array(vf.astype(np.int32), dtype=wp.int32),
-                              wp.array(a.astype(np.int32), dtype=wp.int32), wp.array(b.astype(np.int32), dtype=wp.int32),
+                              wp.array(a.astype(np.int32), dtype=wp.int32),
+                              wp.array(b.astype(np.int32), dtype=wp.int32),
                               wp.array(np.ascontiguousarray(place[chosen]), dtype=wp.vec3d), surface.id,
                               wp.vec3d(*centre), points_bvh.id, points_d, float(margin), float(cos_flip),
                               float(cos_fold), float(sin_angle)],
@@ -340,9 +341,8 @@ def simplify_enclosing(vertices: np.ndarray, faces: np.ndarray, handles: int, po
                 _, touched = _expand(nbr_start, nbr, np.concatenate([a, b]))
                 changed_at[touched] = rounds
                 changed_at[a] = rounds
-                collapses += len(made)
     keep = np.flatnonzero(alive)
     remap = np.full(n, -1, dtype=np.int64)
     remap[keep] = np.arange(len(keep))
     refusals = {why: int(reasons[code]) for code, why in REFUSALS.items() if reasons[code]}
-    return Simplified(vertices=v[keep], faces=remap[f], collapses=collapses, rounds=rounds, refusals=refusals)
+    return Simplified(vertices=v[keep], faces=remap[f], rounds=rounds, refusals=refusals)
