@@ -15,17 +15,30 @@ from .local_boundary import closest_on_triangle
 
 
 @wp.func
-def solid_angle(p: wp.vec3d, a: wp.vec3d, b: wp.vec3d, c: wp.vec3d):
-    """The solid angle that triangle abc subtends at p, signed by its orientation (Van Oosterom & Strackee)."""
-    ra = a - p
-    rb = b - p
-    rc = c - p
-    la = wp.length(ra)
-    lb = wp.length(rb)
-    lc = wp.length(rc)
-    num = wp.dot(ra, wp.cross(rb, rc))
-    den = la * lb * lc + wp.dot(ra, rb) * lc + wp.dot(rb, rc) * la + wp.dot(rc, ra) * lb
-    return wp.float64(2.0) * wp.atan2(num, den)
+def orient(a: wp.vec3d, b: wp.vec3d, c: wp.vec3d, d: wp.vec3d):
+    """Six times the signed volume of tetrahedron abcd."""
+    return wp.dot(b - a, wp.cross(c - a, d - a))
+
+
+@wp.func
+def in_tetrahedron(p: wp.vec3d, x: wp.vec3d, a: wp.vec3d, b: wp.vec3d, c: wp.vec3d):
+    """+1 or -1 (its orientation) when p lies in tetrahedron (x, a, b, c), else 0: p's four barycentric volumes
+    all have the whole's sign."""
+    volume = orient(x, a, b, c)
+    if volume == wp.float64(0.0):
+        return 0
+    s = wp.float64(1.0)
+    if volume < wp.float64(0.0):
+        s = wp.float64(-1.0)
+    if s * orient(p, a, b, c) < wp.float64(0.0):
+        return 0
+    if s * orient(x, p, b, c) < wp.float64(0.0):
+        return 0
+    if s * orient(x, a, p, c) < wp.float64(0.0):
+        return 0
+    if s * orient(x, a, b, p) < wp.float64(0.0):
+        return 0
+    return int(s)
 
 
 @wp.func
@@ -78,6 +91,22 @@ def fan_face(vf_start: wp.array(dtype=wp.int32), vf_faces: wp.array(dtype=wp.int
 
 
 @wp.func
+def cone_count(p: wp.vec3d, x: wp.vec3d, positions: wp.array(dtype=wp.vec3d), faces: wp.array(dtype=wp.vec3i),
+               vf_start: wp.array(dtype=wp.int32), vf_faces: wp.array(dtype=wp.int32), a: int, b: int):
+    """The winding number at p of the region between the fan of edge (a, b) and its faces once collapsed to x:
+    the tetrahedra (x, old face) that hold p, counted with their orientation."""
+    na = vf_start[a + 1] - vf_start[a]
+    n = na + vf_start[b + 1] - vf_start[b]
+    count = int(0)
+    for k in range(n):
+        f = faces[fan_face(vf_start, vf_faces, a, b, k)]
+        if has(f, a) and has(f, b) and k >= na:
+            continue  # a vanishing face, once
+        count += in_tetrahedron(p, x, positions[f[0]], positions[f[1]], positions[f[2]])
+    return count
+
+
+@wp.func
 def across(faces: wp.array(dtype=wp.vec3i), vf_start: wp.array(dtype=wp.int32), vf_faces: wp.array(dtype=wp.int32),
            g: int, u: int, w: int, a: int, b: int):
     """The face other than g that has edge (u, w) once edge (a, b) collapses (u or w may be -1, the new vertex);
@@ -124,7 +153,7 @@ def collapse_choice(
 ):
     """choice[e] = the first placement x (of placements[e], in order of cost) where collapsing edge (a, b) to x keeps
     the surface valid, or -1: no face turned by more than the flip angle or with an angle below the minimum, no
-    fold sharper than the fold limit, no new face crossing another face, and no point swept out of the surface or
+    fold sharper than the fold limit, no new face crossing another face (of the surface or new), and no point swept out of the surface or
     within ``margin`` of a new face. ``surface`` is a BVH over the faces (float32, relative to ``centre``), and
     ``points_bvh`` one over the points to keep inside; launch over the candidate edges."""
     e = wp.tid()
@@ -139,16 +168,11 @@ def collapse_choice(
             break
         x = placements[e, c]
         ok = bool(True)
-        lo = x
-        hi = x
         for k in range(n):
             if not ok:
                 break
             g = fan_face(vf_start, vf_faces, a, b, k)
             f = faces[g]
-            for m in range(3):
-                lo = wp.min(lo, positions[f[m]])
-                hi = wp.max(hi, positions[f[m]])
             if has(f, a) and has(f, b):
                 continue  # vanishes
             normal = collapsed_normal(positions, f, a, b, x)
@@ -205,35 +229,48 @@ def collapse_choice(
                                        fh, eps):
                         ok = False
                         why = 4
+            # nor another new face (they share the new vertex, labelled -1 in both)
+            for k2 in range(k + 1, n):
+                f2 = faces[fan_face(vf_start, vf_faces, a, b, k2)]
+                if not (has(f2, a) and has(f2, b)):
+                    if triangles_cross(p0, p1, p2, labels, corner(positions, f2[0], a, b, x),
+                                       corner(positions, f2[1], a, b, x), corner(positions, f2[2], a, b, x),
+                                       wp.vec3i(label(f2[0], a, b), label(f2[1], a, b), label(f2[2], a, b)), eps):
+                        ok = False
+                        why = 4
         if not ok:
             continue
-        # no point swept out (a winding number about the region between the old and the new faces), none within
-        # the margin of a new face
-        lo = lo - wp.vec3d(margin, margin, margin)
-        hi = hi + wp.vec3d(margin, margin, margin)
-        near = wp.bvh_query_aabb(points_bvh, wp.vec3(float(lo[0] - centre[0]), float(lo[1] - centre[1]),
-                                                       float(lo[2] - centre[2])),
-                                  wp.vec3(float(hi[0] - centre[0]), float(hi[1] - centre[1]), float(hi[2] - centre[2])))
-        i = int(0)
-        while ok and wp.bvh_query_next(near, i):
-            p = points[i]
-            winding = wp.float64(0.0)
-            for k in range(n):
-                f = faces[fan_face(vf_start, vf_faces, a, b, k)]
-                if has(f, a) and has(f, b) and k >= vf_start[a + 1] - vf_start[a]:
-                    continue  # a vanishing face, once (it is at a and at b)
-                winding += solid_angle(p, positions[f[0]], positions[f[1]], positions[f[2]])
-                if not (has(f, a) and has(f, b)):
-                    p0 = corner(positions, f[0], a, b, x)
-                    p1 = corner(positions, f[1], a, b, x)
-                    p2 = corner(positions, f[2], a, b, x)
-                    winding -= solid_angle(p, p0, p1, p2)
-                    if triangle_distance(p, p0, p1, p2) < margin:
+        # no point within the margin of a new face, none swept out. The region between the old and the new faces
+        # is the cone from x over the old fan (the new faces hold x: their cones are flat), so a point is swept out
+        # when the tetrahedra (x, old face) that hold it, counted with their orientation, do not cancel. A query per
+        # old face finds the points near its tetrahedron (and so near its new face); the count is made for those in
+        na = vf_start[a + 1] - vf_start[a]
+        for k in range(n):
+            if not ok:
+                break
+            f = faces[fan_face(vf_start, vf_faces, a, b, k)]
+            vanishing = has(f, a) and has(f, b)
+            if vanishing and k >= na:
+                continue  # a vanishing face, once (it is at a and at b)
+            fa = positions[f[0]]
+            fb = positions[f[1]]
+            fc = positions[f[2]]
+            lo = wp.min(wp.min(x, fa), wp.min(fb, fc)) - wp.vec3d(margin, margin, margin) - centre
+            hi = wp.max(wp.max(x, fa), wp.max(fb, fc)) + wp.vec3d(margin, margin, margin) - centre
+            near = wp.bvh_query_aabb(points_bvh, wp.vec3(float(lo[0]), float(lo[1]), float(lo[2])),
+                                     wp.vec3(float(hi[0]), float(hi[1]), float(hi[2])))
+            i = int(0)
+            while ok and wp.bvh_query_next(near, i):
+                p = points[i]
+                if not vanishing:
+                    if triangle_distance(p, corner(positions, f[0], a, b, x), corner(positions, f[1], a, b, x),
+                                         corner(positions, f[2], a, b, x)) < margin:
                         ok = False
                         why = 5
-            if wp.abs(winding) > wp.float64(6.283185307179586):
-                ok = False
-                why = 6
+                if ok and in_tetrahedron(p, x, fa, fb, fc) != 0:
+                    if cone_count(p, x, positions, faces, vf_start, vf_faces, a, b) != 0:
+                        ok = False
+                        why = 6
         if ok:
             result = c
     choice[e] = result

@@ -98,7 +98,7 @@ def test_default_handles_said_and_stopping_short_noted():
 
 
 def test_offset_finer_than_the_grid_is_raised(monkeypatch):
-    """An offset the grid cannot resolve is raised to what it can (1.5 cells), said in a note; the cage stays
+    """An offset the grid cannot resolve is raised to what it can (a cell), said in a note; the cage stays
     valid with every vertex inside at the raised offset's margin."""
     module = importlib.import_module("warp_stokes.geometry.make_cage")  # the package exports the function by this name
     monkeypatch.setattr(module, "MAX_CELLS", 24)
@@ -119,6 +119,9 @@ def test_simplify_keeps_points_at_the_margin():
     inside, distance = ws.classify_points(cage, point, device="cpu")
     assert inside.all() and distance[0] >= 0.1 - 1e-9
     assert len(s.vertices) >= 12
+    # points all round at 0.85: 8 handles would cut within the margin of them, refused and said so by name
+    s = simplify_enclosing(v, f, 8, 0.85 * v, margin=0.1, device="cpu")
+    assert len(s.vertices) > 8 and max(s.refusals, key=s.refusals.get) == "point within the margin"
 
 
 def test_cli_writes_a_cage_that_binds(tmp_path):

@@ -35,8 +35,8 @@ FLIP_DEGREES = 120.0
 #: which 256 threads would overflow (66 KB of the 48 KB a block may have)
 COLLAPSE_BLOCK = 64
 #: why collapses were refused (the kernel's codes, in ``Simplified.refusals``)
-REFUSALS = {1: "small angle", 2: "face turned", 3: "fold", 4: "faces cross", 5: "point swept out",
-            6: "point within the margin"}
+REFUSALS = {1: "small angle", 2: "face turned", 3: "fold", 4: "faces cross", 5: "point within the margin",
+            6: "point swept out"}
 
 
 @dataclass
@@ -174,10 +174,10 @@ def _disjoint_fans(which: np.ndarray, ring: np.ndarray, k: int, n: int, passes: 
     return taken
 
 
-def _apart(v, f, vf_start, vf, a, b, x, device) -> tuple[np.ndarray, np.ndarray]:
+def _apart(v, f, vf_start, vf, a, b, x, device) -> np.ndarray:
     """Of collapses checked one by one against the surface as it was (fans sharing no vertex, in priority order),
-    those to make together (``kept``): where the new faces of two cross, the later one waits for a later round; a
-    collapse whose own new faces cross each other is left out and returned as ``tangled`` (refused)."""
+    those to make together: where the new faces of two cross, the later one waits for a later round. Only
+    collapses whose new faces' boxes overlap another's are tested."""
     k = len(a)
     which, face = _expand(vf_start, vf, np.concatenate([a, b]))
     which %= k
@@ -189,14 +189,23 @@ def _apart(v, f, vf_start, vf, a, b, x, device) -> tuple[np.ndarray, np.ndarray]
     relabel = np.arange(len(v))
     relabel[b] = a
     faces = relabel[faces]
+    corners = moved[faces]
+    lower = np.full((k, 3), np.inf)
+    upper = np.full((k, 3), -np.inf)
+    np.minimum.at(lower, which, corners.min(axis=1))
+    np.maximum.at(upper, which, corners.max(axis=1))
+    overlap = ((lower[:, None] <= upper[None]) & (lower[None] <= upper[:, None])).all(axis=2)
+    np.fill_diagonal(overlap, False)
+    kept = np.ones(k, dtype=bool)
+    near = overlap.any(axis=1)[which]
+    if not near.any():
+        return kept
+    which, faces = which[near], faces[near]
     used, faces = np.unique(faces, return_inverse=True)
     pairs = crossing_faces(moved[used], faces.reshape(-1, 3), device=device)
     first, second = which[pairs[:, 0]], which[pairs[:, 1]]
-    kept = np.ones(k, dtype=bool)
-    kept[np.maximum(first, second)] = False
-    tangled = np.zeros(k, dtype=bool)
-    tangled[first[first == second]] = True
-    return kept, tangled
+    kept[np.maximum(first, second)[first != second]] = False
+    return kept
 
 
 def simplify_enclosing(vertices: np.ndarray, faces: np.ndarray, handles: int, points: np.ndarray, margin: float,
@@ -240,6 +249,9 @@ def simplify_enclosing(vertices: np.ndarray, faces: np.ndarray, handles: int, po
     alive = np.zeros(n, dtype=bool)
     alive[np.unique(f)] = True
     changed_at = np.full(n, -1, dtype=np.int64)   # the round when a vertex's fan last changed
+    moved_at = np.full(n, -1, dtype=np.int64)     # the round when a vertex last moved (collapsed to)
+    cached_keys = np.zeros(0, dtype=np.int64)      # last round's placements of its eligible edges, by key
+    cached_place, cached_costs = np.zeros((0, 4, 3)), np.zeros((0, 4))
     refused_keys = np.zeros(0, dtype=np.int64)     # edges refused, and when: tried again once their fan changes
     refused_at = np.zeros(0, dtype=np.int64)
     centre = 0.5 * (v.min(axis=0) + v.max(axis=0))
@@ -264,7 +276,8 @@ def simplify_enclosing(vertices: np.ndarray, faces: np.ndarray, handles: int, po
                 refused_keys, refused_at = np.minimum(ra, rb)[live] * n + np.maximum(ra, rb)[live], refused_at[live]
                 order = np.argsort(refused_keys)
                 refused_keys, refused_at = refused_keys[order], refused_at[order]
-                v, q, changed_at, f = v[keep], q[keep], changed_at[keep], remap[f]
+                v, q, changed_at, moved_at, f = v[keep], q[keep], changed_at[keep], moved_at[keep], remap[f]
+                cached_keys = cached_keys[:0]  # keys are vertex numbers: renumbered
                 alive = np.ones(n, dtype=bool)
             edges = _unique_edges(f, n)
             keys = edges[:, 0] * n + edges[:, 1]
@@ -279,11 +292,18 @@ def simplify_enclosing(vertices: np.ndarray, faces: np.ndarray, handles: int, po
             if not eligible.any():
                 break
             index = np.flatnonzero(eligible)
-            ea, eb = edges[index, 0], edges[index, 1]
             place = np.empty((len(edges), 4, 3))
-            cost = np.empty(len(edges))
-            place[index], c = _placements(q[ea], q[eb], v[ea], v[eb])
-            cost[index] = c[:, 0]
+            costs = np.empty((len(edges), 4))
+            # an edge's placements change only when an end moved (its quadric with it): the others are last round's
+            hit = _contains(cached_keys, keys[index]) & (moved_at[edges[index, 0]] < rounds) & (
+                moved_at[edges[index, 1]] < rounds)
+            at = np.searchsorted(cached_keys, keys[index[hit]])
+            place[index[hit]], costs[index[hit]] = cached_place[at], cached_costs[at]
+            fresh = index[~hit]
+            ea, eb = edges[fresh, 0], edges[fresh, 1]
+            place[fresh], costs[fresh] = _placements(q[ea], q[eb], v[ea], v[eb])
+            cached_keys, cached_place, cached_costs = keys[index], place[index], costs[index]
+            cost = costs[:, 0]
             priority = np.full(len(edges), np.iinfo(np.int64).max, dtype=np.int64)
             priority[index[np.lexsort((_scramble(keys[index]), _cost_bins(cost[index])))]] = np.arange(len(index))
             chosen = np.flatnonzero(_first_at_both_ends(edges, priority, n))
@@ -312,16 +332,14 @@ def simplify_enclosing(vertices: np.ndarray, faces: np.ndarray, handles: int, po
                               wp.vec3d(*centre), points_bvh.id, points_d, float(margin), float(cos_flip),
                               float(cos_fold), float(sin_angle)],
                       outputs=[choice, reason], block_dim=COLLAPSE_BLOCK)
-            choice = choice.numpy()
-            reasons += np.bincount(reason.numpy()[choice < 0], minlength=8)
+            choice, reason = choice.numpy(), reason.numpy()
+            reasons += np.bincount(reason[choice < 0], minlength=8)
             passed = np.flatnonzero(choice >= 0)
-            made, tangled = passed[:0], passed[:0]
+            made = passed[:0]
             if len(passed):
-                kept, knot = _apart(v, f, vf_start, vf, a[passed], b[passed], place[chosen[passed], choice[passed]],
-                                    device)
-                made, tangled = passed[kept], passed[knot]
+                made = passed[_apart(v, f, vf_start, vf, a[passed], b[passed], place[chosen[passed], choice[passed]],
+                                     device)]
             no = choice < 0
-            no[tangled] = True
             if no.any():
                 new_keys = keys[chosen[no]]
                 keep = ~_contains(new_keys, refused_keys) if len(refused_keys) else np.ones(0, dtype=bool)
@@ -341,6 +359,7 @@ def simplify_enclosing(vertices: np.ndarray, faces: np.ndarray, handles: int, po
                 _, touched = _expand(nbr_start, nbr, np.concatenate([a, b]))
                 changed_at[touched] = rounds
                 changed_at[a] = rounds
+                moved_at[a] = rounds  # the next round recomputes the placements of the edges at a
     keep = np.flatnonzero(alive)
     remap = np.full(n, -1, dtype=np.int64)
     remap[keep] = np.arange(len(keep))
