@@ -95,6 +95,11 @@ def test_a_point_set_goes_only_where_points_can_go(tmp_path):
     ("[defaults]\ntol = nan\n", "asset 1: 'tol' must be in (0, 0.1], got nan"),
     ("[defaults]\nfps = inf\n", "asset 1: 'fps' must be a positive number, got inf"),
     ("[defaults]\nwith_cage = 1\n", "asset 1: 'with_cage' has the wrong type (int)"),
+    ("[[asset]]\nmesh = \"x.obj\"\ncage = \"auto\"\nposes = \"p.npy\"\n",
+     "asset 1: 'poses' move a cage's handles, and cage \"auto\" has none until it is made; bind it, then animate "
+     "poses of the made cage (<name>.cage.obj)"),
+    ("[[asset]]\nmesh = \"x.usda\"\ncage = \"auto\"\ncage_prim = \"/C\"\n",
+     "asset 1: cage \"auto\" and 'cage_prim': give one of them"),
 ])
 def test_a_manifest_is_checked_whole_before_any_work(tmp_path, text, message):
     manifest = tmp_path / "m.toml"

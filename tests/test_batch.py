@@ -332,6 +332,6 @@ resolution = 16
     stage = Usd.Stage.Open(layer)
     assert stage.GetTimeCodesPerSecond() == 30 and stage.GetStartTimeCode() == TIMES[0]
     assert UsdGeom.Mesh(stage.GetPrimAtPath(BAND)).GetPointsAttr().GetTimeSamples() == list(TIMES)
-    with pytest.raises(ws.WarpStokesError, match=r"'cage' \(a path\) or 'cage_prim'"):
+    with pytest.raises(ws.WarpStokesError, match=r"'cage' \(a path, or \"auto\" to make one\) or 'cage_prim'"):
         (tmp_path / "bad.toml").write_text('[[asset]]\nmesh = "assets/char.usda"\n')
         ws.read_manifest(tmp_path / "bad.toml")

@@ -15,8 +15,9 @@ from conftest import EXAMPLE, write_obj
 ray = pytest.importorskip("ray")
 
 
-def manifest(folder, names=("arm_a", "arm_b"), broken=True):
-    """Arm assets at n = 16 (the second with poses) and, with ``broken``, one whose cage is open."""
+def manifest(folder, names=("arm_a", "arm_b"), broken=True, made=False):
+    """Arm assets at n = 16 (the second with poses); with ``broken``, one whose cage is open; with ``made``, one
+    whose cage is made for it (``cage = "auto"``)."""
     cage = ws.load_surface(EXAMPLE / "arm_cage.obj")
     np.save(folder / "grow.npy", np.stack([cage.vertices * (1 + 0.05 * k) for k in range(3)]))
     write_obj(folder / "open_cage.obj", cage.vertices, cage.faces[1:])
@@ -25,6 +26,8 @@ def manifest(folder, names=("arm_a", "arm_b"), broken=True):
     for k, name in enumerate(names):
         text += f'\n[[asset]]\nname = "{name}"\nmesh = "{arm}"\ncage = "{arm_cage}"\n'
         text += f'poses = "{folder / "grow.npy"}"\n' if k == 1 else ""
+    if made:
+        text += f'\n[[asset]]\nname = "arm_made"\nmesh = "{arm}"\ncage = "auto"\n'
     if broken:
         text += f'\n[[asset]]\nname = "broken"\nmesh = "{arm}"\ncage = "{folder / "open_cage.obj"}"\n'
     path = folder / "batch.toml"
@@ -42,17 +45,20 @@ def summary(folder):
 
 
 def test_workers_give_the_serial_batch_s_files_and_weights(tmp_path):
-    path = manifest(tmp_path)
+    path = manifest(tmp_path, made=True)
     serial = batch(path, "-o", tmp_path / "serial", "--device", "cpu")
     parallel = batch(path, "-o", tmp_path / "ray", "--device", "cpu", "--workers", "2")
     assert serial.returncode == parallel.returncode == 1, parallel.stderr  # the broken asset fails in both
     assert sorted(os.listdir(tmp_path / "ray")) == sorted(os.listdir(tmp_path / "serial"))
-    for name in ("arm_a", "arm_b"):
+    # a made cage: the same in the workers (deterministic), written beside its binding
+    made = [(tmp_path / run / "arm_made.cage.obj").read_bytes() for run in ("serial", "ray")]
+    assert made[0] == made[1]
+    for name in ("arm_a", "arm_b", "arm_made"):
         a = ws.load_binding(tmp_path / "serial" / f"{name}.npz", device="cpu")
         b = ws.load_binding(tmp_path / "ray" / f"{name}.npz", device="cpu")
         np.testing.assert_allclose(b.weights, a.weights, atol=1e-6)
         # the cores shared out: a serial bind takes them all, each of 2 workers its half
-        assert a.stats["threads"] == min(ws.device.cpu_threads(), 58)
+        assert a.stats["threads"] == min(ws.device.cpu_threads(), a.n_handles)
         assert b.stats["threads"] == max(1, ws.device.cpu_threads() // 2)
     got, expected = summary(tmp_path / "ray"), summary(tmp_path / "serial")
     assert {k: v["status"] for k, v in got.items()} == {k: v["status"] for k, v in expected.items()}

@@ -9,11 +9,14 @@ from dataclasses import dataclass
 
 from ..errors import WarpStokesError
 
-__all__ = ["Asset", "ManifestError", "read_manifest", "ASSET_KEYS"]
+__all__ = ["Asset", "ManifestError", "read_manifest", "ASSET_KEYS", "MADE_CAGE"]
 
 ASSET_KEYS = {"name", "mesh", "cage", "poses", "resolution", "fps", "tol", "with_cage", "with_weights", "boundary",
               "sampling", "cage_prim", "mesh_prims", "rest_time", "method", "skin", "influences", "non_negative",
               "max_error"}
+#: ``cage`` value for a cage made for the mesh (``warp-stokes cage``), written as ``<name>.cage.obj`` beside the
+#: binding
+MADE_CAGE = "auto"
 #: ``skin`` values: the animation as a UsdSkel rig (``<name>.usd``) or a glTF skin (``<name>.glb`` / ``.gltf``)
 SKINS = ("usd", "glb", "gltf")
 
@@ -26,7 +29,7 @@ class ManifestError(WarpStokesError):
 class Asset:
     name: str
     mesh: str
-    cage: str | None = None
+    cage: str | None = None  # a path, or MADE_CAGE
     poses: str | None = None
     resolution: int | str = "auto"
     fps: float | None = None
@@ -77,9 +80,16 @@ def _checked_entry(merged: dict, where: str) -> None:
     if merged.get("cage_prim") is not None and not isinstance(merged["cage_prim"], str):
         raise ManifestError(f"{where}: 'cage_prim' must be a prim path")
     if not isinstance(merged.get("cage"), str) and merged.get("cage_prim") is None:
-        raise ManifestError(f"{where}: 'cage' (a path) or 'cage_prim' (a prim of the USD asset) is required")
+        raise ManifestError(f"{where}: 'cage' (a path, or \"auto\" to make one) or 'cage_prim' (a prim of the USD "
+                            "asset) is required")
     if merged.get("cage") is not None and not isinstance(merged["cage"], str):
-        raise ManifestError(f"{where}: 'cage' must be a path")
+        raise ManifestError(f"{where}: 'cage' must be a path or \"auto\"")
+    if merged.get("cage") == MADE_CAGE:
+        if merged.get("cage_prim") is not None:
+            raise ManifestError(f"{where}: cage \"auto\" and 'cage_prim': give one of them")
+        if merged.get("poses") is not None:
+            raise ManifestError(f"{where}: 'poses' move a cage's handles, and cage \"auto\" has none until it is "
+                                "made; bind it, then animate poses of the made cage (<name>.cage.obj)")
     prims = merged.get("mesh_prims")
     if prims is not None and not (isinstance(prims, list) and prims and all(isinstance(p, str) for p in prims)):
         raise ManifestError(f"{where}: 'mesh_prims' must be a list of prim paths")
@@ -152,7 +162,7 @@ def read_manifest(path) -> list[Asset]:
         merged = {**defaults, **entry}
         _checked_entry(merged, where)
         for key in ("mesh", "cage", "poses"):
-            if merged.get(key) is not None:
+            if merged.get(key) is not None and not (key == "cage" and merged[key] == MADE_CAGE):
                 merged[key] = os.path.join(base, merged[key])
         merged.setdefault("name", os.path.splitext(os.path.basename(merged["mesh"]))[0])
         name = str(merged["name"])

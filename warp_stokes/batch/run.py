@@ -17,7 +17,7 @@ from ..device import BIND_MODULES, KERNEL_MODULES, announce_compilation
 from ..errors import WarpStokesError
 from ..io.files import atomic_output
 from .lock import folder_lock
-from .manifest import Asset, read_manifest
+from .manifest import MADE_CAGE, Asset, read_manifest
 
 __all__ = ["Result", "run_batch", "bind_one", "skipped", "earlier_records", "outputs_of", "format_summary",
            "warn_for", "refuse_outputs_over_inputs"]
@@ -51,12 +51,17 @@ def _up_to_date(asset: Asset, outputs: list[str], manifest: str) -> bool:
     if not all(os.path.exists(o) for o in outputs):
         return False
     # the manifest counts as an input: a changed resolution or fps must redo the asset
-    inputs = [p for p in (asset.mesh, asset.cage, asset.poses, manifest) if p]
+    inputs = [p for p in (asset.mesh, _cage_file(asset), asset.poses, manifest) if p]
     try:
         newest_input = max(_mtime(p) for p in inputs)
     except OSError:
         return False
     return min(os.path.getmtime(o) for o in outputs) > newest_input and _made_by_this_version(outputs[0])
+
+
+def _cage_file(asset: Asset) -> str | None:
+    """The cage file the asset reads (None for a made cage or a cage prim of the mesh's asset)."""
+    return None if asset.cage == MADE_CAGE else asset.cage
 
 
 def _made_by_this_version(npz: str) -> bool:
@@ -146,7 +151,7 @@ def refuse_outputs_over_inputs(assets: list[Asset], outdir: str, manifest) -> No
     manifest = os.fspath(manifest)
     inputs = [(manifest, "the manifest")]
     for asset in assets:
-        for role, source in (("mesh", asset.mesh), ("cage", asset.cage), ("poses", asset.poses)):
+        for role, source in (("mesh", asset.mesh), ("cage", _cage_file(asset)), ("poses", asset.poses)):
             if not source:
                 continue
             inputs.append((source, f"the {role} of asset {asset.name!r}"))
@@ -167,10 +172,12 @@ def refuse_outputs_over_inputs(assets: list[Asset], outdir: str, manifest) -> No
 
 def outputs_of(asset: Asset, outdir: str) -> list[str]:
     """The files an asset writes: ``<name>.npz`` and, with poses, ``<name>.usd`` (baked points, or a UsdSkel rig with
-    ``skin = "usd"``) or the glTF skin ``<name>.glb`` / ``.gltf``."""
+    ``skin = "usd"``) or the glTF skin ``<name>.glb`` / ``.gltf``; with ``cage = "auto"``, the cage made for it,
+    ``<name>.cage.obj``."""
     npz = os.path.join(outdir, f"{asset.name}.npz")
     ext = asset.skin if asset.skin in ("glb", "gltf") else "usd"
-    return [npz] + ([os.path.join(outdir, f"{asset.name}.{ext}")] if asset.poses else [])
+    return [npz] + ([os.path.join(outdir, f"{asset.name}.{ext}")] if asset.poses else []) + (
+        [os.path.join(outdir, f"{asset.name}.cage.obj")] if asset.cage == MADE_CAGE else [])
 
 
 def earlier_records(outdir: str) -> dict:
@@ -221,7 +228,7 @@ def bind_one(asset: Asset, outdir: str, device, progress=None, k: int = 0, total
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             _bind_asset(asset, pending, device, progress, k, total, result, threads)
-        for path, tmp in pending.items():
+        for path, tmp in reversed(pending.items()):  # the binding last: never one without the cage it was bound to
             os.replace(tmp, path)
     except Exception as exc:  # keep going: one asset's failure is reported, not raised
         result.status = "failed"
@@ -273,12 +280,18 @@ def _bind_asset(asset, pending: dict, device, progress, k: int, total: int, resu
     from ..binding import bind
     from ..geometry.cage import check_cage
     from ..io.poses import load_poses
+    from ..io.files import write_cage_file
     from ..io.scene import is_usd
     from ..io.usd import write_animation
     from ..io.usd.asset import read_cage_prim
 
     npz, *usd = pending
-    if asset.cage_prim is not None and (asset.cage is None or is_usd(asset.cage)):
+    if asset.cage == MADE_CAGE:
+        usd, made = [], usd[0]
+        if progress:
+            _progress(progress, k, total, asset.name, "making a cage")
+        cage = MADE_CAGE  # made by bind, recorded in its stats
+    elif asset.cage_prim is not None and (asset.cage is None or is_usd(asset.cage)):
         cage = check_cage(read_cage_prim(asset.cage or asset.mesh, asset.cage_prim, asset.rest_time))
     else:
         cage = check_cage(asset.cage)
@@ -303,6 +316,8 @@ def _bind_asset(asset, pending: dict, device, progress, k: int, total: int, resu
         result.error = (f"the solver did not reach tol {asset.tol:g} (relative residual {stats['residual']:.2g}); "
                         f"partition of unity within {stats['partition_of_unity_error']:.2g}, linear precision within "
                         f"{stats['linear_precision_error']:.2g} of the diagonal")
+    if asset.cage == MADE_CAGE:
+        write_cage_file(pending[made], binding.cage_vertices, binding.cage_faces)
     binding.save(pending[npz])
     if poses is not None and asset.skin:
         from ..binding.skin import write_skin

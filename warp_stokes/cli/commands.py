@@ -7,8 +7,8 @@ import os
 import sys
 import tempfile
 
-__all__ = ["format_stats", "check_output", "announce_compilation", "write_cage_file", "cage_command", "bind_command", "deform_command",
-           "animate_command", "encode_command", "sweep_command", "show_command", "batch_command"]
+__all__ = ["format_stats", "check_output", "announce_compilation", "cage_command", "bind_command",
+           "deform_command", "animate_command", "encode_command", "sweep_command", "show_command", "batch_command"]
 
 
 def _resolution_choice(choice) -> str:
@@ -99,19 +99,9 @@ def announce_compilation(device, harmonic: bool = False) -> None:
     announce(device, harmonic=harmonic)
 
 
-def write_cage_file(path: str, vertices, faces) -> None:
-    """A cage as a mesh file (its format from the extension: obj, ply or off), written whole or not at all."""
-    import trimesh
-
-    from warp_stokes.io.files import atomic_output
-
-    ext = os.path.splitext(path)[1].lower().lstrip(".")
-    with atomic_output(path, "." + ext) as tmp:
-        trimesh.Trimesh(vertices=vertices, faces=faces, process=False).export(tmp, file_type=ext)
-
-
 def cage_command(args) -> int:
     import warp_stokes as ws
+    from warp_stokes.io.files import write_cage_file
 
     ext = os.path.splitext(args.output)[1].lower().lstrip(".")
     if ext not in ("obj", "ply", "off"):  # formats that keep the handles' order (STL keeps a triangle soup)
@@ -134,6 +124,7 @@ def made_cage_path(binding_path: str) -> str:
 
 def bind_command(args) -> int:
     import warp_stokes as ws
+    from warp_stokes.io.files import write_cage_file
 
     check_output(args.output, (args.mesh, args.cage))
     if not args.output.lower().endswith(".npz"):  # a binding under another format's name misleads every reader
@@ -295,6 +286,7 @@ def _bind_first_frame(args):
     """For ``encode auto FRAMES``: the first frame of the sequence bound to a cage made for it; the cage and the
     binding written beside the poses (OUTPUT.cage.obj, OUTPUT.binding.npz), both checked before any work."""
     import warp_stokes as ws
+    from warp_stokes.io.files import write_cage_file
     from warp_stokes.io.poses import natural_key
     from warp_stokes.io.scene import is_usd
 

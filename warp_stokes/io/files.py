@@ -12,7 +12,8 @@ import tempfile
 
 from ..errors import WarpStokesError
 
-__all__ = ["atomic_output", "same_file", "check_output_target", "remove_stale_temporaries", "process_alive"]
+__all__ = ["atomic_output", "same_file", "check_output_target", "remove_stale_temporaries", "process_alive",
+           "write_cage_file"]
 
 
 def _umask() -> int:
@@ -144,3 +145,23 @@ def atomic_output(path, suffix: str = ""):
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
+
+
+def write_cage_file(path, vertices, faces) -> None:
+    """A cage as a mesh file (its format from the extension: obj, ply or off, which keep the handles' order), written
+    whole or not at all.
+
+    Examples
+    --------
+    >>> import os, tempfile, trimesh
+    >>> path = os.path.join(tempfile.mkdtemp(), "tet.obj")
+    >>> write_cage_file(path, [[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    >>> trimesh.load(path, process=False).is_watertight
+    True
+    """
+    import trimesh
+
+    path = os.fspath(path)
+    ext = os.path.splitext(path)[1].lower().lstrip(".")
+    with atomic_output(path, "." + ext) as tmp:
+        trimesh.Trimesh(vertices=vertices, faces=faces, process=False).export(tmp, file_type=ext)
