@@ -14,7 +14,7 @@ import warp_stokes as ws
 from conftest import EXAMPLE, box_cage, write_obj
 from warp_stokes.binding import pipeline
 from warp_stokes.quality import conformal_distortion
-from warp_stokes.show import cross_section, mesh_colours, view_frame, weight_slice
+from warp_stokes.show import cage_edges, cross_section, mesh_colours, view_frame, weight_slice
 
 imread = pytest.importorskip("matplotlib.image").imread
 
@@ -205,6 +205,40 @@ def test_the_encoding_error_map_colours_by_the_distance_to_a_reference(arm, tmp_
     assert (closest <= expected + 1e-9).all() and closest.max() > 0.002
 
 
+def test_the_cage_is_drawn_over_the_mesh_posed_with_it(arm, tmp_path):
+    """`--with-cage`: the cage's edges (each once: 3/2 of its faces), on the viewer's side those of a face facing
+    the viewer, posed with the mesh; alone, the rest mesh in its cage, in plain grey without a colour bar."""
+    path, binding = arm
+    frame = view_frame("front")
+    segments, front = cage_edges(binding, frame=frame)
+    assert len(segments) == 3 * len(binding.cage_faces) // 2 and 0 < front.sum() < len(front)
+    # the ends are the cage's vertices seen in the view, every vertex at some edge
+    ends = segments.reshape(-1, 3)
+    np.testing.assert_allclose(np.unique(ends, axis=0), np.unique(binding.cage_vertices @ frame.T, axis=0))
+    # posed: the same edges, moved with the pose (a file of it too); seen from behind, the front and back swap
+    pose = np.load(EXAMPLE / "bend_poses.npy")[-1]
+    moved, _ = cage_edges(binding, pose, frame)
+    keys = np.unique(np.sort(binding.cage_faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0)
+    np.testing.assert_allclose(moved, (pose @ frame.T)[keys], atol=1e-9)
+    write_obj(tmp_path / "bent_cage.obj", pose, binding.cage_faces)
+    np.testing.assert_allclose(cage_edges(binding, tmp_path / "bent_cage.obj", frame)[0], moved, atol=1e-5)
+    _, behind = cage_edges(binding, frame=np.diag([-1.0, 1.0, -1.0]) @ frame)
+    assert (behind != front).mean() > 0.5
+    result = show(path, "--with-cage", "-o", tmp_path / "cage.png")
+    assert result.returncode == 0, result.stderr
+    assert f"{len(binding.mesh_faces)} triangles and the cage's {len(segments)} edges" in result.stdout
+    plain = assert_drawn(tmp_path / "cage.png")
+    assert show(path, "--pose", tmp_path / "bent_cage.obj", "--with-cage", "-o", tmp_path / "posed.png",
+                "--view", "side").returncode == 0
+    posed = assert_drawn(tmp_path / "posed.png")
+    bare = show(path, "--pose", tmp_path / "bent_cage.obj", "--view", "side", "-o", tmp_path / "bare.png")
+    assert bare.returncode == 0 and not np.array_equal(assert_drawn(tmp_path / "bare.png"), posed)
+    # the plain picture has no colour bar: its colours are the greys of the shading and the cage's blue
+    rgb = np.round(plain.reshape(-1, 3) * 255).astype(int)
+    saturated = np.ptp(rgb, axis=1) > 60
+    assert saturated.mean() < 0.05
+
+
 def test_bad_input_is_one_line_and_no_picture(arm, tmp_path):
     path, binding = arm
     out = tmp_path / "out.png"
@@ -218,6 +252,7 @@ def test_bad_input_is_one_line_and_no_picture(arm, tmp_path):
         ([], "not both or neither"),
         (["--slice", "z=0.5", "--pose", EXAMPLE / "arm_cage.obj"], "--slice goes with --handle"),
         (["--handle", 1, "--view", "top"], "--view goes with --pose"),
+        (["--handle", 1, "--with-cage"], "not both or neither"),
     ]
     for arguments, message in cases:
         result = show(path, *arguments, "-o", out)

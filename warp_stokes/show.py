@@ -30,7 +30,7 @@ from .quality import conformal_distortion
 from .solver.solve import solve_biharmonic
 
 __all__ = ["WeightSlice", "MeshColours", "weight_slice", "symmetric_scale", "cross_section", "show_weights", "mesh_colours",
-           "view_frame", "show_mesh", "binding_method", "AXES", "VIEWS"]
+           "cage_edges", "view_frame", "show_mesh", "binding_method", "AXES", "VIEWS"]
 
 AXES = "xyz"
 VIEWS = ("front", "side", "top")
@@ -405,11 +405,48 @@ def view_frame(view: str = "front", up_axis: str = "Y") -> np.ndarray:
     return frame @ np.array(_Z_UP_TO_Y_UP, dtype=np.float64) if str(up_axis).upper() == "Z" else frame
 
 
-def show_mesh(binding, path, pose=None, reference=None, view: str = "front", title: str | None = None) -> dict:
+def cage_edges(binding, pose=None, frame=None) -> tuple[np.ndarray, np.ndarray]:
+    """The bound cage's edges, posed by ``pose`` (rest without one), as segments in a view: (E, 2, 3) end points in
+    ``frame``'s coordinates (:func:`view_frame`; the model's without one) and (E,) whether each edge is on the
+    viewer's side (a face at it faces the viewer).
+
+    Examples
+    --------
+    >>> segments, front = cage_edges(ws.load_binding("arm.npz"), frame=view_frame("front"))  # doctest: +SKIP
+    >>> segments.shape                                                                         # doctest: +SKIP
+    (168, 2, 3)
+    """
+    from .io.poses import pose_vertices
+
+    if pose is None:
+        positions = binding.cage_vertices
+    elif isinstance(pose, (str, os.PathLike)) or type(pose).__name__ == "Trimesh" or isinstance(pose, tuple):
+        surface = load_surface(pose)
+        positions = pose_vertices(surface.vertices, surface.faces, binding.cage_faces, binding.cage_source_index,
+                                  surface.name)
+    else:
+        positions = np.asarray(pose, dtype=np.float64).reshape(binding.n_handles, 3)
+    positions = np.asarray(positions, dtype=np.float64) @ (np.eye(3) if frame is None else frame).T
+    faces = np.asarray(binding.cage_faces)
+    normals = np.cross(positions[faces[:, 1]] - positions[faces[:, 0]], positions[faces[:, 2]] - positions[faces[:, 0]])
+    facing = normals[:, 2] > 0
+    half = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])  # each edge twice, once per face
+    keys = np.minimum(half[:, 0], half[:, 1]) * len(positions) + np.maximum(half[:, 0], half[:, 1])
+    keys, which = np.unique(keys, return_inverse=True)
+    front = np.zeros(len(keys), dtype=bool)
+    np.logical_or.at(front, which, np.tile(facing, 3))
+    ends = np.column_stack([keys // len(positions), keys % len(positions)])
+    return positions[ends], front
+
+
+def show_mesh(binding, path, pose=None, reference=None, view: str = "front", title: str | None = None,
+              with_cage: bool = False) -> dict:
     """Draw :func:`mesh_colours` to ``path`` (PNG): filled triangles in an orthographic view, back to front, each in
     its value's colour darkened by simple head-light shading, with a colour bar. Conformal distortion runs from 1 to
     its largest finite value (collapsed triangles are clipped to the top), distances from 0 to their largest; NaN
     (a triangle degenerate at rest) is grey. The view takes the asset's up axis (``binding.asset["up_axis"]``).
+    ``with_cage`` draws the cage over it (posed with the mesh): its edges on the viewer's side solid, the others
+    dashed; with neither ``pose`` nor ``reference`` the rest mesh is then plain grey (it has no distortion to show).
     Needs matplotlib.
 
     Parameters
@@ -419,14 +456,18 @@ def show_mesh(binding, path, pose=None, reference=None, view: str = "front", tit
     pose, reference : as for :func:`mesh_colours`
     view : "front" | "side" | "top"
     title : str, optional
+    with_cage : bool, draw the cage's edges
 
     Returns
     -------
-    dict: ``values`` (per triangle), ``range`` (the colour bar's low and high end), ``label``
+    dict: ``values`` (per triangle), ``range`` (the colour bar's low and high end; None for a plain mesh),
+    ``label``, ``cage_edges`` (drawn; 0 without the cage)
 
     Examples
     --------
     >>> show_mesh(ws.load_binding("arm.npz"), "deformed.png", pose="arm_bent_cage.obj")  # doctest: +SKIP
+    >>> show_mesh(ws.load_binding("arm.npz"), "cage.png", with_cage=True)["cage_edges"]   # doctest: +SKIP
+    168
     """
     plt = _pyplot()
     from matplotlib import colormaps
@@ -434,8 +475,11 @@ def show_mesh(binding, path, pose=None, reference=None, view: str = "front", tit
     from matplotlib.collections import PolyCollection
     from matplotlib.colors import Normalize
 
+    from matplotlib.collections import LineCollection
+
     frame = view_frame(view, (binding.asset or {}).get("up_axis", "Y"))
     m = mesh_colours(binding, pose, reference)
+    plain = with_cage and pose is None and reference is None
     finite = m.values[np.isfinite(m.values)]
     low = 0.0 if reference is not None else 1.0
     high = float(finite.max()) if finite.size else low
@@ -448,23 +492,39 @@ def show_mesh(binding, path, pose=None, reference=None, view: str = "front", tit
     colours = cmap(norm(np.where(np.isnan(m.values), low, m.values)))
     colours[:, :3] *= (0.6 + 0.4 * np.where(length > 0, facing, 1.0))[:, None]
     colours[np.isnan(m.values)] = (0.7, 0.7, 0.7, 1.0)
+    if plain:
+        colours[:] = (0.78, 0.78, 0.78, 1.0)
+        colours[:, :3] *= (0.55 + 0.45 * np.where(length > 0, facing, 1.0))[:, None]
     order = np.argsort(triangles[:, :, 2].mean(axis=1), kind="stable")  # the farthest first
     with plt.rc_context(_RC):
         figure, axes = plt.subplots(figsize=(6.4, 6.0))
         axes.add_collection(PolyCollection(triangles[order, :, :2], facecolors=colours[order], edgecolors="face",
                                            linewidths=0.2))
         corners = triangles[..., :2].reshape(-1, 2)
+        edges = 0
+        if with_cage:
+            segments, front = cage_edges(binding, pose, frame)
+            edges = len(segments)
+            axes.add_collection(LineCollection(segments[~front, :, :2], colors="#1f3b73", linewidths=0.6,
+                                               linestyles=(0, (3, 3)), alpha=0.45))
+            axes.add_collection(LineCollection(segments[front, :, :2], colors="#1f3b73", linewidths=0.9))
+            corners = np.concatenate([corners, segments[..., :2].reshape(-1, 2)])
         lo, hi = corners.min(axis=0), corners.max(axis=0)
         pad = 0.04 * float((hi - lo).max())
         axes.set_xlim(lo[0] - pad, hi[0] + pad)
         axes.set_ylim(lo[1] - pad, hi[1] + pad)
         axes.set_aspect("equal")
         axes.set_axis_off()
-        clipped = bool(np.isinf(m.values).any())
-        figure.colorbar(ScalarMappable(norm, cmap), ax=axes, label=m.label, extend="max" if clipped else "neither",
-                        shrink=0.8)
         shape = "rest" if pose is None else "deformed"
-        axes.set_title(title or f"{m.label.split(' (')[0]} of the {shape} mesh, {view} view", fontsize=9)
+        if plain:
+            label = f"the mesh ({len(binding.mesh_vertices)} vertices) in its cage ({binding.n_handles} handles)"
+            axes.set_title(title or f"{label}, {view} view", fontsize=9)
+        else:
+            clipped = bool(np.isinf(m.values).any())
+            figure.colorbar(ScalarMappable(norm, cmap), ax=axes, label=m.label,
+                            extend="max" if clipped else "neither", shrink=0.8)
+            label = m.label
+            axes.set_title(title or f"{m.label.split(' (')[0]} of the {shape} mesh, {view} view", fontsize=9)
         figure.tight_layout()
         _save(figure, path)
-    return {"values": m.values, "range": (low, high), "label": m.label}
+    return {"values": m.values, "range": None if plain else (low, high), "label": label, "cage_edges": edges}

@@ -262,7 +262,7 @@ def _add_sweep(sub) -> None:
 
 
 def _add_show(sub) -> None:
-    p = sub.add_parser("show", help="draw a handle's weight on a slice, or the deformed mesh's distortion (PNG)")
+    p = sub.add_parser("show", help="draw a handle's weight on a slice, or the (deformed) mesh's distortion or its cage (PNG)")
     p.add_argument("binding", help="binding file written by 'warp-stokes bind'")
     p.add_argument("--handle", type=_number(int, 0), default=None, metavar="L",
                    help="draw handle L's weight on a slice through the cage; handles count from 0 in the cage's "
@@ -273,6 +273,8 @@ def _add_show(sub) -> None:
                                                 "by conformal distortion")
     p.add_argument("--error", default=None, metavar="MESH",
                    help="colour the (deformed) mesh by its distance to this reference mesh instead")
+    p.add_argument("--with-cage", action="store_true",
+                   help="draw the cage's edges over the mesh (posed with it); alone, the rest mesh in its cage")
     p.add_argument("--view", choices=["front", "side", "top"], default=None,
                    help="the mesh's orthographic view (default front: along -z, +y up; a Z-up asset's: along +y)")
     p.add_argument("-o", "--output", required=True, help="picture to write (.png)")

@@ -346,12 +346,13 @@ def sweep_command(args) -> int:
 def show_command(args) -> int:
     from warp_stokes.errors import WarpStokesError
 
-    if (args.handle is None) == (args.pose is None and args.error is None):
-        raise WarpStokesError("give --handle L (a weight slice) or --pose/--error (the mesh), not both or neither")
+    if (args.handle is None) == (args.pose is None and args.error is None and not args.with_cage):
+        raise WarpStokesError("give --handle L (a weight slice) or --pose/--error/--with-cage (the mesh), not both or "
+                              "neither")
     if args.handle is None and args.slice is not None:
         raise WarpStokesError("--slice goes with --handle")
     if args.handle is not None and args.view is not None:
-        raise WarpStokesError("--view goes with --pose or --error")
+        raise WarpStokesError("--view goes with --pose, --error or --with-cage")
     if not args.output.lower().endswith(".png"):
         raise WarpStokesError(f"{args.output}: the picture is written as .png")
     check_output(args.output, (args.binding, args.pose, args.error))
@@ -376,9 +377,14 @@ def show_command(args) -> int:
             print(f"wrote {args.output}: {where}: the plane misses the cage's inside")
         return 0
     pose = None if args.pose is None else pose_argument(args.pose, binding.n_handles)
-    drawn = show_mesh(binding, args.output, pose=pose, reference=args.error, view=args.view or "front")
-    print(f"wrote {args.output}: {len(drawn['values'])} triangles, {drawn['label']} from {drawn['range'][0]:.6g} "
-          f"to {drawn['range'][1]:.6g}")
+    drawn = show_mesh(binding, args.output, pose=pose, reference=args.error, view=args.view or "front",
+                      with_cage=args.with_cage)
+    cage = f" and the cage's {drawn['cage_edges']} edges" if args.with_cage else ""
+    if drawn["range"] is None:
+        print(f"wrote {args.output}: {len(drawn['values'])} triangles{cage}")
+    else:
+        print(f"wrote {args.output}: {len(drawn['values'])} triangles{cage}, {drawn['label']} from "
+              f"{drawn['range'][0]:.6g} to {drawn['range'][1]:.6g}")
     return 0
 
 
