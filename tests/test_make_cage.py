@@ -3,6 +3,7 @@ asked for, and bindable; on an open real mesh, on meshes in pieces, self-interse
 the command line."""
 
 import importlib
+import os
 import subprocess
 import sys
 
@@ -154,12 +155,56 @@ def test_cli_usd_asset_named_prims(tmp_path):
     assert inside.all()
 
 
+def test_cli_usd_asset_cage_as_a_prim_of_a_new_layer(tmp_path):
+    """`-o LAYER.usda`: a layer over the asset (sublayered by a relative path, its stage settings kept) that defines
+    the cage as a mesh prim, in its parent's space (under the translated /Arm/Geo too), the same cage as the mesh file
+    that the same command writes; the layer binds with --cage-prim as any asset with a cage prim."""
+    from pxr import Sdf, Usd, UsdGeom
+
+    def cage(output, *more):
+        proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "cage", str(EXAMPLE / "arm.usda"), "-o",
+                               str(output), "--mesh-prim", "/Arm/Geo/Skin", "--handles", "40", "--device", "cpu", *more],
+                              capture_output=True, text=True)
+        assert proc.returncode == 0, proc.stderr
+        return proc.stdout
+
+    assert "the cage is its prim /Arm/MadeCage" in cage(tmp_path / "layer.usda")
+    cage(tmp_path / "nested.usdc", "--cage-prim", "/Arm/Geo/Made/Cage")
+    cage(tmp_path / "made.obj")
+    expected = ws.load_surface(tmp_path / "made.obj")
+    layer = Sdf.Layer.FindOrOpen(str(tmp_path / "layer.usda"))
+    assert list(layer.subLayerPaths) == [os.path.relpath(EXAMPLE / "arm.usda", tmp_path).replace(os.sep, "/")]
+    for name, prim in (("layer.usda", "/Arm/MadeCage"), ("nested.usdc", "/Arm/Geo/Made/Cage")):
+        stage = Usd.Stage.Open(str(tmp_path / name))
+        assert UsdGeom.GetStageUpAxis(stage) == "Y" and stage.GetDefaultPrim().GetName() == "Arm"
+        mesh = UsdGeom.Mesh(stage.GetPrimAtPath(prim))
+        assert mesh and list(mesh.GetFaceVertexCountsAttr().Get()) == [3] * len(expected.faces)
+        local = np.array(mesh.GetPointsAttr().Get(), dtype=np.float64)
+        matrix = np.array(UsdGeom.XformCache().GetLocalToWorldTransform(mesh.GetPrim()))
+        np.testing.assert_allclose(local @ matrix[:3, :3] + matrix[3, :3], expected.vertices, atol=1e-4)
+        assert np.array_equal(np.array(mesh.GetFaceVertexIndicesAttr().Get()).reshape(-1, 3), expected.faces)
+    assert not np.allclose(local, expected.vertices, atol=1)  # under /Arm/Geo: its translation taken out
+    out = tmp_path / "bound.npz"
+    proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "bind", str(tmp_path / "layer.usda"),
+                           "--cage-prim", "/Arm/MadeCage", "--mesh-prim", "/Arm/Geo/Skin", "-o", str(out),
+                           "--resolution", "16", "--device", "cpu"], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    binding = ws.load_binding(out)
+    np.testing.assert_allclose(binding.cage_vertices, expected.vertices, atol=1e-4)
+    assert binding.stats["partition_of_unity_error"] <= 1e-5
+
+
 @pytest.mark.parametrize("args, message", [
     (["--handles", "5"], "must be >= 8"),
     (["--offset", "0"], "must be > 0"),
     (["-o", "{tmp}/cage.stl"], "unsupported cage format 'stl'"),
     (["mesh={tmp}/points.obj"], "has no faces"),
     (["mesh={tmp}/missing.obj"], "missing.obj: no such file"),
+    (["-o", "{tmp}/cage.usda"], "a cage layer goes over a USD asset, and"),
+    (["--cage-prim", "/Cage"], "--cage-prim names the cage's prim in a USD layer"),
+    ([f"mesh={EXAMPLE / 'arm.usda'}", "-o", "{tmp}/cage.usda", "--cage-prim", "/Arm/Rig/Cage"],
+     "it has a prim /Arm/Rig/Cage already"),
+    ([f"mesh={EXAMPLE / 'arm.usda'}", "-o", "{tmp}/cage.usda", "--cage-prim", "Cage"], "not an absolute prim path"),
 ])
 def test_cli_refuses_bad_input(tmp_path, args, message):
     (tmp_path / "points.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\n")
@@ -168,7 +213,7 @@ def test_cli_refuses_bad_input(tmp_path, args, message):
         a = a.replace("{tmp}", str(tmp_path))
         if a.startswith("mesh="):
             mesh = a[5:]
-        elif a.endswith(".stl"):
+        elif a.endswith((".stl", ".usda")):
             output = a
         else:
             rest.append(a)
@@ -179,7 +224,7 @@ def test_cli_refuses_bad_input(tmp_path, args, message):
     assert proc.returncode == 2
     assert message in proc.stderr and "Traceback" not in proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1
-    assert not (tmp_path / "cage.obj").exists()
+    assert not list(tmp_path.glob("cage.*"))
 
 
 def test_bind_auto_makes_and_records_the_cage(tmp_path):

@@ -122,7 +122,12 @@ def _add_cage(sub) -> None:
                                     "the handles asked for")
     p.add_argument("mesh", help="mesh file (OBJ, PLY, OFF, STL, glTF/GLB, ...) or a USD asset (all its meshes, in "
                                 "world space); open, self-intersecting and many-piece meshes are fine")
-    p.add_argument("-o", "--output", required=True, help="cage file to write (obj, ply or off)")
+    p.add_argument("-o", "--output", required=True,
+                   help="cage file to write (obj, ply or off), or for a USD asset a layer over it (usd, usda or usdc) "
+                        "that defines the cage as a prim")
+    p.add_argument("--cage-prim", default=None, metavar="PATH",
+                   help="with a USD layer: the cage prim's path (default /<default prim>/MadeCage); then bind the "
+                        "layer with --cage-prim PATH")
     p.add_argument("--handles", type=_number(int, 8), default=None,
                    help="the cage's vertex count (default: chosen from the mesh's shape, and printed)")
     p.add_argument("--offset", type=_number(float, 0.0, 0.5, low_open=True), default=0.02,

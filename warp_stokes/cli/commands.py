@@ -103,17 +103,33 @@ def cage_command(args) -> int:
     import warp_stokes as ws
     from warp_stokes.io.files import write_cage_file
 
+    from warp_stokes.io.scene import is_usd
+
     ext = os.path.splitext(args.output)[1].lower().lstrip(".")
-    if ext not in ("obj", "ply", "off"):  # formats that keep the handles' order (STL keeps a triangle soup)
-        raise ws.WarpStokesError(f"{args.output}: unsupported cage format {ext!r} (use obj, ply or off)")
+    layer = ext in ("usd", "usda", "usdc")
+    if layer and not is_usd(args.mesh):
+        raise ws.WarpStokesError(f"{args.output}: a cage layer goes over a USD asset, and {args.mesh} is not one; "
+                                 "write obj, ply or off")
+    if not layer and ext not in ("obj", "ply", "off"):  # formats that keep the handles' order (STL: a soup)
+        raise ws.WarpStokesError(f"{args.output}: unsupported cage format {ext!r} (use obj, ply or off, or usd, "
+                                 "usda or usdc for a layer over a USD asset)")
+    if args.cage_prim is not None and not layer:
+        raise ws.WarpStokesError("--cage-prim names the cage's prim in a USD layer (-o CAGE.usda)")
     check_output(args.output, (args.mesh,))
+    if layer:
+        from warp_stokes.io.usd.cage_layer import check_cage_layer, write_cage_layer
+
+        prim = check_cage_layer(args.output, args.mesh, args.cage_prim)
     made = ws.make_cage(args.mesh, handles=args.handles, offset=args.offset, device=args.device,
                         mesh_prims=args.mesh_prim)
-    write_cage_file(args.output, made.cage.vertices, made.cage.faces)
+    if layer:
+        write_cage_layer(args.output, args.mesh, made.cage.vertices, made.cage.faces, prim)
+    else:
+        write_cage_file(args.output, made.cage.vertices, made.cage.faces)
     for note in made.notes:
         print(f"note: {note}")
     print(made.summary())
-    print(f"wrote {args.output}")
+    print(f"wrote {args.output}" + (f": the cage is its prim {prim}, over {args.mesh}" if layer else ""))
     return 0
 
 
