@@ -310,3 +310,15 @@ def test_encode_a_sequence_without_a_cage(tmp_path):
                            "-o", str(tmp_path / "p2.npy"), "--device", "cpu"], capture_output=True, text=True)
     assert proc.returncode == 2 and "an array of positions has no faces" in proc.stderr
     assert not (tmp_path / "p2.npy").exists()
+
+    # the same sequence as a USD cache (the animated mesh's time samples, as `animate` writes it): the cage made
+    # around its first sample, the poses written as USD time samples of the cage
+    ws.write_animation(tmp_path / "captured.usd", artist, np.load(EXAMPLE / "bend_poses.npy")[::4])
+    out = tmp_path / "poses.usd"
+    proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "encode", "auto", str(tmp_path / "captured.usd"),
+                           "-o", str(out), "--device", "cpu"], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    binding = ws.load_binding(tmp_path / "poses.binding.npz")
+    poses = ws.load_poses(out, binding.cage_faces)
+    error = np.linalg.norm(binding.deform(poses.positions) - frames, axis=2) / bounding_diagonal(frames[0])
+    assert len(poses.positions) == len(frames) and np.sqrt(np.mean(error ** 2)) <= 0.003 and error.max() <= 0.02
