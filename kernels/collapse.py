@@ -153,9 +153,9 @@ def collapse_choice(
 ):
     """choice[e] = the first placement x (of placements[e], in order of cost) where collapsing edge (a, b) to x keeps
     the surface valid, or -1: no face turned by more than the flip angle or with an angle below the minimum, no
-    fold sharper than the fold limit, no new face crossing another face (of the surface or new), and no point swept out of the surface or
-    within ``margin`` of a new face. ``surface`` is a BVH over the faces (float32, relative to ``centre``), and
-    ``points_bvh`` one over the points to keep inside; launch over the candidate edges."""
+    fold sharper than the fold limit, no new face crossing another face (of the surface or new), and no point swept
+    out of the surface or within ``margin`` of a new face. ``surface`` is a BVH over the faces (float32, relative to
+    ``centre``), and ``points_bvh`` one over the points to keep inside; launch over the candidate edges."""
     e = wp.tid()
     a = edge_a[e]
     b = edge_b[e]
@@ -243,7 +243,7 @@ def collapse_choice(
         # no point within the margin of a new face, none swept out. The region between the old and the new faces
         # is the cone from x over the old fan (the new faces hold x: their cones are flat), so a point is swept out
         # when the tetrahedra (x, old face) that hold it, counted with their orientation, do not cancel. A query per
-        # old face finds the points near its tetrahedron (and so near its new face); the count is made for those in
+        # old face finds the points near its tetrahedron (and so near its new face); the count is made for a point in it
         na = vf_start[a + 1] - vf_start[a]
         for k in range(n):
             if not ok:

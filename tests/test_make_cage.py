@@ -163,8 +163,8 @@ def test_cli_usd_asset_cage_as_a_prim_of_a_new_layer(tmp_path):
 
     def cage(output, *more):
         proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "cage", str(EXAMPLE / "arm.usda"), "-o",
-                               str(output), "--mesh-prim", "/Arm/Geo/Skin", "--handles", "40", "--device", "cpu", *more],
-                              capture_output=True, text=True)
+                               str(output), "--mesh-prim", "/Arm/Geo/Skin", "--handles", "40", "--device", "cpu",
+                               *more], capture_output=True, text=True)
         assert proc.returncode == 0, proc.stderr
         return proc.stdout
 

@@ -428,7 +428,8 @@ def cage_edges(binding, pose=None, frame=None) -> tuple[np.ndarray, np.ndarray]:
         positions = np.asarray(pose, dtype=np.float64).reshape(binding.n_handles, 3)
     positions = np.asarray(positions, dtype=np.float64) @ (np.eye(3) if frame is None else frame).T
     faces = np.asarray(binding.cage_faces)
-    normals = np.cross(positions[faces[:, 1]] - positions[faces[:, 0]], positions[faces[:, 2]] - positions[faces[:, 0]])
+    corners = positions[faces]
+    normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
     facing = normals[:, 2] > 0
     half = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])  # each edge twice, once per face
     keys = np.minimum(half[:, 0], half[:, 1]) * len(positions) + np.maximum(half[:, 0], half[:, 1])
