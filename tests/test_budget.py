@@ -1,5 +1,6 @@
 """Memory: the estimate made before allocating, chunked solves, and budgets that cannot be met."""
 
+import os
 import subprocess
 import sys
 import textwrap
@@ -211,3 +212,34 @@ def test_the_memory_budget_reaches_voxelisation(arm_cage, device):
     assert ws.voxelize(arm_cage, 32, device=device, memory_budget=dense).shape == grid.shape
     with pytest.raises(ws.ResolutionError, match="before solving"):  # and through bind()
         ws.bind(EXAMPLE / "arm.obj", arm_cage, resolution=32, device=device, memory_budget=dense // 2)
+
+
+def test_a_containers_cpu_quota_caps_the_threads(tmp_path, monkeypatch):
+    """A container limited to fewer CPUs than its affinity shows (docker --cpus): the quota, rounded up, caps the
+    threads; cgroup v2's cpu.max (the tightest of the group and its parents), v1's CFS quota and period, none."""
+    from warp_stokes.device import cgroup_cpu_limit
+
+    def tree(files, membership):
+        root = tmp_path / f"root{len(list(tmp_path.iterdir()))}"
+        for path, text in files.items():
+            (root / path).parent.mkdir(parents=True, exist_ok=True)
+            (root / path).write_text(text)
+        (root / "membership").write_text(membership)
+        return str(root), str(root / "membership")
+
+    assert cgroup_cpu_limit(*tree({"cpu.max": "150000 100000\n"}, "0::/\n")) == 2
+    assert cgroup_cpu_limit(*tree({"cpu.max": "max 100000\n"}, "0::/\n")) is None
+    assert cgroup_cpu_limit(*tree({"cpu.max": "800000 100000\n", "a/b/cpu.max": "300000 100000\n"},
+                                  "0::/a/b\n")) == 3
+    assert cgroup_cpu_limit(*tree({"a/cpu.max": "50000 100000\n", "a/b/cpu.max": "max 100000\n"}, "0::/a/b\n")) == 1
+    v1 = {"cpu/cpu.cfs_quota_us": "400000\n", "cpu/cpu.cfs_period_us": "100000\n"}
+    assert cgroup_cpu_limit(*tree(v1, "4:cpu,cpuacct:/\n2:memory:/x\n")) == 4
+    assert cgroup_cpu_limit(*tree({"cpu/cpu.cfs_quota_us": "-1\n", "cpu/cpu.cfs_period_us": "100000\n"},
+                                  "4:cpu,cpuacct:/\n")) is None
+    assert cgroup_cpu_limit(str(tmp_path / "none"), str(tmp_path / "none")) is None
+    # the bind's threads: the affinity within the quota
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: set(range(64)), raising=False)
+    monkeypatch.setattr(ws.device, "cgroup_cpu_limit", lambda: 2)
+    assert ws.device.cpu_threads() == 2 and ws.device.cpu_threads(5) == 5
+    monkeypatch.setattr(ws.device, "cgroup_cpu_limit", lambda: None)
+    assert ws.device.cpu_threads() == 64
