@@ -102,7 +102,6 @@ def announce_compilation(device, harmonic: bool = False) -> None:
 def cage_command(args) -> int:
     import warp_stokes as ws
     from warp_stokes.io.files import write_cage_file
-
     from warp_stokes.io.scene import is_usd
 
     ext = os.path.splitext(args.output)[1].lower().lstrip(".")
