@@ -100,6 +100,10 @@ def test_a_point_set_goes_only_where_points_can_go(tmp_path):
      "poses of the made cage (<name>.cage.obj)"),
     ("[[asset]]\nmesh = \"x.usda\"\ncage = \"auto\"\ncage_prim = \"/C\"\n",
      "asset 1: cage \"auto\" and 'cage_prim': give one of them"),
+    ("[defaults]\nhandles = 40\n", "asset 1: 'handles' shape a made cage: set cage = \"auto\""),
+    ("[[asset]]\nmesh = \"x.obj\"\ncage = \"auto\"\nhandles = 4\n", "asset 1: 'handles' must be at least 8, got 4"),
+    ("[[asset]]\nmesh = \"x.obj\"\ncage = \"auto\"\noffset = 0.9\n",
+     "asset 1: 'offset' must be a fraction of the diagonal in (0, 0.5], got 0.9"),
 ])
 def test_a_manifest_is_checked_whole_before_any_work(tmp_path, text, message):
     manifest = tmp_path / "m.toml"

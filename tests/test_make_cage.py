@@ -243,6 +243,24 @@ def test_bind_auto_makes_and_records_the_cage(tmp_path):
     assert binding.stats["partition_of_unity_error"] <= 1e-5 and binding.stats["linear_precision_error"] <= 1e-5
     with pytest.raises(ws.CageError, match="give one of them"):
         ws.bind(EXAMPLE / "arm.usda", "auto", cage_prim="/Arm/Rig/Cage")
+    # the made cage's handles and offset, asked for; refused with a cage given
+    out = tmp_path / "arm40.npz"
+    proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "bind", str(EXAMPLE / "arm.obj"), "auto",
+                           "--handles", "40", "--offset", "0.03", "-o", str(out), "--resolution", "16", "--device",
+                           "cpu"], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    record = ws.load_binding(out).stats["made_cage"]
+    assert (record["handles"], record["chosen"]) == (40, False) and len(ws.load_surface(tmp_path / "arm40.cage.obj")
+                                                                         .vertices) == 40
+    proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "bind", str(EXAMPLE / "arm.obj"),
+                           str(EXAMPLE / "arm_cage.obj"), "--handles", "40", "-o", str(tmp_path / "x.npz")],
+                          capture_output=True, text=True)
+    assert proc.returncode == 2 and "shape a made cage: give the cage as auto" in proc.stderr
+    assert not (tmp_path / "x.npz").exists()
+    # a MadeCage itself, bound and recorded as "auto" is
+    made = make_cage(EXAMPLE / "arm.obj", handles=36, device="cpu")
+    binding = ws.bind(EXAMPLE / "arm.obj", made, resolution=16, device="cpu")
+    assert binding.n_handles == 36 and binding.stats["made_cage"]["handles_asked"] == 36
 
 
 def test_batch_manifest_cage_auto(tmp_path):
@@ -261,25 +279,34 @@ mesh = "{EXAMPLE / 'arm.obj'}"
 name = "arm_usd"
 mesh = "{EXAMPLE / 'arm.usda'}"
 mesh_prims = ["/Arm/Geo/Skin"]
+
+[[asset]]
+name = "arm_40"
+mesh = "{EXAMPLE / 'arm.obj'}"
+handles = 40
+offset = 0.03
 """)
     out = tmp_path / "out"
     command = [sys.executable, "-m", "warp_stokes.cli", "batch", str(manifest), "-o", str(out), "--device", "cpu"]
     proc = subprocess.run(command, capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr
     assert "making a cage" in proc.stderr
-    assert sorted(p.name for p in out.iterdir()) == ["arm.cage.obj", "arm.npz", "arm_usd.cage.obj", "arm_usd.npz",
-                                                      "summary.json"]
-    for name in ("arm", "arm_usd"):
+    assert sorted(p.name for p in out.iterdir()) == ["arm.cage.obj", "arm.npz", "arm_40.cage.obj", "arm_40.npz",
+                                                      "arm_usd.cage.obj", "arm_usd.npz", "summary.json"]
+    record = ws.load_binding(out / "arm_40.npz").stats["made_cage"]
+    assert (record["handles"], record["handles_asked"], record["chosen"]) == (40, 40, False)
+    assert record["offset"] == pytest.approx(0.03 * bounding_diagonal(ws.load_surface(EXAMPLE / "arm.obj").vertices))
+    for name in ("arm", "arm_usd", "arm_40"):
         binding = ws.load_binding(out / f"{name}.npz")
         read = trimesh.load(out / f"{name}.cage.obj", process=False)
-        assert read.is_watertight and read.volume > 0 and binding.stats["made_cage"]["chosen"]
+        assert read.is_watertight and read.volume > 0 and binding.stats["made_cage"]["chosen"] == (name != "arm_40")
         np.testing.assert_allclose(read.vertices, binding.cage_vertices, atol=1e-6)
         assert binding.stats["partition_of_unity_error"] <= 1e-5
     # the skin sits under a transform: its made cage is in world space, the same as the OBJ's around the same skin
     np.testing.assert_allclose(ws.load_binding(out / "arm_usd.npz").cage_vertices,
                                ws.load_binding(out / "arm.npz").cage_vertices, atol=1e-4)
     again = subprocess.run(command, capture_output=True, text=True)
-    assert again.returncode == 0 and again.stderr.count("up to date, skipped") == 2, again.stderr
+    assert again.returncode == 0 and again.stderr.count("up to date, skipped") == 3, again.stderr
 
 
 def test_encode_a_sequence_without_a_cage(tmp_path):

@@ -13,7 +13,7 @@ __all__ = ["Asset", "ManifestError", "read_manifest", "ASSET_KEYS", "MADE_CAGE"]
 
 ASSET_KEYS = {"name", "mesh", "cage", "poses", "resolution", "fps", "tol", "with_cage", "with_weights", "boundary",
               "sampling", "cage_prim", "mesh_prims", "rest_time", "method", "skin", "influences", "non_negative",
-              "max_error"}
+              "max_error", "handles", "offset"}
 #: ``cage`` value for a cage made for the mesh (``warp-stokes cage``), written as ``<name>.cage.obj`` beside the
 #: binding
 MADE_CAGE = "auto"
@@ -46,6 +46,8 @@ class Asset:
     influences: int | None = None
     non_negative: bool | None = None
     max_error: float | None = None
+    handles: int | None = None  # a made cage's (cage = "auto")
+    offset: float | None = None
 
 
 def _read_data(path: str) -> dict:
@@ -90,6 +92,11 @@ def _checked_entry(merged: dict, where: str) -> None:
         if merged.get("poses") is not None:
             raise ManifestError(f"{where}: 'poses' move a cage's handles, and cage \"auto\" has none until it is "
                                 "made; bind it, then animate poses of the made cage (<name>.cage.obj)")
+    else:
+        made_keys = [key for key in ("handles", "offset") if merged.get(key) is not None]
+        if made_keys:
+            raise ManifestError(f"{where}: {', '.join(repr(k) for k in made_keys)} shape a made cage: set cage = "
+                                "\"auto\"")
     prims = merged.get("mesh_prims")
     if prims is not None and not (isinstance(prims, list) and prims and all(isinstance(p, str) for p in prims)):
         raise ManifestError(f"{where}: 'mesh_prims' must be a list of prim paths")
@@ -115,7 +122,8 @@ def _checked_entry(merged: dict, where: str) -> None:
         raise ManifestError(f"{where}: 'skin' animates the poses; give 'poses'")
     for key, kind in (("resolution", (int, str)), ("fps", (int, float)), ("tol", (int, float)),
                       ("with_cage", bool), ("with_weights", bool), ("rest_time", (int, float)),
-                      ("influences", int), ("non_negative", bool), ("max_error", (int, float))):
+                      ("influences", int), ("non_negative", bool), ("max_error", (int, float)), ("handles", int),
+                      ("offset", (int, float))):
         value = merged.get(key)
         if key in merged and (not isinstance(value, kind) or (kind is not bool and isinstance(value, bool))):
             raise ManifestError(f"{where}: '{key}' has the wrong type ({type(merged[key]).__name__})")
@@ -126,7 +134,11 @@ def _checked_entry(merged: dict, where: str) -> None:
                               ("fps", lambda v: math.isfinite(v) and v > 0, "a positive number"),
                               ("rest_time", math.isfinite, "a finite time code"),
                               ("influences", lambda v: v >= 1, "a positive integer"),
-                              ("max_error", lambda v: math.isfinite(v) and v > 0, "a positive fraction of the diagonal")):
+                              ("max_error", lambda v: math.isfinite(v) and v > 0,
+                               "a positive fraction of the diagonal"),
+                              ("handles", lambda v: v >= 8, "at least 8"),
+                              ("offset", lambda v: math.isfinite(v) and 0 < v <= 0.5,
+                               "a fraction of the diagonal in (0, 0.5]")):
         if key in merged and not ok(merged[key]):
             raise ManifestError(f"{where}: '{key}' must be {expected}, got {merged[key]!r}")
 

@@ -21,7 +21,7 @@ from ..geometry import grid as grid_module
 from ..geometry.grid import AUTO_RESOLUTION, auto_resolution, check_resolution, wedge_resolution
 from ..geometry.inside import classify_points
 from ..geometry.local_boundary import boundary_settings, local_values
-from ..geometry.make_cage import made_cage_record, make_cage
+from ..geometry.make_cage import MadeCage, made_cage_record, make_cage
 from ..io.load import load_surface
 from ..io.scene import is_usd, load_scene
 from ..solver.solve import ACCEPTABLE
@@ -66,11 +66,12 @@ def bind(mesh, cage=None, resolution="auto", device=None, tol: float = 1e-6, max
     mesh : path | trimesh.Trimesh | (vertices, faces) | Scene
         The mesh to deform; its vertex order is kept. A USD asset (``.usd/.usda/.usdc/.usdz``) or a glTF/GLB
         scene binds all its meshes together, in world space (see :func:`warp_stokes.io.scene.load_scene`).
-    cage : path | trimesh.Trimesh | (vertices, faces) | "auto", optional
+    cage : path | trimesh.Trimesh | (vertices, faces) | "auto" | MadeCage, optional
         A closed, consistently oriented cage (quads and polygons are triangulated). May be left out when
         ``cage_prim`` names the cage in the mesh's USD stage. ``"auto"``: a cage made for the mesh
         (:func:`warp_stokes.geometry.make_cage.make_cage`, its default handles and offset), recorded in
-        ``stats["made_cage"]``; the binding holds it (``cage_vertices``, ``cage_faces``).
+        ``stats["made_cage"]``; the binding holds it (``cage_vertices``, ``cage_faces``). A ``MadeCage``
+        (``make_cage(mesh, handles=200)``, say) is bound and recorded the same way.
     resolution : "auto" | int
         Grid cells along the cage's longest axis. "auto": 64, or more where the cage's folded edges need a finer
         grid to cut off the thin wedges of outside space there (:func:`warp_stokes.geometry.grid.auto_resolution`),
@@ -144,10 +145,12 @@ def bind(mesh, cage=None, resolution="auto", device=None, tol: float = 1e-6, max
     t = time.perf_counter()
     cage_argument = cage
     made = None
-    if isinstance(cage, str) and cage == "auto":
+    if isinstance(cage, MadeCage) or (isinstance(cage, str) and cage == "auto"):
         if cage_prim is not None:
             raise CageError(f"cage 'auto' and a cage prim ({cage_prim}): give one of them")
-        made = make_cage(load_scene(mesh, mesh_prims=mesh_prims, rest_time=rest_time).surface(), device=device)
+        if isinstance(cage, str):
+            cage = make_cage(load_scene(mesh, mesh_prims=mesh_prims, rest_time=rest_time).surface(), device=device)
+        made = cage
         cage = made.cage
         seconds["cage"] = sum(made.seconds.values())
         t = time.perf_counter()

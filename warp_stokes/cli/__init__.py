@@ -147,6 +147,11 @@ def _add_bind(sub) -> None:
                         "of the mesh's USD asset), or 'auto': a cage made for the mesh (as 'warp-stokes cage' makes it "
                         "with its defaults), written beside the binding as OUTPUT.cage.obj")
     p.add_argument("--cage-prim", default=None, metavar="PATH", help="the cage's mesh prim in the USD stage")
+    p.add_argument("--handles", type=_number(int, 8), default=None,
+                   help="with cage auto: the made cage's vertex count (default: chosen from the mesh's shape)")
+    p.add_argument("--offset", type=_number(float, 0.0, 0.5, low_open=True), default=None,
+                   help="with cage auto: how far the made cage starts from the mesh, as a fraction of its bounding "
+                        "diagonal (default 0.02)")
     p.add_argument("--mesh-prim", action="append", default=None, metavar="PATH",
                    help="a mesh prim of the USD asset to bind (repeat for several; default: all but the cage)")
     p.add_argument("--rest-time", type=_number(float), default=None,

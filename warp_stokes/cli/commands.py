@@ -147,15 +147,29 @@ def bind_command(args) -> int:
     made_cage = made_cage_path(args.output) if args.cage == "auto" else None
     if made_cage is not None:
         check_output(made_cage, (args.mesh,))
-    from warp_stokes.binding.spread import spread_devices
+    elif args.handles is not None or args.offset is not None:
+        raise ws.WarpStokesError("--handles and --offset shape a made cage: give the cage as auto")
+    from warp_stokes.binding.spread import driver_device, spread_devices
 
-    if spread_devices(args.device) is None:  # spread: the Ray workers compile, on their devices
+    spread = spread_devices(args.device)
+    if spread is None:  # spread: the Ray workers compile, on their devices
         announce_compilation(args.device, harmonic=args.method == "harmonic")
+    cage = args.cage
+    if made_cage is not None and (args.handles is not None or args.offset is not None):
+        from warp_stokes.geometry.make_cage import DEFAULT_OFFSET
+        from warp_stokes.io.scene import load_scene
+
+        if args.cage_prim is not None:
+            raise ws.WarpStokesError(f"cage 'auto' and a cage prim ({args.cage_prim}): give one of them")
+        surface = load_scene(args.mesh, mesh_prims=args.mesh_prim, rest_time=args.rest_time).surface()
+        offset = DEFAULT_OFFSET if args.offset is None else args.offset
+        cage = ws.make_cage(surface, handles=args.handles, offset=offset,
+                            device=args.device if spread is None else driver_device(spread))
     budget = None if args.memory_gb is None else args.memory_gb * 2**30
     from .progress import ProgressLine
 
     with ProgressLine(os.path.basename(args.mesh), enabled=False if args.quiet else None) as progress:
-        binding = ws.bind(args.mesh, args.cage, resolution=args.resolution, device=args.device, tol=args.tol,
+        binding = ws.bind(args.mesh, cage, resolution=args.resolution, device=args.device, tol=args.tol,
                           max_iterations=args.max_iterations, solver=args.solver, memory_budget=budget,
                           boundary=args.boundary, sampling=args.sampling, cage_prim=args.cage_prim,
                           mesh_prims=args.mesh_prim, rest_time=args.rest_time, method=args.method,
