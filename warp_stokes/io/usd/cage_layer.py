@@ -25,7 +25,10 @@ def default_cage_prim(asset) -> str:
     """
     from .asset import open_stage
 
-    stage = open_stage(os.fspath(asset), WarpStokesError)  # held: a prim does not keep its stage alive
+    return _default_prim_path(open_stage(os.fspath(asset), WarpStokesError))
+
+
+def _default_prim_path(stage) -> str:
     default = stage.GetDefaultPrim()
     return f"{default.GetPath()}/MadeCage" if default else "/MadeCage"
 
@@ -50,10 +53,10 @@ def check_cage_layer(path, asset, prim: str | None = None) -> str:
         if same_file(path, part):
             raise WarpStokesError(f"{path}: the output is a file of the asset {asset} ({part}); write the cage layer "
                                   "to another file (it sublayers the asset)")
-    prim = default_cage_prim(asset) if prim is None else prim
+    stage = open_stage(asset, WarpStokesError)  # held: a prim does not keep its stage alive
+    prim = _default_prim_path(stage) if prim is None else prim
     if not (Sdf.Path.IsValidPathString(prim) and Sdf.Path(prim).IsAbsolutePath() and Sdf.Path(prim).IsPrimPath()):
         raise WarpStokesError(f"{prim}: not an absolute prim path (e.g. /Asset/Cage)")
-    stage = open_stage(asset, WarpStokesError)  # held: a prim does not keep its stage alive
     if stage.GetPrimAtPath(prim).IsValid():
         raise WarpStokesError(f"{asset}: it has a prim {prim} already; name the cage's prim with --cage-prim")
     return prim
