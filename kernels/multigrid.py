@@ -441,47 +441,6 @@ def stencil_chebyshev_step(
     block_chebyshev_step(blocks, rows, b, x, diagonal_block(inv_diag, n), ca, cb, d, x_next, n, h)
 
 
-#: a coarse node's fine rows (at most 27) and a fine node's parents (at most 8), kept by the CPU's row loops
-_row_list27 = wp.types.vector(length=27, dtype=wp.int32)
-_row_list8 = wp.types.vector(length=8, dtype=wp.int32)
-
-
-@wp.kernel
-def stencil_chebyshev_step_rows(
-    blocks: wp.array2d(dtype=wp.mat44f),
-    rows: wp.array2d(dtype=wp.int32),
-    b: wp.array2d(dtype=wp.vec4f),
-    x: wp.array2d(dtype=wp.vec4f),
-    inv_diag: wp.array(dtype=wp.mat44f),
-    ca: float,
-    cb: float,
-    d: wp.array2d(dtype=wp.vec4f),
-    x_next: wp.array2d(dtype=wp.vec4f),
-):
-    """:func:`stencil_chebyshev_step` for a CPU (where a kernel's threads run one after another): a thread per row
-    looping over the handles, the same bits; 18% less time than a thread per row and handle on the ogre's first
-    coarse level (n = 64, 2-core Xeon), where keeping only the existing neighbours' slots took 30% more. Launch
-    (rows,)."""
-    n = wp.tid()
-    d_inv = diagonal_block(inv_diag, n)
-    for h in range(x.shape[1]):
-        block_chebyshev_step(blocks, rows, b, x, d_inv, ca, cb, d, x_next, n, h)
-
-
-@wp.kernel
-def stencil_residual_rows(
-    blocks: wp.array2d(dtype=wp.mat44f),
-    rows: wp.array2d(dtype=wp.int32),
-    b: wp.array2d(dtype=wp.vec4f),
-    x: wp.array2d(dtype=wp.vec4f),
-    out: wp.array2d(dtype=wp.vec4f),
-):
-    """:func:`stencil_residual` for a CPU, as :func:`stencil_chebyshev_step_rows`. Launch (rows,)."""
-    n = wp.tid()
-    for h in range(x.shape[1]):
-        out[n, h] = b[n, h] - block_row(blocks, rows, x, n, h)
-
-
 @wp.kernel
 def restrict(
     table: wp.array(dtype=wp.mat44f),
@@ -528,70 +487,6 @@ def prolong_add(
             if col >= 0:
                 acc += table[parent_entry(d)] * xc[col, h]
     x[n, h] = x[n, h] + acc
-
-
-@wp.kernel
-def restrict_rows(
-    table: wp.array(dtype=wp.mat44f),
-    coarse_ijk: wp.array(dtype=wp.vec3i),
-    fine_index: wp.array3d(dtype=wp.int32),
-    n_fine: int,
-    shift: wp.vec3i,
-    r: wp.array2d(dtype=wp.vec4f),
-    b: wp.array2d(dtype=wp.vec4f),
-):
-    """:func:`restrict` for a CPU (where a kernel's threads run one after another): a thread per coarse node finds its
-    fine rows and their blocks once, then loops over the handles; the same sums in the same order, the same bits.
-    Launch (coarse rows,)."""
-    m = wp.tid()
-    c = coarse_ijk[m]
-    rows = _row_list27()
-    entries = _row_list27()
-    count = int(0)
-    for s in range(27):
-        d = neighbour_offset(s)
-        row = node_row(fine_index, n_fine, 2 * c + d + shift)
-        if row >= 0:
-            rows[count] = row
-            entries[count] = parent_entry(d)
-            count += 1
-    for h in range(b.shape[1]):
-        acc = wp.vec4f(0.0)
-        for k in range(count):
-            acc += wp.transpose(table[entries[k]]) * r[rows[k], h]
-        b[m, h] = acc
-
-
-@wp.kernel
-def prolong_add_rows(
-    table: wp.array(dtype=wp.mat44f),
-    fine_ijk: wp.array(dtype=wp.vec3i),
-    coarse_index: wp.array3d(dtype=wp.int32),
-    shift: wp.vec3i,
-    xc: wp.array2d(dtype=wp.vec4f),
-    x: wp.array2d(dtype=wp.vec4f),
-):
-    """:func:`prolong_add` for a CPU: a thread per fine node finds its kept parents once, then loops over the
-    handles; the same bits. Launch (fine rows,)."""
-    n = wp.tid()
-    f = fine_ijk[n] - shift
-    cols = _row_list8()
-    entries = _row_list8()
-    count = int(0)
-    for slot in range(8):
-        parent = parent_slot(f, slot)
-        if parent[3] != 0:
-            d = wp.vec3i(parent[0], parent[1], parent[2])
-            col = node_row(coarse_index, xc.shape[0], (f - d) / 2)
-            if col >= 0:
-                cols[count] = col
-                entries[count] = parent_entry(d)
-                count += 1
-    for h in range(x.shape[1]):
-        acc = wp.vec4f(0.0)
-        for k in range(count):
-            acc += table[entries[k]] * xc[cols[k], h]
-        x[n, h] = x[n, h] + acc
 
 
 @wp.kernel

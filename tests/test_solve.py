@@ -143,15 +143,15 @@ def test_the_one_pass_residual_is_the_difference_to_the_bit(device):
 def test_the_cpus_node_loops_are_the_walks_to_the_bit(rows):
     # a CPU applies the operator by a thread per node looping over the handles (kernels/stencil_cpu.py), a GPU by
     # patch walks: the same sums in the same order, so the same bits, in each of the four forms (A x in float32 and
-    # float64 sums, b - A x, the Chebyshev step), with rows beyond n_rows read as zero; 37 handles
+    # float64 sums, b - A x, the Chebyshev step), with rows beyond n_rows read as zero; 70 handles (two passes of the CPU's loop)
     from warp_stokes.kernels import stencil, stencil_cpu
     from warp_stokes.solver.operator import _node_loop
 
     grid = ball_grid("cpu")
     n_rows = grid.n_interior if rows == "interior" else grid.n_active
     rng = np.random.default_rng(6)
-    field = wp.array(rng.standard_normal((grid.n_active, 37, 4)).astype(np.float32), dtype=wp.vec4f, device="cpu")
-    rhs, d = (wp.array(rng.standard_normal((grid.n_interior, 37, 4)).astype(np.float32), dtype=wp.vec4f,
+    field = wp.array(rng.standard_normal((grid.n_active, 70, 4)).astype(np.float32), dtype=wp.vec4f, device="cpu")
+    rhs, d = (wp.array(rng.standard_normal((grid.n_interior, 70, 4)).astype(np.float32), dtype=wp.vec4f,
                        device="cpu") for _ in range(2))
     arrays = grid.device_arrays("cpu")
     assert arrays["neighbours"].shape == (grid.n_interior, stencil_cpu.NEIGHBOURS)
@@ -164,10 +164,10 @@ def test_the_cpus_node_loops_are_the_walks_to_the_bit(rows):
     walked_out = {}
     for walked, looped, takes_rhs, steps in forms:
         d_walk, d_loop = wp.clone(d), wp.clone(d)
-        out = wp.full((grid.n_interior, 37), wp.vec4f(np.nan), dtype=wp.vec4f, device="cpu")
+        out = wp.full((grid.n_interior, 70), wp.vec4f(np.nan), dtype=wp.vec4f, device="cpu")
         extra = ([rhs] if takes_rhs else []) + ([0.3, 0.7, d_walk] if steps else [])
         items = step_patches if steps else patches
-        wp.launch(walked, dim=(2, items.shape[0], stencil.GROUP),
+        wp.launch(walked, dim=(-(-70 // stencil.GROUP), items.shape[0], stencil.GROUP),
                   inputs=[field, arrays["index"], items, n_rows, *extra], outputs=[out], device="cpu")
         walked_out[looped.key] = out.numpy()
         loop_out = wp.full_like(out, wp.vec4f(np.nan))
@@ -178,7 +178,7 @@ def test_the_cpus_node_loops_are_the_walks_to_the_bit(rows):
         np.testing.assert_array_equal(d_loop.numpy(), d_walk.numpy(), err_msg=looped.key)
         assert np.isfinite(loop_out.numpy()).all()
     # reading the ring's rows or not changes the result (the test tells the two apart)
-    other = wp.empty((grid.n_interior, 37), dtype=wp.vec4f, device="cpu")
+    other = wp.empty((grid.n_interior, 70), dtype=wp.vec4f, device="cpu")
     _node_loop(stencil_cpu.apply_operator, arrays, field, grid.n_active + grid.n_interior - n_rows, other, 0.0, 0.0,
                other, other, wp.get_device("cpu"))
     assert not np.array_equal(other.numpy(), walked_out[stencil_cpu.apply_operator.key])

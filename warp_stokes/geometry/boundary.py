@@ -159,14 +159,18 @@ def boundary_field(grid: Grid, cage: Cage, device=None, handles: slice = slice(N
     data = _data_for(grid, data)
     first, stop, _ = handles.indices(cage.n_handles)
     n_columns = stop - first + (COMPLEMENT_COLUMNS if complement else 0)
-    if start is None:
-        positions = _node_positions(grid, grid.n_active, device)
-        values = wp.empty((grid.n_active, n_columns), dtype=wp.float64, device=device)
-        _mvc_on_device(cage, grid.centre, positions, handles, device, out=values[:, 0 : stop - first])
-    else:  # rows beyond the table's (band rows, for the local data) take the local data below: zeros until then
+    if start is None:  # only the rows that need them (the search over every face is most of a small bind's data)
+        rows = start_rows(grid, data)
+        positions = _node_positions(grid, rows, device)
+        values = (wp.empty if rows == grid.n_active else wp.zeros)((grid.n_active, n_columns), dtype=wp.float64,
+                                                                    device=device)
+        _mvc_on_device(cage, grid.centre, positions, handles, device, out=values[:rows, 0 : stop - first])
+    else:
         values = wp.zeros((grid.n_active, n_columns), dtype=wp.float64, device=device)
         wp.launch(mvc.copy_columns, dim=(start.shape[0], stop - first), inputs=[start, first], outputs=[values],
                   device=device)
+    # rows beyond the mean value coordinates' (band rows, for the local data) take the local data below: zeros until
+    # then
     if complement:
         wp.launch(mvc.complement_column, dim=grid.n_active, inputs=[stop - first], outputs=[values], device=device)
     arrays = grid.device_arrays(device)

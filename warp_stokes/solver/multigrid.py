@@ -50,6 +50,7 @@ from ..device import reduction_threads, resolve_device
 from ..geometry.grid import Grid
 from ..kernels import cg
 from ..kernels import multigrid as mg_kernels
+from ..kernels import multigrid_cpu
 from .hierarchy import (COARSE_NODE_BYTES, COARSEST_NODES, COARSEST_NODES_CPU, Level, coarsen, coarsest_nodes_for,
                         hierarchy_bytes)
 from .operator import apply_operator, chebyshev_step, check_equation
@@ -444,7 +445,7 @@ class Multigrid:
         lev = self.levels[depth]
         if depth > 0:
             on_cpu = self.device.is_cpu  # a thread per row looping over the handles (see _cycle)
-            wp.launch(mg_kernels.stencil_chebyshev_step_rows if on_cpu else mg_kernels.stencil_chebyshev_step,
+            wp.launch(multigrid_cpu.stencil_chebyshev_step_rows if on_cpu else mg_kernels.stencil_chebyshev_step,
                       dim=lev.n if on_cpu else x.shape,
                       inputs=[lev.blocks, lev.rows, b, x, lev.inv_diag, ca, cb, d], outputs=[spare], device=self.device)
             return True
@@ -463,7 +464,7 @@ class Multigrid:
             apply_operator(self.grid, x, r, n_rows=lev.n, device=self.device, precise=False, equation=self.equation,
                            rhs=b)
         elif self.device.is_cpu:  # a thread per row looping over the handles (see _cycle)
-            wp.launch(mg_kernels.stencil_residual_rows, dim=lev.n, inputs=[lev.blocks, lev.rows, b, x], outputs=[r],
+            wp.launch(multigrid_cpu.stencil_residual_rows, dim=lev.n, inputs=[lev.blocks, lev.rows, b, x], outputs=[r],
                       device=self.device)
         else:
             wp.launch(mg_kernels.stencil_residual, dim=x.shape, inputs=[lev.blocks, lev.rows, b, x], outputs=[r],
@@ -484,12 +485,12 @@ class Multigrid:
         # a CPU runs a thread per node looping over the handles (a kernel's threads run there one after another):
         # the transfers' look-ups are made once per node instead of once per node and handle
         on_cpu = self.device.is_cpu
-        wp.launch(mg_kernels.restrict_rows if on_cpu else mg_kernels.restrict,
+        wp.launch(multigrid_cpu.restrict_rows if on_cpu else mg_kernels.restrict,
                   dim=coarse_level.n if on_cpu else coarse["b"].shape,
                   inputs=[self.table32, coarse_level.ijk_device, lev.index, lev.n, shift, r], outputs=[coarse["b"]],
                   device=self.device)
         self._cycle(depth + 1, coarse["b"], coarse["x"])
-        wp.launch(mg_kernels.prolong_add_rows if on_cpu else mg_kernels.prolong_add, dim=lev.n if on_cpu else x.shape,
+        wp.launch(multigrid_cpu.prolong_add_rows if on_cpu else mg_kernels.prolong_add, dim=lev.n if on_cpu else x.shape,
                   inputs=[self.table32, lev.ijk_device, coarse_level.index, shift, coarse["x"]], outputs=[x],
                   device=self.device)
         self._smooth(depth, b, x, r, d, x_is_zero=False, residual=False)
