@@ -42,11 +42,14 @@ def classify_nodes(
 def mark_ring_and_band(
     labels_in: wp.array3d(dtype=wp.int8),
     band_width: int,
+    first_i: int,
     labels_out: wp.array3d(dtype=wp.int8),
 ):
     """Exterior nodes in the 19-point stencil of an interior node are RING; others within
-    `band_width` nodes (max-norm) of an interior node are BAND."""
-    i, j, k = wp.tid()
+    `band_width` nodes (max-norm) of an interior node are BAND. The launch covers the slab of nodes from i = first_i
+    on (threads on a CPU take a slab each)."""
+    ti, j, k = wp.tid()
+    i = first_i + ti
     if int(labels_in[i, j, k]) == INTERIOR:
         labels_out[i, j, k] = wp.int8(INTERIOR)
         return

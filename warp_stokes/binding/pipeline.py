@@ -166,7 +166,7 @@ def bind(mesh, cage=None, resolution="auto", device=None, tol: float = 1e-6, max
     except CageError as error:
         raise _swapped_hint(error, cage, surface) from None
     points = surface.vertices
-    inside, distance = classify_points(checked, points, device=device)
+    inside, distance = classify_points(checked, points, device=device, threads=threads)
     _refuse_mesh_outside(surface, checked, inside, distance)
     seconds["load"] = time.perf_counter() - t
     choice = {"requested": resolution}

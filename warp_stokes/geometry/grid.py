@@ -322,7 +322,8 @@ def voxelize(cage: Cage, resolution: int = 64, device=None, max_rows: int = MAX_
 
         in_threads(shape[0], classify, device, threads, modules=("voxel",))
         cut_off = None if boundary == "mvc" else _wedge_cut_off(cage, mesh, inside, origin, spacing, boundary)
-    grid = _number_nodes(inside, centre, origin, spacing, resolution, device, max_rows, cage.name, cut_off)
+    grid = _number_nodes(inside, centre, origin, spacing, resolution, device, max_rows, cage.name, cut_off,
+                         threads)
     grid.boundary = boundary
     if grid.n_interior == 0:
         error = ResolutionError(
@@ -453,13 +454,16 @@ def lattice_rows(classes: wp.array, counts: wp.array, n_rows: int) -> tuple[wp.a
     return index, ijk
 
 
-def _number_nodes(inside: wp.array, centre, origin, spacing, resolution, device, max_rows, name, cut_off=None) -> Grid:
+def _number_nodes(inside: wp.array, centre, origin, spacing, resolution, device, max_rows, name, cut_off=None,
+                  threads: int | None = None) -> Grid:
     """Mark the ring and band around the interior nodes of `inside` (and those that ``cut_off`` moves to the ring),
     and number the active nodes: interior, cut off, other ring, band (on the device; the host only reads counts)."""
     shape = inside.shape
     with wp.ScopedDevice(device):
         labels = wp.empty(shape, dtype=wp.int8)
-        wp.launch(voxel.mark_ring_and_band, dim=shape, inputs=[inside, BAND_WIDTH], outputs=[labels])
+        in_threads(shape[0], lambda first, stop: wp.launch(
+            voxel.mark_ring_and_band, dim=(stop - first, shape[1], shape[2]), inputs=[inside, BAND_WIDTH, first],
+            outputs=[labels]), device, threads, modules=("voxel",))
         if cut_off is not None:
             cut_off(labels)
         classes = wp.empty(shape, dtype=wp.int8)

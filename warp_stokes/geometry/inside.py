@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from ..device import resolve_device
+from ..device import in_threads, resolve_device
 from ..kernels import voxel
 from .cage import Cage
 
@@ -23,7 +23,8 @@ def cage_mesh(cage: Cage, centre: np.ndarray, device) -> wp.Mesh:
     return wp.Mesh(points=points, indices=indices, support_winding_number=True)
 
 
-def classify_points(cage: Cage, points: np.ndarray, device=None) -> tuple[np.ndarray, np.ndarray]:
+def classify_points(cage: Cage, points: np.ndarray, device=None, threads: int | None = None
+                    ) -> tuple[np.ndarray, np.ndarray]:
     """Which points lie inside the cage (generalised winding number > 1/2), and how far from its surface.
 
     Parameters
@@ -31,6 +32,7 @@ def classify_points(cage: Cage, points: np.ndarray, device=None) -> tuple[np.nda
     cage : Cage
     points : (N, 3) array of positions
     device : None | str
+    threads : int, optional, on a CPU the threads that share the points out (default: every core)
 
     Returns
     -------
@@ -51,6 +53,8 @@ def classify_points(cage: Cage, points: np.ndarray, device=None) -> tuple[np.nda
         pts = wp.array((points - centre).astype(np.float32), dtype=wp.vec3)
         inside = wp.empty(len(points), dtype=wp.int32)
         distance = wp.empty(len(points), dtype=float)
-        wp.launch(voxel.classify_points, dim=len(points), inputs=[mesh.id, pts, WINDING_ACCURACY],
-                  outputs=[inside, distance])
+        in_threads(len(points), lambda a, b: wp.launch(voxel.classify_points, dim=b - a,
+                                                       inputs=[mesh.id, pts[a:b], WINDING_ACCURACY],
+                                                       outputs=[inside[a:b], distance[a:b]]),
+                   device, threads, modules=("voxel",))
         return inside.numpy().astype(bool), distance.numpy().astype(np.float64)
