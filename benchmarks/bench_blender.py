@@ -10,7 +10,9 @@ Warp start their thread pools), so that its peak memory is its own. warp-stokes 
 ``threads=--cores`` after a warm-up bind at n = 16 (the kernels loaded); Blender binds with
 ``bpy.ops.object.meshdeform_bind`` (the bind runs inside the operator). Both deform the mesh by the pair's deformed
 cage (the poses of ``bench_quality.py``) and are measured the same way (``warp_stokes.quality``): conformal distortion
-p50 / p95 of the mesh's triangles, and, for SMPL, the RMS distance to the real T-pose mesh over the diagonal. Memory:
+p50 / p95 of the mesh's triangles, and, for SMPL, the RMS distance to the real T-pose mesh over the diagonal. With
+``--repeat R`` the cases of a pair and grid run in turn R times (Blender, warp-stokes, Blender, ...): the table shows
+each case's median bind time and every run's. Memory:
 the child's peak resident set above its size before the bind (Linux: VmHWM reset through ``/proc/self/clear_refs``).
 Prints a Markdown table; ``--json`` writes the rows.
 
@@ -143,6 +145,7 @@ def main(argv=None) -> int:
     p.add_argument("--grids", type=int, nargs="+", default=[64, 128])
     p.add_argument("--cores", type=int, default=min(2, os.cpu_count() or 1), help="cores for both tools (2)")
     p.add_argument("--methods", nargs="+", default=["stokes"], help="warp-stokes methods (stokes, harmonic)")
+    p.add_argument("--repeat", type=int, default=1, help="runs of each case, taken in turn; the median is shown (1)")
     p.add_argument("--json", default=None, help="write the rows to this file")
     p.add_argument("--child", nargs=5, help=argparse.SUPPRESS)  # PAIR TOOL N CORES METHOD: one case
     args = p.parse_args(argv)
@@ -159,22 +162,32 @@ def main(argv=None) -> int:
         print("bench_blender.py pins each case to its cores with os.sched_setaffinity (Linux)", file=sys.stderr)
         return 2
     rows = []
-    columns = ["pair", "tool", "grid", "cores", "bind s", "peak MiB", "iterations", "conformal p50", "conformal p95",
-               "RMS to reference / diagonal"]
+    columns = ["pair", "tool", "grid", "cores", "bind s", "runs (s)", "peak MiB", "iterations", "conformal p50",
+               "conformal p95", "RMS to reference / diagonal"]
     print(table_head(columns), flush=True)
     for pair_name in args.pairs:
         for n in args.grids:
             cases = [("blender", "stokes")] + [("warp-stokes", m) for m in args.methods]
-            for tool, method in cases:
-                proc = subprocess.run([sys.executable, __file__, "--child", pair_name, tool, str(n), str(args.cores),
-                                       method], capture_output=True, text=True)
-                if proc.returncode != 0:
-                    print(proc.stderr, file=sys.stderr)
-                    return 1
-                row = json.loads(proc.stdout.strip().splitlines()[-1])
+            runs = {case: [] for case in cases}
+            # the cases in turn, --repeat times: a shared machine's speed drifts over minutes, and each tool's
+            # median then comes from the same stretch of time as the other's
+            for _ in range(args.repeat):
+                for tool, method in cases:
+                    proc = subprocess.run([sys.executable, __file__, "--child", pair_name, tool, str(n),
+                                           str(args.cores), method], capture_output=True, text=True)
+                    if proc.returncode != 0:
+                        print(proc.stderr, file=sys.stderr)
+                        return 1
+                    runs[(tool, method)].append(json.loads(proc.stdout.strip().splitlines()[-1]))
+            for case in cases:
+                row = dict(runs[case][0])
+                times = [r["seconds"] for r in runs[case]]
+                row.update(seconds=float(np.median(times)), runs=times,
+                           peak_mib=float(np.median([r["peak_mib"] for r in runs[case]])))
                 rows.append(row)
                 print(table_row([row["pair"], row["tool"], row["grid"], row["cores"], f"{row['seconds']:.2f}",
-                                 f"{row['peak_mib']:.0f}", row["iterations"] if row["iterations"] is not None else "-",
+                                 " / ".join(f"{t:.2f}" for t in times), f"{row['peak_mib']:.0f}",
+                                 row["iterations"] if row["iterations"] is not None else "-",
                                  f"{row['conformal_p50']:.4f}", f"{row['conformal_p95']:.4f}",
                                  f"{row['rms_to_reference']:.4f}" if "rms_to_reference" in row else "-"]), flush=True)
     if args.json:
