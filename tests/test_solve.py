@@ -551,3 +551,29 @@ def test_a_chunked_bind_whose_weights_break_linear_precision_is_refused(monkeypa
                        r"\(1e-07\) or linear precision \(0.003 of the diagonal\) beyond 1e-05 although every "
                        r"solve converged \([2-9] chunk\(s\)\); no weights were returned"):
         bind_arm("cpu", memory_budget=9 * 2**20)  # a few chunks on the CPU
+
+
+@pytest.mark.parametrize("rows, handles, blocks", [(1000, 70, 16), (5, 3, 16), (0, 2, 16), (97, 64, 1)])
+def test_the_cpus_column_dots_are_the_float64_sums(rows, handles, blocks):
+    # CG's dot products on a CPU (kernels/cg_cpu.py: a thread per block of rows, 64 handles a pass) against float64
+    # sums, for more handles than a pass, more blocks than rows, no rows; each handle's sum does not depend on the
+    # other handles (threads solving chunks of handles at once give one thread's bits)
+    from warp_stokes.kernels import cg_cpu
+
+    rng = np.random.default_rng(rows + handles)
+    a, b = (rng.standard_normal((rows, handles, 4)).astype(np.float32) for _ in range(2))
+
+    def dots(a, b):
+        out = wp.zeros(a.shape[1], dtype=wp.float64, device="cpu")
+        wp.launch(cg_cpu.column_dots_rows, dim=blocks, inputs=[wp.array(a, dtype=wp.vec4f, device="cpu"),
+                                                              wp.array(b, dtype=wp.vec4f, device="cpu"), blocks],
+                  outputs=[out], device="cpu")
+        return out.numpy()
+
+    got = dots(a, b)
+    expected = np.einsum("nhk,nhk->h", a.astype(np.float64), b.astype(np.float64))
+    # each row's 4-term dot is formed in float32 (as cg.column_dots forms it): at most 4 roundings of its terms' size
+    bound = 4 * 2.0**-24 * np.abs(a.astype(np.float64) * b).sum(axis=(0, 2))
+    assert (np.abs(got - expected) <= bound).all()
+    if handles > 2:
+        np.testing.assert_array_equal(dots(a[:, 1:3], b[:, 1:3]), got[1:3])

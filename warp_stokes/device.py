@@ -240,8 +240,8 @@ def cuda_device_count() -> int:
 
 #: the package's kernel modules (warp_stokes.kernels.*): what a first run on a machine compiles (laplace is left out:
 #: only harmonic coordinates compile it)
-KERNEL_MODULES = ("cg", "checks", "deform", "intersect", "labels", "local_boundary", "multigrid", "multigrid_cpu", "mvc",
-                  "sample", "stencil", "stencil_cpu", "voxel")
+KERNEL_MODULES = ("cg", "cg_cpu", "checks", "deform", "intersect", "labels", "local_boundary", "multigrid",
+                  "multigrid_cpu", "mvc", "sample", "stencil", "stencil_cpu", "voxel")
 #: the modules a bind compiles (deforming compiles "deform" on first use: a bind's process never does)
 BIND_MODULES = tuple(m for m in KERNEL_MODULES if m != "deform")
 

@@ -8,9 +8,9 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from ..device import reduction_threads
+from ..device import reduction_threads, resolve_device
 from ..geometry.grid import Grid
-from ..kernels import cg
+from ..kernels import cg, cg_cpu
 from .operator import apply_operator
 
 __all__ = ["BatchedCG", "Watchdog", "cg_round"]
@@ -40,6 +40,7 @@ class BatchedCG:
         self.equation = equation
         self.shape = (n, n_cols)
         self.threads = reduction_threads(n, n_cols, device)
+        self.on_cpu = resolve_device(device).is_cpu
         self.rhs = None  # zero: Stokes coordinates have no source
         if source is not None:
             src = np.zeros((n, n_cols, 4), dtype=np.float32)
@@ -60,7 +61,10 @@ class BatchedCG:
 
     def dots(self, a, b):
         out = wp.zeros(self.shape[1], dtype=wp.float64)
-        wp.launch(cg.column_dots, dim=(self.threads, self.shape[1]), inputs=[a, b, self.threads], outputs=[out])
+        if self.on_cpu:  # a thread per block of rows, reading them in order (kernels/cg_cpu.py)
+            wp.launch(cg_cpu.column_dots_rows, dim=self.threads, inputs=[a, b, self.threads], outputs=[out])
+        else:
+            wp.launch(cg.column_dots, dim=(self.threads, self.shape[1]), inputs=[a, b, self.threads], outputs=[out])
         return out
 
     def preconditioned_norms(self, v):
