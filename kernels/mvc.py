@@ -162,3 +162,27 @@ def node_positions(
     n = wp.tid()
     c = ijk[n]
     positions[n] = origin + spacing * wp.vec3d(wp.float64(c[0]), wp.float64(c[1]), wp.float64(c[2]))
+
+
+@wp.kernel
+def lattice_interpolation(
+    lattice_values: wp.array2d(dtype=wp.float64),
+    lattice_index: wp.array3d(dtype=wp.int32),
+    ijk: wp.array(dtype=wp.vec3i),
+    values: wp.array2d(dtype=wp.float64),
+):
+    """values[n, c] = the trilinear interpolation at node ijk[n] of ``lattice_values`` at the nodes of even
+    coordinates around it (lattice node m = ijk / 2 has row lattice_index[m]): the value there when ijk is even, the
+    mean of 2, 4 or 8 of them otherwise (only those with a non-zero weight are read); launch (rows, columns)."""
+    n, c = wp.tid()
+    p = ijk[n]
+    base = wp.vec3i(p[0] // 2, p[1] // 2, p[2] // 2)
+    odd = wp.vec3i(p[0] - 2 * base[0], p[1] - 2 * base[1], p[2] - 2 * base[2])
+    total = wp.float64(0.0)
+    count = int(0)
+    for corner in range(8):
+        o = wp.vec3i(corner & 1, (corner >> 1) & 1, (corner >> 2) & 1)
+        if o[0] <= odd[0] and o[1] <= odd[1] and o[2] <= odd[2]:
+            total += lattice_values[lattice_index[base[0] + o[0], base[1] + o[1], base[2] + o[2]], c]
+            count += 1
+    values[n, c] = total / wp.float64(count)

@@ -92,6 +92,39 @@ def test_boundary_field_reproduces_linear_functions(arm_cage, device):
     assert (grid.labels[tuple(grid.active_ijk[grid.n_interior:].T)] != L.INTERIOR).all()
 
 
+def test_the_starting_guess_is_mvc_interpolated_from_the_even_nodes(arm_cage, device):
+    # With the local data the interior rows carry the solve's starting guess: mean value coordinates at the nodes of
+    # even coordinates (computed here by ws.mean_value_coordinates), interpolated trilinearly; they keep partition
+    # of unity and linear precision, and a table of all handles for threads (start_values) gives a chunk's bits
+    from warp_stokes.geometry.boundary import start_values
+
+    grid = ws.voxelize(arm_cage, resolution=20, device=device)
+    field = ws.boundary_field(grid, arm_cage, device=device).numpy().astype(np.float64)
+    interior = grid.active_ijk[: grid.n_interior]
+    expected = np.zeros((grid.n_interior, arm_cage.n_handles))
+    odd = interior % 2
+    corners = [np.array(c) for c in np.ndindex(2, 2, 2)]
+    count = np.zeros(grid.n_interior)
+    for corner in corners:
+        reads = (corner <= odd).all(axis=1)
+        even = 2 * (interior[reads] // 2 + corner)
+        positions = grid.centre + grid.origin + grid.spacing * even
+        expected[reads] += ws.mean_value_coordinates(arm_cage, positions, device=device)
+        count[reads] += 1
+    expected /= count[:, None]
+    assert (odd.sum(axis=1) == 3).any() and (odd.sum(axis=1) == 0).any()
+    q = field[: grid.n_interior, :, 0]
+    np.testing.assert_allclose(q, expected, rtol=0, atol=float32_rounding(np.abs(expected).max()))
+    np.testing.assert_allclose(q.sum(1), 1.0, rtol=0, atol=float32_rounding(np.abs(q).sum(1).max()))
+    c = arm_cage.vertices - grid.centre
+    np.testing.assert_allclose(q @ c, grid.origin + grid.spacing * interior, rtol=0,
+                               atol=float32_rounding((np.abs(q) @ np.abs(c)).max()))
+    chunk = slice(7, 40)
+    table = start_values(grid, arm_cage, device=device, threads=2)
+    np.testing.assert_array_equal(ws.boundary_field(grid, arm_cage, device=device, handles=chunk, start=table).numpy(),
+                                  ws.boundary_field(grid, arm_cage, device=device, handles=chunk).numpy())
+
+
 def test_complement_column_is_the_rest_of_the_cage(arm_cage, device):
     # The column after a chunk stands for the other handles: sum_l w_l over the handles outside the chunk,
     # value and gradient, computed here from those handles' own fields.
