@@ -260,6 +260,71 @@ def local_field(
                                        wp.float32(-spacing * total_gradient[1]), wp.float32(-spacing * total_gradient[2]))
 
 
+#: most faces a BVH search of :func:`blend_near` collects; beyond, the search over every face (the same blend)
+MAX_CANDIDATES = 64
+candidate_list = wp.types.vector(length=MAX_CANDIDATES, dtype=wp.int32)
+
+
+@wp.func
+def blend_near(x: wp.vec3d, band: wp.float64, cage: wp.array(dtype=wp.vec3d), triangles: wp.array(dtype=wp.vec3i),
+               mesh: wp.uint64, slack: wp.float32):
+    """:func:`blend_at`'s blend, its faces found through the cage's BVH (``mesh``: the cage in float32, in the same
+    frame as x): the nearest face's distance in float32, plus the band and ``slack`` (more than float32's error in
+    that distance), bounds a cube around x; the faces whose boxes meet it hold every face within the band of the
+    nearest, and the float64 search of :func:`blend_at` over them, in the order of their indices, gives the same
+    faces, shares and bits. Where more than MAX_CANDIDATES boxes meet the cube, the search over every face."""
+    p = wp.vec3(wp.float32(x[0]), wp.float32(x[1]), wp.float32(x[2]))
+    closest = wp.mesh_query_point_no_sign(mesh, p, wp.float32(1.0e30))
+    if not closest.result:
+        return blend_at(x, band, cage, triangles)
+    reach = wp.length(wp.mesh_eval_position(mesh, closest.face, closest.u, closest.v) - p) + wp.float32(band) + slack
+    found = candidate_list()
+    count = int(0)
+    query = wp.mesh_query_aabb(mesh, p - wp.vec3(reach), p + wp.vec3(reach))
+    f = int(0)
+    while wp.mesh_query_aabb_next(query, f):
+        if count == MAX_CANDIDATES:
+            return blend_at(x, band, cage, triangles)
+        # insertion in index order
+        k = count
+        while k > 0 and found[k - 1] > f:
+            found[k] = found[k - 1]
+            k -= 1
+        found[k] = f
+        count += 1
+    zero = wp.float64(0.0)
+    one = wp.float64(1.0)
+    nearest = wp.float64(1.0e300)
+    for k in range(count):
+        nearest = wp.min(nearest, face_distance(x, cage, triangles[found[k]]))
+    faces = face_list()
+    weights = weight_list()
+    points = point_list()
+    kept = int(0)
+    total_weight = zero
+    for k in range(count):
+        f = found[k]
+        tri = triangles[f]
+        b = closest_on_triangle(x, cage[tri[0]], cage[tri[1]], cage[tri[2]])
+        t = (wp.length(x - (b[0] * cage[tri[0]] + b[1] * cage[tri[1]] + b[2] * cage[tri[2]])) - nearest) / band
+        if t < one and kept < MAX_BLEND:
+            faces[kept] = f
+            weights[kept] = (one - t) * (one - t)
+            points[kept, 0] = b[0]
+            points[kept, 1] = b[1]
+            points[kept, 2] = b[2]
+            total_weight += weights[kept]
+            kept += 1
+    for k in range(kept):
+        weights[k] = weights[k] / total_weight
+    blend = Blend()
+    blend.count = wp.int32(kept)
+    blend.faces = faces
+    blend.fractions = weights
+    blend.points = points
+    return blend
+
+
 @wp.kernel
 def blend_table(
     ijk: wp.array(dtype=wp.vec3i),
@@ -269,12 +334,15 @@ def blend_table(
     band: wp.float64,
     cage: wp.array(dtype=wp.vec3d),
     triangles: wp.array(dtype=wp.vec3i),
+    mesh: wp.uint64,
+    slack: wp.float32,
     table: wp.array(dtype=Blend),
 ):
     """The blend at active row first_row + thread, in the thread's entry of ``table``: what
-    :func:`local_field_from_table` reads for every chunk of handles, instead of searching the faces again."""
+    :func:`local_field_from_table` reads for every chunk of handles, instead of searching the faces again. The
+    faces are found through the cage's BVH (:func:`blend_near`)."""
     i = wp.tid()
-    table[i] = blend_at(grid_point(ijk, first_row + i, origin, spacing), band, cage, triangles)
+    table[i] = blend_near(grid_point(ijk, first_row + i, origin, spacing), band, cage, triangles, mesh, slack)
 
 
 @wp.kernel

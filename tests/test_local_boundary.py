@@ -8,11 +8,13 @@ import warnings
 import numpy as np
 import pytest
 import trimesh
+import warp as wp
 
 import warp_stokes as ws
 from conftest import EXAMPLE, box_cage, u_cage
 from warp_stokes.geometry.cage import Cage, folded_edges, unit_normals
 from warp_stokes.geometry.local_boundary import cage_graph_distances, normal_derivatives
+from warp_stokes.kernels import local_boundary as local_boundary_kernels
 
 SETTINGS = [ws.LocalData(), ws.LocalData(fold_radius=0.0), ws.LocalData(model="least-norm"),
             ws.LocalData(radius=3.0, least_norm_share=0.5)]
@@ -219,3 +221,40 @@ def test_a_chunks_local_field_and_its_complement_sum_to_one(arm_cage, device):
     whole = ws.boundary_field(grid, arm_cage, device=device, data="local").numpy().astype(np.float64)[grid.n_interior:]
     np.testing.assert_allclose(f[:, :16], whole[:, chunk], atol=1e-6)
     np.testing.assert_allclose(f.sum(1), np.broadcast_to([1.0, 0, 0, 0], (len(f), 4)), atol=1e-5)
+
+
+@wp.kernel
+def _exhaustive_blends(ijk: wp.array(dtype=wp.vec3i), first_row: int, origin: wp.vec3d, spacing: wp.float64,
+                       band: wp.float64, cage: wp.array(dtype=wp.vec3d), triangles: wp.array(dtype=wp.vec3i),
+                       table: wp.array(dtype=local_boundary_kernels.Blend)):
+    i = wp.tid()
+    table[i] = local_boundary_kernels.blend_at(local_boundary_kernels.grid_point(ijk, first_row + i, origin, spacing),
+                                               band, cage, triangles)
+
+
+@pytest.mark.parametrize("name, resolution", [("arm", 24), ("arm", 40), ("icosphere", 12)])
+def test_the_blend_table_found_through_the_bvh_is_the_search_over_every_face(name, resolution, arm_cage, device):
+    # blend_table finds each ring and band row's faces through the cage's BVH and searches them in index order: the
+    # same faces, shares and closest points, bit for bit, as the search over every face (blend_at); a fine cage at a
+    # coarse grid gives rows with more boxes in reach than the BVH search collects (its fallback)
+    from warp_stokes.geometry.local_boundary import BLEND_BAND, blend_table
+
+    if name == "arm":
+        cage = arm_cage
+    else:
+        sphere = trimesh.creation.icosphere(subdivisions=4)  # 2,562 handles
+        cage = ws.check_cage((sphere.vertices, sphere.faces))
+    grid = ws.voxelize(cage, resolution=resolution, device=device)
+    rows = slice(grid.n_interior, grid.n_active)
+    found = blend_table(grid, cage, rows, device).numpy()
+    exhaustive = wp.empty(grid.n_active - grid.n_interior, dtype=local_boundary_kernels.Blend, device=device)
+    wp.launch(_exhaustive_blends, dim=exhaustive.shape[0],
+              inputs=[grid.device_arrays(device)["active_ijk"], grid.n_interior, wp.vec3d(*grid.origin),
+                      wp.float64(grid.spacing), wp.float64(BLEND_BAND * grid.spacing),
+                      wp.array(cage.vertices - grid.centre, dtype=wp.vec3d, device=device),
+                      wp.array(cage.faces.astype(np.int32), dtype=wp.vec3i, device=device)],
+              outputs=[exhaustive], device=device)
+    expected = exhaustive.numpy()
+    for field in ("count", "faces", "fractions", "points"):
+        np.testing.assert_array_equal(found[field], expected[field], err_msg=field)
+    assert (expected["count"] >= 1).all() and (expected["count"] > 1).any()

@@ -437,11 +437,17 @@ def blend_table(grid: Grid, cage: Cage, rows: slice, device=None, threads: int |
             relative = wp.array(cage.vertices - grid.centre, dtype=wp.vec3d, device=device)
             triangles = wp.array(cage.faces.astype(np.int32), dtype=wp.vec3i, device=device)
             table = wp.empty(end - start, dtype=local_boundary.Blend, device=device)
+            # the BVH that bounds each row's search (float32, relative to the grid's centre), and more than float32's
+            # error in a distance there
+            mesh = wp.Mesh(points=wp.array((cage.vertices - grid.centre).astype(np.float32), dtype=wp.vec3,
+                                           device=device),
+                           indices=wp.array(cage.faces.astype(np.int32).ravel(), dtype=wp.int32, device=device))
+            slack = 1e-5 * cage.diagonal + 1e-3 * BLEND_BAND * grid.spacing
 
             def rows(a: int, b: int) -> None:  # the table's entries a to b (rows start + a to start + b)
                 wp.launch(local_boundary.blend_table, dim=b - a,
                           inputs=[arrays["active_ijk"], start + a, wp.vec3d(*grid.origin), wp.float64(grid.spacing),
-                                  wp.float64(BLEND_BAND * grid.spacing), relative, triangles],
+                                  wp.float64(BLEND_BAND * grid.spacing), relative, triangles, mesh.id, float(slack)],
                           outputs=[table[a:b]], device=device)
 
             in_threads(end - start, rows, device, threads, modules=("local_boundary",))
