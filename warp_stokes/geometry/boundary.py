@@ -126,8 +126,10 @@ def _start_on_lattice(grid: Grid, cage: Cage, rows: int, handles: slice, device,
     in_threads(positions.shape[0], lambda a, b: _mvc_on_device(cage, grid.centre, positions[a:b], handles, device,
                                                                  out=lattice_values[a:b]),
                device, threads, modules=("mvc",))
-    wp.launch(mvc.lattice_interpolation, dim=(rows, stop - first),
-              inputs=[lattice_values, index, grid.device_arrays(device)["active_ijk"]], outputs=[out], device=device)
+    ijk = grid.device_arrays(device)["active_ijk"]
+    in_threads(rows, lambda a, b: wp.launch(mvc.lattice_interpolation, dim=(b - a, stop - first),
+                                            inputs=[lattice_values, index, ijk[a:b]], outputs=[out[a:b]],
+                                            device=device), device, threads, modules=("mvc",))
 
 
 def start_rows(grid: Grid, data) -> int:
