@@ -102,9 +102,10 @@ def _blender_case(pair: dict, n: int) -> dict:
                 peak=peak, deformed=deformed.reshape(-1, 3).astype(np.float64), iterations=None)
 
 
-def _warp_stokes_case(pair: dict, n: int, threads: int, method: str) -> dict:
+def _warp_stokes_case(pair: dict, n: int, threads: int, method: str, memory_gb: float | None = None) -> dict:
     import warp_stokes as ws
 
+    budget = None if memory_gb is None else int(memory_gb * 2**30)
     mesh, cage = pair["mesh"], pair["cage"]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -112,19 +113,21 @@ def _warp_stokes_case(pair: dict, n: int, threads: int, method: str) -> dict:
         _peak_reset()
         base = _status_bytes("VmRSS")
         start = time.perf_counter()
-        binding = ws.bind(mesh, cage, resolution=n, device="cpu", threads=threads, method=method)
+        binding = ws.bind(mesh, cage, resolution=n, device="cpu", threads=threads, method=method,
+                          memory_budget=budget)
         seconds = time.perf_counter() - start
         peak = _status_bytes("VmHWM") - base
     deformed = binding.deform(pair["pose"])
-    return dict(tool=f"warp-stokes {method}", grid=f"{n} (cells along the longest axis)", seconds=seconds, peak=peak,
+    tool = f"warp-stokes {method}" + ("" if memory_gb is None else f", --memory-gb {memory_gb:g}")
+    return dict(tool=tool, grid=f"{n} (cells along the longest axis)", seconds=seconds, peak=peak,
                 deformed=np.asarray(deformed, dtype=np.float64), iterations=binding.stats["iterations"])
 
 
-def _child(pair_name: str, tool: str, n: int, cores: int, method: str) -> dict:
+def _child(pair_name: str, tool: str, n: int, cores: int, method: str, memory_gb: float | None = None) -> dict:
     """One case, in this (child) process."""
     os.sched_setaffinity(0, set(range(cores)))  # before any thread pool starts
     pair = _pair(pair_name)
-    case = (_blender_case(pair, n) if tool == "blender" else _warp_stokes_case(pair, n, cores, method))
+    case = (_blender_case(pair, n) if tool == "blender" else _warp_stokes_case(pair, n, cores, method, memory_gb))
     from warp_stokes import quality
 
     mesh = pair["mesh"]
@@ -147,11 +150,14 @@ def main(argv=None) -> int:
     p.add_argument("--methods", nargs="+", default=["stokes"], help="warp-stokes methods (stokes, harmonic)")
     p.add_argument("--repeat", type=int, default=1, help="runs of each case, taken in turn; the median is shown (1)")
     p.add_argument("--json", default=None, help="write the rows to this file")
-    p.add_argument("--child", nargs=5, help=argparse.SUPPRESS)  # PAIR TOOL N CORES METHOD: one case
+    p.add_argument("--memory-gb", type=float, default=None,
+                   help="also bind with warp-stokes within this memory budget (GiB): fewer handles solved at once")
+    p.add_argument("--child", nargs=6, help=argparse.SUPPRESS)  # PAIR TOOL N CORES METHOD MEMORY: one case
     args = p.parse_args(argv)
     if args.child:
-        pair_name, tool, n, cores, method = args.child
-        print(json.dumps(_child(pair_name, tool, int(n), int(cores), method)))
+        pair_name, tool, n, cores, method, memory = args.child
+        budget = None if memory == "-" else float(memory)
+        print(json.dumps(_child(pair_name, tool, int(n), int(cores), method, budget)))
         return 0
     try:
         import bpy  # noqa: F401
@@ -167,18 +173,21 @@ def main(argv=None) -> int:
     print(table_head(columns), flush=True)
     for pair_name in args.pairs:
         for n in args.grids:
-            cases = [("blender", "stokes")] + [("warp-stokes", m) for m in args.methods]
+            cases = [("blender", "stokes", "-")] + [("warp-stokes", m, "-") for m in args.methods]
+            if args.memory_gb is not None:
+                cases += [("warp-stokes", m, str(args.memory_gb)) for m in args.methods]
             runs = {case: [] for case in cases}
             # the cases in turn, --repeat times: a shared machine's speed drifts over minutes, and each tool's
             # median then comes from the same stretch of time as the other's
             for _ in range(args.repeat):
-                for tool, method in cases:
+                for case in cases:
+                    tool, method, memory = case
                     proc = subprocess.run([sys.executable, __file__, "--child", pair_name, tool, str(n),
-                                           str(args.cores), method], capture_output=True, text=True)
+                                           str(args.cores), method, memory], capture_output=True, text=True)
                     if proc.returncode != 0:
                         print(proc.stderr, file=sys.stderr)
                         return 1
-                    runs[(tool, method)].append(json.loads(proc.stdout.strip().splitlines()[-1]))
+                    runs[case].append(json.loads(proc.stdout.strip().splitlines()[-1]))
             for case in cases:
                 row = dict(runs[case][0])
                 times = [r["seconds"] for r in runs[case]]
