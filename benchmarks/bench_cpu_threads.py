@@ -2,6 +2,7 @@
 against the one-thread bind's.
 
     python benchmarks/bench_cpu_threads.py --pair ogre --resolutions 64 128 --threads 1 2 4 8 16
+    python benchmarks/bench_cpu_threads.py --pair ogre --resolutions 64 --threads 1 --kernels
 
 Threads solve chunks of handles at once (``ws.bind(..., threads=T)``); voxelising, the multigrid's setup and the
 checks stay on one thread. One process: a warm-up bind at n = 16 loads the kernels, then per resolution one bind per
@@ -41,6 +42,9 @@ def main(argv=None) -> int:
     p.add_argument("--resolutions", type=int, nargs="+", default=[64])
     p.add_argument("--threads", type=int, nargs="+", default=[1, 2])
     p.add_argument("--repeat", type=int, default=1)
+    p.add_argument("--kernels", action="store_true",
+                   help="then, per resolution, one more bind on the first thread count with each launch timed: a "
+                        "table of the kernels by time")
     args = p.parse_args(argv)
 
     import numpy as np
@@ -81,7 +85,43 @@ def main(argv=None) -> int:
                              f"{speedup:.2f}", f"{speedup / (threads / first[2]):.0%}", stats["iterations"],
                              f"{peak_bytes / 2**20:.0f}", f"{stats['memory_estimate_bytes'] / 2**20:.0f}",
                              f"{np.abs(binding.weights - first[1]).max():.1e}"]), flush=True)
+    if args.kernels:
+        for n in args.resolutions:
+            kernel_table(mesh, cage, n, args.threads[0])
     return 0
+
+
+def kernel_table(mesh, cage, n: int, threads: int, rows: int = 16) -> None:
+    """One bind with every ``wp.launch`` timed (a CPU launch returns when its kernel is done; launches from several
+    threads are summed): the ``rows`` kernels that took longest, with their calls and time a call."""
+    import collections
+
+    import warp as wp
+
+    import warp_stokes as ws
+
+    spent, calls = collections.Counter(), collections.Counter()
+    launch = wp.launch
+
+    def timed(kernel, *args, **kwargs):
+        start = time.perf_counter()
+        result = launch(kernel, *args, **kwargs)
+        spent[kernel.key] += time.perf_counter() - start
+        calls[kernel.key] += 1
+        return result
+
+    wp.launch = timed
+    try:
+        start = time.perf_counter()
+        binding = ws.bind(mesh, cage, resolution=n, device="cpu", threads=threads)
+        seconds = time.perf_counter() - start
+    finally:
+        wp.launch = launch
+    stages = ", ".join(f"{k} {v:.2f}" for k, v in binding.stats["seconds"].items())
+    print(f"\nn = {n}, {threads} thread(s): {seconds:.2f} s ({stages})")
+    print(table_head(["kernel", "calls", "seconds", "ms a call"]))
+    for key, total in spent.most_common(rows):
+        print(table_row([key, calls[key], f"{total:.3f}", f"{1000 * total / calls[key]:.2f}"]), flush=True)
 
 
 if __name__ == "__main__":
