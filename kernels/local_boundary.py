@@ -90,39 +90,61 @@ def grid_point(ijk: wp.array(dtype=wp.vec3i), n: int, origin: wp.vec3d, spacing:
     return origin + spacing * wp.vec3d(wp.float64(node[0]), wp.float64(node[1]), wp.float64(node[2]))
 
 
+#: most faces a BVH search of :func:`blend_near` collects; beyond, the search over every face (the same blend)
+MAX_CANDIDATES = 64
+candidate_list = wp.types.vector(length=MAX_CANDIDATES, dtype=wp.int32)
+
+
 @wp.func
-def blend_at(x: wp.vec3d, band: wp.float64, cage: wp.array(dtype=wp.vec3d), triangles: wp.array(dtype=wp.vec3i)):
-    """The faces within ``band`` of the nearest one to x, as a :class:`Blend`."""
+def blend_over(x: wp.vec3d, band: wp.float64, cage: wp.array(dtype=wp.vec3d), triangles: wp.array(dtype=wp.vec3i),
+               found: candidate_list, count: int, every_face: bool):
+    """The faces within ``band`` of the nearest one to x, as a :class:`Blend`, searched over every face (in index
+    order) or over the first ``count`` faces of ``found`` (in that order)."""
+    n_faces = count
+    if every_face:
+        n_faces = triangles.shape[0]
     zero = wp.float64(0.0)
     one = wp.float64(1.0)
     nearest = wp.float64(1.0e300)
-    for f in range(triangles.shape[0]):
+    for k in range(n_faces):
+        f = k
+        if not every_face:
+            f = found[k]
         nearest = wp.min(nearest, face_distance(x, cage, triangles[f]))
     faces = face_list()
     weights = weight_list()
     points = point_list()
-    count = int(0)
+    kept = int(0)
     total_weight = zero
-    for f in range(triangles.shape[0]):
+    for k in range(n_faces):
+        f = k
+        if not every_face:
+            f = found[k]
         tri = triangles[f]
         b = closest_on_triangle(x, cage[tri[0]], cage[tri[1]], cage[tri[2]])
         t = (wp.length(x - (b[0] * cage[tri[0]] + b[1] * cage[tri[1]] + b[2] * cage[tri[2]])) - nearest) / band
-        if t < one and count < MAX_BLEND:
-            faces[count] = f
-            weights[count] = (one - t) * (one - t)
-            points[count, 0] = b[0]
-            points[count, 1] = b[1]
-            points[count, 2] = b[2]
-            total_weight += weights[count]
-            count += 1
-    for k in range(count):
+        if t < one and kept < MAX_BLEND:
+            faces[kept] = f
+            weights[kept] = (one - t) * (one - t)
+            points[kept, 0] = b[0]
+            points[kept, 1] = b[1]
+            points[kept, 2] = b[2]
+            total_weight += weights[kept]
+            kept += 1
+    for k in range(kept):
         weights[k] = weights[k] / total_weight
     blend = Blend()
-    blend.count = wp.int32(count)
+    blend.count = wp.int32(kept)
     blend.faces = faces
     blend.fractions = weights
     blend.points = points
     return blend
+
+
+@wp.func
+def blend_at(x: wp.vec3d, band: wp.float64, cage: wp.array(dtype=wp.vec3d), triangles: wp.array(dtype=wp.vec3i)):
+    """The faces within ``band`` of the nearest one to x, as a :class:`Blend`: the search over every face."""
+    return blend_over(x, band, cage, triangles, candidate_list(), 0, True)
 
 
 @wp.func
@@ -260,11 +282,6 @@ def local_field(
                                        wp.float32(-spacing * total_gradient[1]), wp.float32(-spacing * total_gradient[2]))
 
 
-#: most faces a BVH search of :func:`blend_near` collects; beyond, the search over every face (the same blend)
-MAX_CANDIDATES = 64
-candidate_list = wp.types.vector(length=MAX_CANDIDATES, dtype=wp.int32)
-
-
 @wp.func
 def blend_near(x: wp.vec3d, band: wp.float64, cage: wp.array(dtype=wp.vec3d), triangles: wp.array(dtype=wp.vec3i),
                mesh: wp.uint64, slack: wp.float32):
@@ -292,37 +309,7 @@ def blend_near(x: wp.vec3d, band: wp.float64, cage: wp.array(dtype=wp.vec3d), tr
             k -= 1
         found[k] = f
         count += 1
-    zero = wp.float64(0.0)
-    one = wp.float64(1.0)
-    nearest = wp.float64(1.0e300)
-    for k in range(count):
-        nearest = wp.min(nearest, face_distance(x, cage, triangles[found[k]]))
-    faces = face_list()
-    weights = weight_list()
-    points = point_list()
-    kept = int(0)
-    total_weight = zero
-    for k in range(count):
-        f = found[k]
-        tri = triangles[f]
-        b = closest_on_triangle(x, cage[tri[0]], cage[tri[1]], cage[tri[2]])
-        t = (wp.length(x - (b[0] * cage[tri[0]] + b[1] * cage[tri[1]] + b[2] * cage[tri[2]])) - nearest) / band
-        if t < one and kept < MAX_BLEND:
-            faces[kept] = f
-            weights[kept] = (one - t) * (one - t)
-            points[kept, 0] = b[0]
-            points[kept, 1] = b[1]
-            points[kept, 2] = b[2]
-            total_weight += weights[kept]
-            kept += 1
-    for k in range(kept):
-        weights[k] = weights[k] / total_weight
-    blend = Blend()
-    blend.count = wp.int32(kept)
-    blend.faces = faces
-    blend.fractions = weights
-    blend.points = points
-    return blend
+    return blend_over(x, band, cage, triangles, found, count, False)
 
 
 @wp.kernel

@@ -176,3 +176,38 @@ def test_a_grid_travels_with_its_host_arrays(arm_cage, device):
                    active_ijk=grid.active_ijk, n_interior=grid.n_interior, n_ring=grid.n_ring, n_band=grid.n_band)
     with pytest.raises(ws.ResolutionError, match="no row index"):
         bare.index
+
+
+def _synthetic_cages():
+    from warp_stokes.geometry import shapes
+
+    made = [shapes.box_pair(extents=(2.0, 1.0, 0.5), rotation=np.eye(3)), shapes.box_pair(rotation=None),
+            shapes.slab_pair(thickness=0.05, seed=1), shapes.star_pair(seed=3), shapes.ellipsoid_pair(noise=0.3)]
+    return {p.name: ws.check_cage((p.cage_vertices, p.cage_faces)) for p in made}
+
+
+@pytest.mark.parametrize("resolution", [9, 16, 31])
+def test_the_cpus_inside_test_by_even_nodes_gives_every_nodes_labels(resolution, arm_cage):
+    # On a CPU the nodes of even coordinates take winding numbers first; the others take their even neighbours'
+    # label where those agree and no cage point is near, else their own winding number: the same labels as a winding
+    # number at every node, on cages with nodes on their faces (an axis-aligned box), thin slabs, stars, odd and even
+    # numbers of nodes a side
+    from warp_stokes.geometry.grid import MARGIN, classify_grid_nodes
+    from warp_stokes.geometry.inside import WINDING_ACCURACY, cage_mesh
+    from warp_stokes.kernels import voxel
+
+    cages = {"arm": arm_cage, **_synthetic_cages()}
+    for name, cage in cages.items():
+        lo, hi = cage.vertices.min(axis=0), cage.vertices.max(axis=0)
+        spacing = float((hi - lo).max() / resolution)
+        counts = np.ceil((hi - lo) / spacing - 1e-9).astype(int) + 1 + 2 * MARGIN
+        origin = -0.5 * spacing * (counts - 1)
+        mesh = cage_mesh(cage, 0.5 * (lo + hi), "cpu")
+        got = classify_grid_nodes(mesh, tuple(counts), origin, spacing, "cpu", threads=2).numpy()
+        every = wp.empty(tuple(counts), dtype=wp.int8, device="cpu")
+        wp.launch(voxel.classify_nodes, dim=tuple(counts), device="cpu", outputs=[every],
+                  inputs=[mesh.id, wp.vec3(*origin.astype(np.float32)), spacing, WINDING_ACCURACY, 1e-5 * spacing,
+                          0, 1])
+        expected = every.numpy()
+        assert (expected == L.INTERIOR).any() and (expected == L.OUTSIDE).any(), name
+        np.testing.assert_array_equal(got, expected, err_msg=name)

@@ -313,14 +313,7 @@ def voxelize(cage: Cage, resolution: int = 64, device=None, max_rows: int = MAX_
         raise error
     with wp.ScopedDevice(device):
         mesh = cage_mesh(cage, centre, device)
-        inside = wp.empty(shape, dtype=wp.int8)
-
-        def classify(first: int, stop: int) -> None:  # the slab of nodes from i = first to stop
-            wp.launch(voxel.classify_nodes, dim=(stop - first, shape[1], shape[2]),
-                      inputs=[mesh.id, wp.vec3(*origin.astype(np.float32)), float(spacing), WINDING_ACCURACY,
-                              1e-5 * spacing, first], outputs=[inside], device=device)
-
-        in_threads(shape[0], classify, device, threads, modules=("voxel",))
+        inside = classify_grid_nodes(mesh, shape, origin, spacing, device, threads)
         cut_off = None if boundary == "mvc" else _wedge_cut_off(cage, mesh, inside, origin, spacing, boundary)
     grid = _number_nodes(inside, centre, origin, spacing, resolution, device, max_rows, cage.name, cut_off,
                          threads)
@@ -333,6 +326,32 @@ def voxelize(cage: Cage, resolution: int = 64, device=None, max_rows: int = MAX_
         error.suggested = 4 * resolution  # what resolution "auto" tries next
         raise error
     return grid
+
+
+def classify_grid_nodes(mesh: wp.Mesh, shape: tuple, origin: np.ndarray, spacing: float, device,
+                        threads: int | None = None) -> wp.array:
+    """The nodes of a lattice inside the cage ``mesh`` (INTERIOR) or not (OUTSIDE), as an int8 array of ``shape``:
+    node (i, j, k) at origin + spacing (i, j, k), in the mesh's frame (:func:`warp_stokes.kernels.voxel.classify_node`:
+    the winding number, and the nodes on the cage outside). A GPU takes a winding number at every node; a CPU (where
+    each costs a thread's time) at the nodes of even coordinates, then at the others only where those around them
+    disagree or the cage passes near (``classify_between_even_nodes``): the same labels. On a CPU the slabs of
+    nodes are shared out between ``threads`` threads."""
+    device = resolve_device(device)
+    inside = wp.empty(shape, dtype=wp.int8, device=device)
+    # the winding numbers' arguments: the cage, the lattice, the accuracy and the tolerance of the surface
+    lattice = [mesh.id, wp.vec3(*np.asarray(origin).astype(np.float32)), float(spacing), WINDING_ACCURACY,
+               1e-5 * spacing]
+    if not device.is_cpu:
+        wp.launch(voxel.classify_nodes, dim=shape, inputs=[*lattice, 0, 1], outputs=[inside], device=device)
+        return inside
+    even = tuple((n + 1) // 2 for n in shape)
+    in_threads(even[0], lambda a, b: wp.launch(voxel.classify_nodes, dim=(b - a, even[1], even[2]),
+                                               inputs=[*lattice, 2 * a, 2], outputs=[inside], device=device),
+               device, threads, modules=("voxel",))
+    in_threads(shape[0], lambda a, b: wp.launch(voxel.classify_between_even_nodes, dim=(b - a, shape[1], shape[2]),
+                                                inputs=[*lattice, a], outputs=[inside], device=device),
+               device, threads, modules=("voxel",))
+    return inside
 
 
 def grid_from_mask(interior, spacing: float = 1.0, origin=(0.0, 0.0, 0.0), device=None) -> Grid:
