@@ -577,3 +577,14 @@ def test_the_cpus_column_dots_are_the_float64_sums(rows, handles, blocks):
     assert (np.abs(got - expected) <= bound).all()
     if handles > 2:
         np.testing.assert_array_equal(dots(a[:, 1:3], b[:, 1:3]), got[1:3])
+
+
+def test_the_cpus_operator_refuses_columns_that_are_not_consecutive():
+    # the CPU's C++ node loop reads a row's handles as consecutive vec4s: a column slice with a step is refused, not
+    # read wrong; a slice of the first columns (the multigrid's smaller chunks) is fine
+    grid = ball_grid("cpu")
+    field = wp.zeros((grid.n_active, 6), dtype=wp.vec4f, device="cpu")
+    out = wp.zeros((grid.n_interior, 6), dtype=wp.vec4f, device="cpu")
+    ws.apply_operator(grid, field[:, :3], out[:, :3], device="cpu")
+    with pytest.raises(ValueError, match="consecutive"):
+        ws.apply_operator(grid, field[:, ::2], out[:, :3], device="cpu")

@@ -133,7 +133,12 @@ def _walk(kernel, arrays: dict, patches: wp.array, field: wp.array, n_rows: int,
 def _node_loop(kernel, arrays: dict, field: wp.array, n_rows: int, rhs: wp.array, ca: float, cb: float, d: wp.array,
                out: wp.array, device, record_cmd: bool = False) -> "wp.Launch | None":
     """Launch one of the CPU's node loops (``stencil_cpu.node_operator_kernel``): a thread per interior node (or
-    return it recorded)."""
+    return it recorded). Its C++ loop reads a row's handles as consecutive vec4s: arrays whose columns are not (a
+    slice with a step) are refused."""
+    for array in (field, rhs, d, out):
+        if array.shape[1] > 1 and array.strides[1] != 16:
+            raise ValueError("the CPU's operator needs each row's columns consecutive (a column slice without a step), "
+                             f"got strides {array.strides}")
     return wp.launch(kernel, dim=out.shape[0], inputs=[field, arrays["neighbours"], int(n_rows), rhs, float(ca),
                                                        float(cb), d], outputs=[out], device=device,
                      record_cmd=record_cmd)
