@@ -106,7 +106,12 @@ def test_threads_solve_chunks_at_once_with_the_weights_of_one_thread(arm_cage):
     estimate = ws.estimate_memory(grid, one.n_vertices, levels=ws.coarsen(grid, "cpu"), device="cpu", n_handles=58,
                                   boundary_bytes=ws.geometry.local_boundary.local_data_bytes(arm_cage))
     # the lanes' chunks with their complement columns, and the table of every handle's starting values they share
-    table = 8 * (grid.n_interior + grid.n_ring) * 58
+    # (with, while it is formed, the values at the nodes of even coordinates it is interpolated from)
+    from warp_stokes.geometry.boundary import start_lattice_nodes
+
+    lattice = start_lattice_nodes(grid, "local", "cpu")
+    assert 0 < lattice < grid.n_interior + grid.n_ring
+    table = 8 * (grid.n_interior + grid.n_ring + lattice) * 58
     assert three.stats["memory_estimate_bytes"] == estimate.total(3 * 21, 3) + table > one.stats["memory_estimate_bytes"]
     # a smaller budget: smaller chunks taken in turn by the lanes, all of them at once within it
     budget = estimate.total(2 * 11, 2)
@@ -158,7 +163,13 @@ def test_a_budget_below_what_no_resolution_saves_says_so(arm_cage):
     # the host's copy, throughout, and the ring and band rows' blends (each row's faces, found once for all chunks)
     blends = ws.geometry.local_boundary.BLEND_ROW_BYTES * (grid.n_active - grid.n_interior)
     assert local.base - plain.base == kept + blends
-    assert local.stages[0][0] - plain.stages[0][0] == kept and (work, 0) in local.stages  # the device's; forming it
+    # the device's copy while the boundary data is formed, with the positions of the nodes of even coordinates the
+    # starting guess is interpolated from (and 8 bytes a handle for their values); forming the local data
+    from warp_stokes.geometry.boundary import start_lattice_nodes
+
+    lattice = start_lattice_nodes(grid, "local", "cpu")
+    assert local.stages[0][0] - plain.stages[0][0] == kept + 24 * lattice and (work, 0) in local.stages
+    assert local.stages[0][1] - plain.stages[0][1] == 8 * lattice
     big = ws.solver.budget.MemoryEstimate(per_handle=100, shared=6000, fixed=5000)
     with pytest.raises(ws.ResolutionError, match=r"need 0.0 MiB at any resolution .* fewer handles or boundary 'mvc'"):
         ws.plan_chunks(big, 10, budget=4000, resolution=64, name="big.obj")

@@ -17,7 +17,8 @@ from typing import NamedTuple
 import numpy as np
 import warp as wp
 
-from ..geometry.boundary import COMPLEMENT_COLUMNS, boundary_field, start_rows, start_values
+from ..geometry.boundary import (COMPLEMENT_COLUMNS, boundary_field, start_lattice_nodes, start_rows,
+                                 start_values)
 from ..geometry.local_boundary import blend_table, boundary_settings, local_data_bytes
 from ..geometry.cage import Cage
 from ..geometry.grid import voxelize
@@ -120,8 +121,10 @@ def grid_columns(checked: Cage, points: np.ndarray, resolution: int, device, han
     # on a CPU, chunks solved at once by threads (Warp runs a CPU launch on the calling thread, without the GIL); a
     # partial range always carries the rest-of-the-cage column: the plan has room for it
     lanes = cpu_threads(threads) if wp.get_device(device).is_cpu else 1
-    # lanes share one table of every handle's starting values (each chunk's would cost the whole search)
-    table = 8 * start_rows(grid, boundary_settings(boundary)) * checked.n_handles
+    # lanes share one table of every handle's starting values (each chunk's would cost the whole search), and while
+    # it is formed on a CPU the values at the nodes it is interpolated from
+    table = 8 * (start_rows(grid, boundary_settings(boundary))
+                 + start_lattice_nodes(grid, boundary_settings(boundary), device)) * checked.n_handles
     chunks, lanes = plan_lanes(estimate, n_range, budget, resolution, lanes, name=checked.name, partial=partial,
                                lane_table=table)
     chunks = [slice(first + c.start, first + c.stop) for c in chunks]

@@ -94,10 +94,13 @@ def _node_positions(grid: Grid, rows: int, device) -> wp.array:
     return positions
 
 
-def _start_lattice(grid: Grid, rows: int, device) -> tuple[wp.array, wp.array]:
+def _even_nodes(grid: Grid, rows: int, device) -> np.ndarray:
     """The nodes of even coordinates around the first ``rows`` active nodes (those a trilinear interpolation reads:
-    the node itself when its coordinates are even, 2, 4 or 8 around it otherwise): their positions relative to the
-    grid's centre (vec3d, on the device) and their rows in a lattice of half the nodes per axis (-1 elsewhere)."""
+    the node itself when its coordinates are even, 2, 4 or 8 around it otherwise), as (m, 3) coordinates in a
+    lattice of half the nodes per axis, in lattice order."""
+    kept = grid.device_arrays(device)  # once per grid and rows (the memory plan asks for their number first)
+    if ("even nodes", rows) in kept:
+        return kept[("even nodes", rows)]
     ijk = np.asarray(grid.active_ijk[:rows], dtype=np.int64)
     base, odd = ijk // 2, ijk % 2
     shape = tuple(int(s) for s in base.max(axis=0, initial=0) + 2) if rows else (1, 1, 1)
@@ -106,7 +109,25 @@ def _start_lattice(grid: Grid, rows: int, device) -> tuple[wp.array, wp.array]:
         o = np.array(corner)
         reads = (o <= odd).all(axis=1)
         needed[tuple((base[reads] + o).T)] = True
-    lattice = np.argwhere(needed)
+    kept[("even nodes", rows)] = np.argwhere(needed)
+    return kept[("even nodes", rows)]
+
+
+def start_lattice_nodes(grid: Grid, data, device=None) -> int:
+    """How many nodes of even coordinates a starting guess interpolated from them takes mean value coordinates at
+    (with the local data on a CPU: :func:`boundary_field`), 0 where it takes them at its rows themselves: what the
+    memory plan counts for their values (8 bytes per node and handle)."""
+    data = (getattr(grid, "boundary", None) or "mvc") if data is None else boundary_settings(data)
+    if data == "mvc" or not resolve_device(device).is_cpu:
+        return 0
+    return len(_even_nodes(grid, start_rows(grid, data), device))
+
+
+def _start_lattice(grid: Grid, rows: int, device) -> tuple[wp.array, wp.array]:
+    """:func:`_even_nodes`: their positions relative to the grid's centre (vec3d, on the device) and their rows in
+    the lattice of half the nodes per axis (-1 elsewhere)."""
+    lattice = _even_nodes(grid, rows, device)
+    shape = tuple(int(s) for s in lattice.max(axis=0, initial=0) + 1) if len(lattice) else (1, 1, 1)
     index = np.full(shape, -1, dtype=np.int32)
     index[tuple(lattice.T)] = np.arange(len(lattice), dtype=np.int32)
     positions = grid.origin + grid.spacing * (2 * lattice).astype(np.float64)
@@ -193,8 +214,7 @@ def boundary_field(grid: Grid, cage: Cage, device=None, handles: slice = slice(N
         instead of computed (the same values).
     threads : int, optional
         On a CPU, threads that form the starting guess and the local data's blend of faces for the grid's rows, the
-        first time
-        (default: every core).
+        first time (default: every core).
 
     Returns
     -------

@@ -7,7 +7,8 @@ mesh vertices:
 
 - the packed field (q, G): 16 N_a, for the whole chunk;
 - the multigrid's work vectors, kept from one chunk to the next: 32 N_i on the fine level, 64 N_l on coarse ones;
-- and the largest of what the stages add: the float64 MVC values while the boundary data is packed (8 N_a), the
+- and the largest of what the stages add: the float64 MVC values while the boundary data is packed (8 N_a; a
+  CPU with the local data adds 8 per node of even coordinates it interpolates the starting guess from), the
   CG vectors during the solve (residual, direction, and A p which the preconditioned residual then overwrites:
   48 N_i), the sampled weights (4 V).
 
@@ -34,7 +35,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..geometry.boundary import COMPLEMENT_COLUMNS
+from ..geometry.boundary import COMPLEMENT_COLUMNS, start_lattice_nodes
 from ..device import available_memory, memory_size, resolve_device  # noqa: F401 (available_memory re-exported)
 from ..errors import ResolutionError
 from ..geometry.grid import DEVICE_NODE_BYTES, HOST_NODE_BYTES, Grid
@@ -159,10 +160,13 @@ def estimate_memory(grid: Grid, n_vertices: int = 0, preconditioner: str = "mult
         if kept:  # the local data's blend of each ring and band row, kept for every chunk
             base += BLEND_ROW_BYTES * (n_act - n_int)
     field_bytes = VEC4 * n_act
+    # a CPU with the local data interpolates the starting guess from MVC at nodes of even coordinates (their own
+    # values and positions beside the rows')
+    lattice = start_lattice_nodes(grid, "local", device) if kept else 0
     stages = [
         # boundary data: positions, MVC values in float64, the local data's normal derivatives (the device's copy;
         # a CPU reads the host's, but measured its peak as if it copied them: counted)
-        (24 * n_act + kept, field_bytes + work + 8 * n_act),
+        (24 * (n_act + lattice) + kept, field_bytes + work + 8 * (n_act + lattice)),
         (0, field_bytes + work + 3 * VEC4 * n_int),  # solve: CG vectors
         # sampling: per-vertex cells and weights (on the CPU also their host copy)
         (80 * n_v, field_bytes + work + (8 if on_cpu else 4) * n_v),
