@@ -322,17 +322,20 @@ def galerkin_blocks(
     fine_operator: int,
     shift: wp.vec3i,
     table: wp.array(dtype=wp.mat44d),
+    first_row: int,
     blocks: wp.array2d(dtype=wp.mat44f),
 ):
     """blocks[m, o] = (P^T A P)[c, c + o] for coarse node c = coarse_ijk[m] and neighbour slot o >= 13 (the centre
     and the 13 neighbours after it), and its transpose, the block of the pair's other row (A is symmetric);
-    launch (coarse nodes, 14) on zeroed `blocks`. A is the 27-point block stencil `fine_blocks` (fine_operator =
+    launch (coarse nodes from first_row on, 14) on zeroed `blocks` (each block is written by one thread: launches
+    over other rows may run at once). A is the 27-point block stencil `fine_blocks` (fine_operator =
     BLOCKS), the 19-point stencil (BIHARMONIC) or the 7-point one (LAPLACE); sums in float64.
 
     (P^T A P)[c, c'] = sum over the fine unknowns f around c (|f - 2c| <= 1) of P[f, c]^T (A P)[f, c'], with
     (A P)[f, c'] = sum over A's neighbours g of f that lie around c' (|g - 2c'| <= 1) of A[f, g] P[g, c'] (fine
     coordinates less ``shift``: coarse node c sits on the fine node 2c + shift)."""
-    m, u = wp.tid()
+    tm, u = wp.tid()
+    m = first_row + tm
     o = CENTRE + u
     c = coarse_ijk[m]
     other = c + neighbour_offset(o)

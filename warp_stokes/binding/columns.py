@@ -133,8 +133,8 @@ def grid_columns(checked: Cage, points: np.ndarray, resolution: int, device, han
     t = time.perf_counter()
     if solver == "multigrid":
         tell("multigrid", levels=len(levels))
-    preconditioner = (Multigrid(grid, device=device, levels=levels, equation=equation) if solver == "multigrid"
-                      else "jacobi")
+    preconditioner = (Multigrid(grid, device=device, levels=levels, equation=equation, threads=threads)
+                      if solver == "multigrid" else "jacobi")
     wp.synchronize_device(device)
     seconds["setup"] = time.perf_counter() - t
 
