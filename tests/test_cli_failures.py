@@ -115,21 +115,50 @@ def test_no_cuda_warning_on_the_cpu_and_a_clear_error_when_cuda_is_asked_for(tmp
 
 
 def test_ctrl_c_exits_130_and_leaves_no_file(tmp_path):
+    import pty
+    import select
+
     exe = shutil.which("warp-stokes")
     command = [exe] if exe else [sys.executable, "-m", "warp_stokes.cli"]
     out = tmp_path / "b.npz"
-    # the child handles SIGINT as a command started from a terminal does, even where the suite runs with SIGINT
-    # ignored (a background job of a non-interactive shell: there the bind went on to finish, exit 0)
-    proc = subprocess.Popen(command + ["bind", MESH, CAGE, "-o", str(out), "--resolution", "96", "--device", "cpu"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    # stderr on a terminal, as a user's is: the progress line says when the solve has begun, so the signal comes
+    # inside the solve however fast the machine (a fixed sleep let a faster bind finish first). The child handles
+    # SIGINT as a command started from a terminal does, even where the suite runs with SIGINT ignored.
+    leader, follower = pty.openpty()
+    proc = subprocess.Popen(command + ["bind", MESH, CAGE, "-o", str(out), "--resolution", "128", "--device", "cpu"],
+                            stdout=subprocess.PIPE, stderr=follower, text=True,
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
-    time.sleep(6)  # past start-up, into the bind (at n = 96 it takes far longer than this on the CPU)
-    assert proc.poll() is None, "the bind ended before it could be interrupted"
-    proc.send_signal(signal.SIGINT)
-    _, err = proc.communicate(timeout=120)
+    os.close(follower)
+    seen, deadline = "", time.monotonic() + 300
+    try:
+        while "solving" not in seen and proc.poll() is None and time.monotonic() < deadline:
+            if select.select([leader], [], [], 1.0)[0]:
+                seen += os.read(leader, 4096).decode(errors="replace")
+        assert proc.poll() is None, f"the bind ended before it could be interrupted: {seen!r}"
+        assert "solving" in seen, f"no progress line within 300 s: {seen!r}"
+        proc.send_signal(signal.SIGINT)
+        signalled = len(seen)
+        proc.wait(timeout=120)
+        while select.select([leader], [], [], 0.5)[0]:
+            try:
+                chunk = os.read(leader, 4096)
+            except OSError:  # the child's end closed (Linux reports EIO)
+                break
+            if not chunk:
+                break
+            seen += chunk.decode(errors="replace")
+    finally:
+        os.close(leader)
+        if proc.poll() is None:
+            proc.kill()
     assert proc.returncode == 130
-    assert err.strip().splitlines() == ["warp-stokes: interrupted; no output was left half-written"]
+    # what is left on the terminal once the progress line is cleared: the last line written
+    lines = [line.strip() for line in re.split(r"[\r\n]", seen) if line.strip()]
+    assert lines[-1] == "warp-stokes: interrupted; no output was left half-written"
     assert os.listdir(tmp_path) == []
+    # the chunks' solves on their threads stop at their next iteration (they used to run on to convergence, about
+    # eight more iterations each, before the interrupt took effect)
+    assert seen[signalled:].count("iteration") <= 4, seen[signalled:]
 
 
 def test_a_self_intersecting_cage_is_refused_naming_two_crossing_faces(tmp_path):

@@ -28,6 +28,10 @@ from ..solver.multigrid import Multigrid, coarsen
 from ..solver.solve import solve_biharmonic
 from .sample import sample_weights
 
+
+class _Abandoned(Exception):
+    """Raised in a lane told to stop: the bind was left by its main thread (the lane's result is never read)."""
+
 __all__ = ["GridColumns", "GridSummary", "grid_columns"]
 
 
@@ -154,6 +158,14 @@ def grid_columns(checked: Cage, points: np.ndarray, resolution: int, device, han
         seconds["start_values"] = time.perf_counter() - t
 
     lanes_own = threading.local()  # each lane's view of the multigrid (its work vectors and smoother bounds)
+    # set when the main thread leaves the rounds early (Ctrl-C, an error in another lane): the lanes then stop at their
+    # next iteration or stage, instead of the interrupt waiting for every running solve to finish
+    abandoned = threading.Event()
+
+    def lane_tell(stage: str, **info) -> None:
+        if abandoned.is_set():
+            raise _Abandoned
+        tell(stage, **info)
 
     def part_of(k: int) -> dict:
         return {"chunk": k + 1, "chunks": len(chunks)} if len(chunks) > 1 else {}
@@ -162,7 +174,7 @@ def grid_columns(checked: Cage, points: np.ndarray, resolution: int, device, han
         """Chunk k's field: the boundary data (a chunk carries the rest of the cage in one more column, so that
         its solve checks partition of unity); and its seconds."""
         t = time.perf_counter()
-        tell("boundary data", **part_of(k))
+        lane_tell("boundary data", **part_of(k))
         field_ = boundary_field(grid, checked, device=device, handles=chunks[k], complement=complement,
                                 data=boundary, start=starts, threads=lanes)
         wp.synchronize_device(device)
@@ -178,14 +190,14 @@ def grid_columns(checked: Cage, points: np.ndarray, resolution: int, device, han
         return solve_biharmonic(
             grid, field_, tol=tol, max_iterations=max_iterations, handles=checked.vertices,
             chunk=chunks[k] if complement else None, preconditioner=mine, device=device, equation=equation,
-            progress=lambda iteration, residual: tell("solving", iteration=iteration, residual=residual,
-                                                      **part_of(k)),
+            progress=lambda iteration, residual: lane_tell("solving", iteration=iteration, residual=residual,
+                                                           **part_of(k)),
         )
 
     def sample(k: int, field_) -> tuple:
         """Chunk k's weights at the vertices, into ``weights``; the cells' corners and the seconds."""
         t = time.perf_counter()
-        tell("sampling", **part_of(k))
+        lane_tell("sampling", **part_of(k))
         chunk = chunks[k]
         sampled_columns, corners = sample_weights(grid, field_, points, device=device, method=sampling)
         weights[:, chunk.start - first: chunk.stop - first] = sampled_columns[:, : chunk.stop - chunk.start]
@@ -205,6 +217,8 @@ def grid_columns(checked: Cage, points: np.ndarray, resolution: int, device, han
             run = pool.map
         else:
             run = map
+        # on the way out (the pool's shutdown waits for its running lanes), the lanes are told to stop
+        stack.callback(abandoned.set)
         for first_k in range(0, len(chunks), lanes):
             ks = range(first_k, min(first_k + lanes, len(chunks)))
             formed = list(run(form, ks))
