@@ -68,6 +68,28 @@ def test_pieces_get_their_own_shells():
     assert len(trimesh.Trimesh(made.cage.vertices, made.cage.faces, process=False).split(only_watertight=False)) == 1
 
 
+def test_vertices_on_no_face_are_enclosed_too(tmp_path):
+    """A mesh's stray vertices (on no face: an export's leftovers, a scan's outliers) are vertices a binding samples:
+    the cage holds them too, at the margin, one far out in a shell of its own; through the command line as well."""
+    v, f = sphere()
+    stray = np.array([[1.6, 0.0, 0.0], [0.0, 1.03, 0.0], [0.1, 0.2, 0.0]])  # far, just outside, inside
+    vertices = np.vstack([v, stray])
+    made = make_cage((vertices, f), handles=60, device="cpu")
+    assert_valid(made, vertices, handles=60)
+    assert len(trimesh.Trimesh(made.cage.vertices, made.cage.faces, process=False).split(only_watertight=False)) == 2
+
+    mesh = tmp_path / "strays.obj"
+    mesh.write_text("".join(f"v {x:.17g} {y:.17g} {z:.17g}\n" for x, y, z in vertices)
+                    + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in f))
+    out = tmp_path / "made.obj"
+    proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "cage", str(mesh), "-o", str(out), "--handles",
+                           "60", "--device", "cpu"], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    read = trimesh.load(out, process=False)
+    inside, _ = ws.classify_points(check_cage((read.vertices, read.faces)), vertices, device="cpu")
+    assert inside.all()
+
+
 @pytest.mark.parametrize("shape", [
     pytest.param(lambda: slab_pair(0.05, seed=3), id="thin-slab"),
     pytest.param(lambda: dumbbell_pair(0.08, sections=8, seed=1), id="dumbbell-thin-neck"),

@@ -2,7 +2,8 @@
 stays a valid cage that keeps every vertex of the mesh inside.
 
 1. The mesh's signed distance on a voxel grid (Warp, on the device): the distance to the nearest face, negative
-   where the generalised winding number exceeds 1/2, so open, self-intersecting and many-piece meshes have an inside.
+   where the generalised winding number exceeds 1/2, so open, self-intersecting and many-piece meshes have an inside;
+   vertices on no face count by their distance, so that they are enclosed as well.
 2. Its level set at ``offset`` by marching cubes (Warp): a closed surface around the mesh at that distance; cavities
    inside it are dropped.
 3. Quadric edge collapses down to the handles asked for, each one checked before it is made
@@ -151,7 +152,8 @@ def make_cage(mesh, handles: int | None = None, offset: float = DEFAULT_OFFSET, 
     ----------
     mesh : path | trimesh.Trimesh | (vertices, faces) | Surface
         Anything ``bind`` reads as a mesh: OBJ/PLY/STL/OFF/glTF files, USD assets (all their meshes, in world
-        space). Open, self-intersecting and many-piece meshes are fine; it needs faces (not a point set).
+        space). Open, self-intersecting and many-piece meshes are fine, and vertices on no face are enclosed too;
+        it needs faces (not a point set).
     handles : int, optional
         The cage's vertex count (at least 8). Default: chosen from the shape (:func:`default_handles`). Where no
         further collapse keeps the cage valid it stops above the count, with a note.
@@ -196,7 +198,11 @@ def make_cage(mesh, handles: int | None = None, offset: float = DEFAULT_OFFSET, 
         raise MeshError(f"{name}: a cage is made around a surface, and it has no faces")
     if not np.isfinite(points).all():
         raise MeshError(f"{name}: non-finite vertex coordinates")
-    points = points[np.unique(faces)]  # vertices of no face are not the surface's
+    # vertices on no face (stray points of a scan or an export) are enclosed too, each in a ball of the offset's
+    # radius: a cage must hold every vertex a binding samples
+    on_faces = np.zeros(len(points), dtype=bool)
+    on_faces[np.unique(faces)] = True
+    stray = points[~on_faces]
     diag = bounding_diagonal(points)
     if not diag > 0:
         raise MeshError(f"{name}: all vertices coincide")
@@ -219,9 +225,16 @@ def make_cage(mesh, handles: int | None = None, offset: float = DEFAULT_OFFSET, 
         body = wp.Mesh(points=wp.array((surface.vertices - centre).astype(np.float32), dtype=wp.vec3),
                        indices=wp.array(faces.astype(np.int32).ravel(), dtype=wp.int32), support_winding_number=True)
         field_d = wp.empty(shape, dtype=float)
-        wp.launch(cage_kernels.signed_distance, dim=shape,
-                  inputs=[body.id, wp.vec3(*(origin - centre).astype(np.float32)), float(spacing),
-                          WINDING_ACCURACY], outputs=[field_d])
+        corner = wp.vec3(*(origin - centre).astype(np.float32))
+        wp.launch(cage_kernels.signed_distance, dim=shape, inputs=[body.id, corner, float(spacing), WINDING_ACCURACY],
+                  outputs=[field_d])
+        if len(stray):
+            rel = wp.array((stray - centre).astype(np.float32), dtype=wp.vec3)
+            stray_bvh = wp.Bvh(rel, rel)
+            # beyond the offset and a cell the distance is not needed: the level set lies within it
+            wp.launch(cage_kernels.distance_to_points, dim=shape,
+                      inputs=[stray_bvh.id, rel, corner, float(spacing), float(distance + 2.0 * spacing)],
+                      outputs=[field_d])
         level = field_d.numpy() - distance
         snap = SNAP * spacing
         near = np.abs(level) < snap
