@@ -114,10 +114,37 @@ def test_default_handles_said_and_stopping_short_noted():
     assert made.chosen and made.cage.n_handles == made.handles
     assert abs(made.handles - default_handles(4 * np.pi, 4 / 3 * np.pi)) <= 2
     assert f"chosen from the mesh's shape: {made.handles}" in made.summary()
-    few = make_cage((v, f), handles=8, device="cpu")  # a ball at the default offset stops at 48
+    few = make_cage((v, f), handles=8, device="cpu")  # a ball stops at 43 at the default offset, 15 at 4 times it
     assert_valid(few, v)
     assert few.cage.n_handles > 8 and any(f"stopped at {few.cage.n_handles} handles (asked 8)" in note
                                           for note in few.notes)
+    assert few.notes[0].endswith("it was made at 0.08 instead, which leaves the collapses more room")
+
+
+def test_the_default_offset_is_raised_to_reach_the_handles_but_one_given_is_kept(tmp_path):
+    """At 2 % of the diagonal a ball's cage stops at 43 handles: asked 30 without an offset, it is made at 4 % and
+    has 30 (said in a note); asked 30 at 2 %, it keeps the offset and stops, saying so. The command says the same."""
+    v, f = sphere()
+    made = make_cage((v, f), handles=30, device="cpu")
+    assert_valid(made, v, handles=30)
+    assert made.offset == pytest.approx(0.04 * bounding_diagonal(v), rel=1e-9)
+    assert made.notes == ["<arrays>: at an offset of 0.02 of the diagonal the cage stopped at 43 handles (asked 30); "
+                          "it was made at 0.04 instead, which leaves the collapses more room"]
+    kept = make_cage((v, f), handles=30, offset=0.02, device="cpu")
+    assert_valid(kept, v, handles=43)
+    assert kept.offset == pytest.approx(0.02 * bounding_diagonal(v), rel=1e-9)
+    assert len(kept.notes) == 1 and kept.notes[0].startswith("<arrays>: stopped at 43 handles (asked 30)")
+
+    mesh = tmp_path / "ball.obj"
+    trimesh.Trimesh(v, f, process=False).export(mesh)
+    for extra, handles in (([], 30), (["--offset", "0.02"], 43)):
+        out = tmp_path / "made.obj"
+        proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "cage", str(mesh), "-o", str(out), "--handles",
+                               "30", "--device", "cpu", *extra], capture_output=True, text=True)
+        assert proc.returncode == 0, proc.stderr
+        assert len(trimesh.load(out, process=False).vertices) == handles
+        assert f"cage of {handles} handles (asked 30)" in proc.stdout
+        assert ("it was made at 0.04 instead" in proc.stdout) == (handles == 30)
 
 
 def test_offset_finer_than_the_grid_is_raised(monkeypatch):

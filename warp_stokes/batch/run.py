@@ -288,7 +288,7 @@ def _bind_asset(asset, pending: dict, device, progress, k: int, total: int, resu
     npz, *usd = pending
     if asset.cage == MADE_CAGE:
         from ..binding.spread import driver_device, spread_devices
-        from ..geometry.make_cage import DEFAULT_OFFSET, make_cage
+        from ..geometry.make_cage import make_cage
         from ..io.scene import load_scene
 
         usd, made = [], usd[0]
@@ -297,7 +297,7 @@ def _bind_asset(asset, pending: dict, device, progress, k: int, total: int, resu
         surface = load_scene(asset.mesh, mesh_prims=asset.mesh_prims, rest_time=asset.rest_time).surface()
         spread = spread_devices(device)
         cage = make_cage(surface, handles=asset.handles, device=device if spread is None else driver_device(spread),
-                         offset=DEFAULT_OFFSET if asset.offset is None else asset.offset)  # bind records it
+                         offset=asset.offset)  # bind records it
     elif asset.cage_prim is not None and (asset.cage is None or is_usd(asset.cage)):
         cage = check_cage(read_cage_prim(asset.cage or asset.mesh, asset.cage_prim, asset.rest_time))
     else:

@@ -130,9 +130,10 @@ def _add_cage(sub) -> None:
                         "layer with --cage-prim PATH")
     p.add_argument("--handles", type=_number(int, 8), default=None,
                    help="the cage's vertex count (default: chosen from the mesh's shape, and printed)")
-    p.add_argument("--offset", type=_number(float, 0.0, 0.5, low_open=True), default=0.02,
+    p.add_argument("--offset", type=_number(float, 0.0, 0.5, low_open=True), default=None,
                    help="how far the cage starts from the mesh, as a fraction of its bounding diagonal (default "
-                        "0.02): larger leaves more room to simplify, smaller fits tighter")
+                        "0.02, raised where the handles asked are not reached): larger leaves more room to "
+                        "simplify, smaller fits tighter")
     p.add_argument("--mesh-prim", action="append", default=None, metavar="PATH",
                    help="a mesh prim of the USD asset to enclose (repeat for several; default: all its meshes)")
     p.add_argument("--device", default=None, help="cpu, cuda or cuda:N (default: CUDA when present)")
@@ -151,7 +152,7 @@ def _add_bind(sub) -> None:
                    help="with cage auto: the made cage's vertex count (default: chosen from the mesh's shape)")
     p.add_argument("--offset", type=_number(float, 0.0, 0.5, low_open=True), default=None,
                    help="with cage auto: how far the made cage starts from the mesh, as a fraction of its bounding "
-                        "diagonal (default 0.02)")
+                        "diagonal (default 0.02, raised where the handles asked are not reached)")
     p.add_argument("--mesh-prim", action="append", default=None, metavar="PATH",
                    help="a mesh prim of the USD asset to bind (repeat for several; default: all but the cage)")
     p.add_argument("--rest-time", type=_number(float), default=None,

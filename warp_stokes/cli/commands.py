@@ -156,14 +156,12 @@ def bind_command(args) -> int:
         announce_compilation(args.device, harmonic=args.method == "harmonic")
     cage = args.cage
     if made_cage is not None and (args.handles is not None or args.offset is not None):
-        from warp_stokes.geometry.make_cage import DEFAULT_OFFSET
         from warp_stokes.io.scene import load_scene
 
         if args.cage_prim is not None:
             raise ws.WarpStokesError(f"cage 'auto' and a cage prim ({args.cage_prim}): give one of them")
         surface = load_scene(args.mesh, mesh_prims=args.mesh_prim, rest_time=args.rest_time).surface()
-        offset = DEFAULT_OFFSET if args.offset is None else args.offset
-        cage = ws.make_cage(surface, handles=args.handles, offset=offset,
+        cage = ws.make_cage(surface, handles=args.handles, offset=args.offset,
                             device=args.device if spread is None else driver_device(spread))
     budget = None if args.memory_gb is None else args.memory_gb * 2**30
     from .progress import ProgressLine
