@@ -3,12 +3,18 @@ against the one-thread bind's.
 
     python benchmarks/bench_cpu_threads.py --pair ogre --resolutions 64 128 --threads 1 2 4 8 16
     python benchmarks/bench_cpu_threads.py --pair ogre --resolutions 64 --threads 1 --kernels
+    python benchmarks/bench_cpu_threads.py --pair ogre --resolutions 128 --threads 1 4 16 --bandwidth
 
 Threads solve chunks of handles at once (``ws.bind(..., threads=T)``); voxelising, the multigrid's setup and the
 checks stay on one thread. One process: a warm-up bind at n = 16 loads the kernels, then per resolution one bind per
 thread count (``--repeat`` times, the fastest kept). Peak memory is the process's peak resident set above its size
 at the bind's start (Linux: reset through ``/proc/self/clear_refs``; the freed heap handed back first), beside the
 memory plan's estimate. Prints a Markdown table with the CPU's model and core count.
+
+``--bandwidth`` first measures what the memory gives the same threads: a Warp CPU kernel streaming ``c = a + s b``
+over float32 arrays far larger than the caches, each of T threads launching it over its share of the rows (as the
+bind's threads launch theirs). A solve that streams its vectors cannot speed up by more than that rate's ratio to one
+thread's; the table shows this ceiling beside the bind's speed-up.
 """
 
 from __future__ import annotations
@@ -21,9 +27,31 @@ import time
 import warnings
 from pathlib import Path
 
+import warp as wp
+
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import pair, table_head, table_row  # noqa: E402
 
+
+_TRIAD = """
+const float* __restrict__ x = a.data;
+const float* __restrict__ y = b.data;
+float* __restrict__ z = c.data;
+for (int i = first; i < stop; ++i) z[i] = x[i] + s * y[i];
+"""
+
+
+@wp.func_native(_TRIAD)
+def _triad_rows(a: wp.array(dtype=float), b: wp.array(dtype=float), s: float, first: int, stop: int,
+                c: wp.array(dtype=float)): ...
+
+
+@wp.kernel
+def triad(a: wp.array(dtype=float), b: wp.array(dtype=float), s: float, first: int, stop: int,
+          c: wp.array(dtype=float)):
+    """c = a + s b over rows [first, stop), one C++ loop (vectorised by the compiler, as the solver's CPU loops):
+    the memory's streaming rate, each of the bind's threads launching over its range."""
+    _triad_rows(a, b, s, first, stop, c)
 
 def cpu_model() -> str:
     try:
@@ -42,6 +70,10 @@ def main(argv=None) -> int:
     p.add_argument("--resolutions", type=int, nargs="+", default=[64])
     p.add_argument("--threads", type=int, nargs="+", default=[1, 2])
     p.add_argument("--repeat", type=int, default=1)
+    p.add_argument("--bandwidth", action="store_true",
+                   help="first the memory's streaming rate on each thread count (a Warp triad kernel), and the "
+                        "speed-up it allows")
+    p.add_argument("--bandwidth-mib", type=int, default=512, help="each of the triad's three arrays (MiB)")
     p.add_argument("--kernels", action="store_true",
                    help="then, per resolution, one more bind on the first thread count with each launch timed: a "
                         "table of the kernels by time")
@@ -57,10 +89,18 @@ def main(argv=None) -> int:
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
     print(f"{cpu_model()}, {cores} cores available; warp-stokes {ws.__version__}, Warp {wp.config.version}")
     warnings.simplefilter("ignore")
+    ceiling = {}
+    if args.bandwidth:
+        rates = stream_rates(args.threads, args.bandwidth_mib)
+        print(table_head(["threads", "triad GB/s", f"ratio to {args.threads[0]} thread(s)"]))
+        for threads, rate in rates.items():
+            ceiling[threads] = rate / rates[args.threads[0]]
+            print(table_row([threads, f"{rate / 1e9:.1f}", f"{ceiling[threads]:.2f}"]), flush=True)
+        print()
     ws.bind(mesh, cage, resolution=16, device="cpu", threads=1)
     print(table_head(["pair", "n", "threads", "chunks", "seconds", "voxelize s", "setup s", "boundary s", "solve s",
-                      "sample s", "speed-up", "efficiency", "iterations", "peak MiB", "estimate MiB",
-                      "max |w - w(1 thread)|"]), flush=True)
+                      "sample s", "speed-up", "efficiency"] + (["bandwidth ratio"] if ceiling else [])
+                     + ["iterations", "peak MiB", "estimate MiB", "max |w - w(1 thread)|"]), flush=True)
     cpu = wp.get_device("cpu")
     for n in args.resolutions:
         first = None
@@ -82,13 +122,43 @@ def main(argv=None) -> int:
             print(table_row([args.pair, n, threads, stats["chunks"], f"{seconds:.2f}", f"{spent['voxelize']:.2f}",
                              f"{spent['setup']:.2f}", f"{spent['boundary']:.2f}", f"{spent['solve']:.2f}",
                              f"{spent['sample']:.2f}",
-                             f"{speedup:.2f}", f"{speedup / (threads / first[2]):.0%}", stats["iterations"],
+                             f"{speedup:.2f}", f"{speedup / (threads / first[2]):.0%}"]
+                            + ([f"{ceiling[threads]:.2f}"] if ceiling else []) + [stats["iterations"],
                              f"{peak_bytes / 2**20:.0f}", f"{stats['memory_estimate_bytes'] / 2**20:.0f}",
                              f"{np.abs(binding.weights - first[1]).max():.1e}"]), flush=True)
     if args.kernels:
         for n in args.resolutions:
             kernel_table(mesh, cage, n, args.threads[0])
     return 0
+
+
+def stream_rates(thread_counts, mib: int, repeat: int = 5) -> dict:
+    """{threads: bytes a second} of ``c = a + s b`` over float32 arrays of ``mib`` MiB each, the rows shared out
+    between the threads (each launching the kernel over its range), the fastest of ``repeat`` passes."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    import numpy as np
+
+    n = mib * 2**20 // 4
+    with wp.ScopedDevice("cpu"):
+        a = wp.array(np.ones(n, dtype=np.float32))
+        b = wp.array(np.ones(n, dtype=np.float32))
+        c = wp.zeros(n, dtype=float)
+        wp.launch(triad, dim=1, inputs=[a, b, 0.5, 0, 1], outputs=[c])  # loaded here, not by several threads at once
+        rates = {}
+        for threads in thread_counts:
+            size = -(-n // threads)
+            ranges = [(k, min(k + size, n)) for k in range(0, n, size)]
+            best = None
+            with ThreadPoolExecutor(max_workers=threads) as pool:
+                for _ in range(repeat):
+                    start = time.perf_counter()
+                    list(pool.map(lambda r: wp.launch(triad, dim=1, inputs=[a, b, 0.5, r[0], r[1]], outputs=[c],
+                                                      device="cpu"), ranges))
+                    spent = time.perf_counter() - start
+                    best = spent if best is None else min(best, spent)
+            rates[threads] = 3 * 4 * n / best
+    return rates
 
 
 def kernel_table(mesh, cage, n: int, threads: int, rows: int = 16) -> None:

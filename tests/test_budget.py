@@ -254,3 +254,20 @@ def test_a_containers_cpu_quota_caps_the_threads(tmp_path, monkeypatch):
     assert ws.device.cpu_threads() == 2 and ws.device.cpu_threads(5) == 5
     monkeypatch.setattr(ws.device, "cgroup_cpu_limit", lambda: None)
     assert ws.device.cpu_threads() == 64
+
+
+def test_bench_cpu_threads_tabulates_threads_beside_the_memory_bandwidth():
+    # issue 32's harness on the arm: the triad's streaming rate per thread count, then the binds with their speed-up,
+    # the bandwidth's ratio beside it, and the weights against one thread's
+    proc = subprocess.run([sys.executable, str(EXAMPLE.parents[1] / "benchmarks" / "bench_cpu_threads.py"), "--pair",
+                           "arm", "--resolutions", "16", "--threads", "1", "2", "--bandwidth", "--bandwidth-mib", "8"],
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    rates = {int(cells[0]): (float(cells[1]), float(cells[2])) for cells in
+             ([c.strip() for c in line.strip("|").split("|")] for line in proc.stdout.splitlines())
+             if len(cells) == 3 and cells[0].isdigit()}
+    assert sorted(rates) == [1, 2] and rates[1][1] == 1.0 and all(rate > 0 for rate, _ in rates.values())
+    rows = [[c.strip() for c in line.strip("|").split("|")] for line in proc.stdout.splitlines()
+            if line.startswith("| arm | 16 |")]
+    assert [row[2] for row in rows] == ["1", "2"]
+    assert rows[1][12] == f"{rates[2][1]:.2f}" and float(rows[1][-1]) <= 1e-6
