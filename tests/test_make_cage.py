@@ -398,3 +398,16 @@ def test_encode_a_sequence_without_a_cage(tmp_path):
     poses = ws.load_poses(out, binding.cage_faces)
     error = np.linalg.norm(binding.deform(poses.positions) - frames, axis=2) / bounding_diagonal(frames[0])
     assert len(poses.positions) == len(frames) and np.sqrt(np.mean(error ** 2)) <= 0.003 and error.max() <= 0.02
+
+
+def test_bench_cage_measures_meshes_without_an_artists_cage():
+    # the harness for meshes nobody made a cage for (issue 33's "meshes you have not seen"), on the bundled arm
+    repo = EXAMPLE.parents[1]
+    proc = subprocess.run([sys.executable, str(repo / "benchmarks" / "bench_cage.py"), "--device", "cpu", "--pairs",
+                           "", "--meshes", str(EXAMPLE / "arm.obj"), "--mesh-handles", "40", "--resolution", "16"],
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    row = next(line for line in proc.stdout.splitlines() if line.startswith("| arm.obj |"))
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    assert cells[1:5] == ["2089", "40", "40", "2.00"]
+    assert cells[6:8] == ["1.0000", "0"] and float(cells[10]) <= 1e-5 and float(cells[11]) <= 1e-5
