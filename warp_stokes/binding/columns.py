@@ -28,11 +28,11 @@ from ..solver.multigrid import Multigrid, coarsen
 from ..solver.solve import solve_biharmonic
 from .sample import sample_weights
 
+__all__ = ["GridColumns", "GridSummary", "grid_columns"]
+
 
 class _Abandoned(Exception):
     """Raised in a lane told to stop: the bind was left by its main thread (the lane's result is never read)."""
-
-__all__ = ["GridColumns", "GridSummary", "grid_columns"]
 
 
 class GridSummary(NamedTuple):

@@ -34,9 +34,9 @@ __all__ = ["make_cage", "MadeCage", "default_handles", "made_cage_record", "DEFA
 
 #: the offset surface's distance from the mesh, as a fraction of the mesh's bounding diagonal
 DEFAULT_OFFSET = 0.02
-#: the default offset's steps (times DEFAULT_OFFSET) where the handles asked are not reached: measured on 14 public
-#: meshes nobody here had seen, at 30 handles, 11 stopped at 31-58 at 0.02; at 0.04 five of six reached 30, the cow at
-#: 0.08
+#: the default offset's steps (times DEFAULT_OFFSET) where the handles asked are not reached: 14 public meshes nobody
+#: here had seen, asked for 30 handles, 11 stopped at 31-58 at 0.02; with the steps every one has 30 or 31
+#: (benchmarks/RESULTS.md, section 19)
 OFFSET_STEPS = (1.0, 2.0, 4.0)
 #: every mesh vertex stays at least this fraction of the offset inside the cage
 #: (less room for the collapses made the pairs' cages express their artists' deformations worse: at 0.25 / 0.4 / 0.5,
