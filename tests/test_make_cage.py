@@ -411,3 +411,53 @@ def test_bench_cage_measures_meshes_without_an_artists_cage():
     cells = [c.strip() for c in row.strip("|").split("|")]
     assert cells[1:5] == ["2089", "40", "40", "2.00"]
     assert cells[6:8] == ["1.0000", "0"] and float(cells[10]) <= 1e-5 and float(cells[11]) <= 1e-5
+
+
+@pytest.mark.parametrize("mesh", [
+    pytest.param(lambda: ws.load_surface(EXAMPLE / "arm.obj"), id="arm-open"),
+    pytest.param(lambda: dumbbell_pair(0.08, sections=8, seed=1).cage, id="dumbbell"),
+    pytest.param(lambda: torus_pair(0.15, major_sections=12, minor_sections=6, seed=2).cage, id="torus"),
+    pytest.param(lambda: box_pair((1.0, 0.3, 0.2)).cage, id="box"),
+])
+def test_the_cpus_field_by_even_nodes_is_every_nodes_field(mesh):
+    """On a CPU the signed distance takes winding numbers at the nodes of even coordinates and where the mesh passes
+    near: the same sides as a winding number at every node, and the same distances within the cap and at both ends
+    of every grid edge that changes side (the open arm's inside ends across its shoulder's hole, far from any face:
+    marching cubes interpolates there). On make_cage's grids (one cell per offset, three cells of padding) and on
+    others of odd and even sizes, so that nodes on the grid's far faces have no even neighbour beyond them."""
+    import warp as wp
+
+    from warp_stokes.geometry.inside import WINDING_ACCURACY
+    from warp_stokes.geometry.make_cage import signed_distance_field
+    from warp_stokes.kernels import cage as cage_kernels
+
+    surface = mesh()
+    v = np.asarray(surface.vertices if hasattr(surface, "vertices") else surface[0], dtype=np.float64)
+    f = np.asarray(surface.faces if hasattr(surface, "faces") else surface[1])
+    lo, hi = v.min(axis=0), v.max(axis=0)
+    diag = bounding_diagonal(v)
+    cpu = wp.get_device("cpu")
+    for spacing, pad in ((0.02 * diag, 0.06 * diag), (0.01 * diag, 0.03 * diag), ((hi - lo).max() / 31, 0.05)):
+        shape = tuple(int(s) for s in np.ceil((hi - lo + 2 * pad) / spacing).astype(int) + 1)
+        corner = wp.vec3(*(lo - pad - 0.5 * (lo + hi)).astype(np.float32))
+        with wp.ScopedDevice(cpu):
+            body = wp.Mesh(points=wp.array((v - 0.5 * (lo + hi)).astype(np.float32), dtype=wp.vec3),
+                           indices=wp.array(f.astype(np.int32).ravel(), dtype=wp.int32), support_winding_number=True)
+            every = wp.empty(shape, dtype=float)
+            wp.launch(cage_kernels.signed_distance, dim=shape,
+                      inputs=[body.id, corner, float(spacing), WINDING_ACCURACY, 1], outputs=[every])
+            even = wp.empty(shape, dtype=float)
+            cap = 2.0 * spacing
+            signed_distance_field(body, corner, spacing, cap, even, cpu)
+        even, every = even.numpy(), every.numpy()
+        np.testing.assert_array_equal(np.sign(even), np.sign(every))
+        near = np.abs(every) < cap
+        assert near.sum() > 100 and (~near).sum() > 10
+        np.testing.assert_array_equal(even[near], every[near])
+        assert (np.abs(even[~near]) >= np.float32(cap)).all()
+        for axis in range(3):
+            a, b = [slice(None)] * 3, [slice(None)] * 3
+            a[axis], b[axis] = slice(0, -1), slice(1, None)
+            changes = np.sign(every[tuple(a)]) != np.sign(every[tuple(b)])
+            np.testing.assert_array_equal(even[tuple(a)][changes], every[tuple(a)][changes])
+            np.testing.assert_array_equal(even[tuple(b)][changes], every[tuple(b)][changes])

@@ -266,8 +266,8 @@ def _made_at(surface, points, faces, stray, name, diag, fraction, handles, devic
                        indices=wp.array(faces.astype(np.int32).ravel(), dtype=wp.int32), support_winding_number=True)
         field_d = wp.empty(shape, dtype=float)
         corner = wp.vec3(*(origin - centre).astype(np.float32))
-        wp.launch(cage_kernels.signed_distance, dim=shape, inputs=[body.id, corner, float(spacing), WINDING_ACCURACY],
-                  outputs=[field_d])
+        # beyond the offset and two cells only the side matters: the level set and its neighbours lie within it
+        signed_distance_field(body, corner, spacing, distance + 2.0 * spacing, field_d, device)
         if len(stray):
             rel = wp.array((stray - centre).astype(np.float32), dtype=wp.vec3)
             stray_bvh = wp.Bvh(rel, rel)
@@ -314,6 +314,27 @@ def _made_at(surface, points, faces, stray, name, diag, fraction, handles, devic
     return MadeCage(cage=cage, handles=handles, chosen=chosen, offset=distance, margin=margin, grid=shape,
                     distance=(float(gap.mean() / diag), float(gap.max() / diag)), seconds=seconds,
                     notes=notes + list(cage.notes))
+
+
+def signed_distance_field(body: wp.Mesh, corner: wp.vec3, spacing: float, cap: float, field: wp.array,
+                          device) -> None:
+    """``field`` (a 3D array) = the signed distance to ``body`` at the nodes ``corner + spacing (i, j, k)``, negative
+    inside (winding number > 1/2), exact where it is within ``cap`` (at least two spacings) of the mesh or beside a
+    node of the other side, and of the right sign elsewhere. On a CPU winding numbers only at the nodes of even coordinates and where the mesh passes
+    near (``kernels.cage.signed_distance_between_even_nodes``); a GPU takes every node's."""
+    shape = field.shape
+    if device.is_cuda:
+        wp.launch(cage_kernels.signed_distance, dim=shape, inputs=[body.id, corner, float(spacing), WINDING_ACCURACY, 1],
+                  outputs=[field], device=device)
+        return
+    even = tuple((s + 1) // 2 for s in shape)
+    wp.launch(cage_kernels.signed_distance, dim=even, inputs=[body.id, corner, float(spacing), WINDING_ACCURACY, 2],
+              outputs=[field], device=device)
+    cap = float(max(cap, 2.0 * spacing))
+    wp.launch(cage_kernels.signed_distance_between_even_nodes, dim=shape,
+              inputs=[body.id, corner, float(spacing), WINDING_ACCURACY, cap], outputs=[field], device=device)
+    wp.launch(cage_kernels.uncap_at_side_changes, dim=shape,
+              inputs=[body.id, corner, float(spacing), float(np.float32(cap))], outputs=[field], device=device)
 
 
 def _check_start(v, f, points, margin, name, device) -> None:
