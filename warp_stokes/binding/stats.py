@@ -21,7 +21,9 @@ __all__ = ["identity_errors", "grid_stats", "solver_stats", "mvc_stats", "settin
 
 def identity_errors(weights: np.ndarray, handles: np.ndarray, points: np.ndarray, rows: int = 1 << 16):
     """The largest deviation from partition of unity, max |sum_l w_l - 1|, and from linear precision,
-    max |sum_l w_l c_l - p| relative to the handles' bounding-box diagonal, in float64 sums over blocks of
+    max |sum_l w_l (c_l - o) - (p - o)| relative to the handles' bounding-box diagonal, o its centre (as the solver
+    measures it: weights do not change when cage and mesh move together, and in world coordinates far from the origin
+    the float32 weights' rounding times the coordinates would read as an error), in float64 sums over blocks of
     ``rows`` vertices (a float64 copy of all weights would double a large mesh's peak memory).
 
     Examples
@@ -32,12 +34,15 @@ def identity_errors(weights: np.ndarray, handles: np.ndarray, points: np.ndarray
     """
     handles = np.asarray(handles, dtype=np.float64)
     diag = bounding_diagonal(handles)
+    centre = 0.5 * (handles.min(axis=0) + handles.max(axis=0))
+    handles = handles - centre
     pu = lp = 0.0
     for start in range(0, len(weights), rows):
         w = weights[start : start + rows].astype(np.float64)
         if len(w):
             pu = max(pu, float(np.abs(w.sum(axis=1) - 1.0).max()))
-            lp = max(lp, float(np.linalg.norm(w @ handles - points[start : start + rows], axis=1).max()) / diag)
+            lp = max(lp, float(np.linalg.norm(w @ handles - (points[start : start + rows] - centre),
+                                              axis=1).max()) / diag)
     return pu, lp
 
 
