@@ -234,3 +234,18 @@ def test_a_mesh_and_cage_the_other_way_round_get_a_hint(tmp_path):
     proc = warp_stokes("bind", MESH, MESH, "-o", str(tmp_path / "b.npz"), "--device", "cpu")
     assert proc.returncode == 2 and "other way round" not in one_error_line(proc)
     assert not (tmp_path / "b.npz").exists()
+
+
+def test_a_mesh_given_as_its_own_cage_is_refused_saying_so(tmp_path):
+    # its vertices lie on the cage: not "outside, in other units" (what the message said), and nothing to solve
+    import trimesh
+
+    ball = tmp_path / "ball.obj"
+    trimesh.creation.icosphere(2).export(ball)
+    proc = warp_stokes("bind", str(ball), str(ball), "-o", str(tmp_path / "b.npz"), "--resolution", "16", "--device",
+                       "cpu")
+    assert proc.returncode == 2
+    assert one_error_line(proc) == (
+        f"warp-stokes: error: {ball}: 162 of 162 vertices (100%) lie on {ball} itself; a cage must enclose the mesh "
+        "with room around it (is the cage the mesh itself? `warp-stokes cage MESH -o CAGE.obj` makes one)")
+    assert sorted(os.listdir(tmp_path)) == ["ball.obj"]

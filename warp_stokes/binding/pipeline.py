@@ -361,10 +361,21 @@ def _refuse_inexact(checked: Cage, surface, pu_error: float, lp_error: float, re
             "cage")
 
 
+#: a vertex this close to the cage (a fraction of its diagonal: float32 rounding of the distance, many times over) is
+#: on it
+ON_THE_CAGE = 1e-5
+
+
 def _refuse_mesh_outside(surface, checked: Cage, inside: np.ndarray, distance: np.ndarray) -> None:
     """A mesh mostly outside its cage is in other units or another place (a transform not applied): refused
     before the solve, instead of weights that extrapolate far beyond [0, 1]."""
     outside = int((~inside).sum())
+    on = int((~inside & (distance <= ON_THE_CAGE * checked.diagonal)).sum())
+    if outside > 0.5 * len(inside) and on > 0.5 * outside:  # not elsewhere: on the cage (the mesh as its own cage)
+        raise MeshError(
+            f"{surface.name}: {on} of {len(inside)} vertices ({100 * on / len(inside):.0f}%) lie on {checked.name} "
+            "itself; a cage must enclose the mesh with room around it (is the cage the mesh itself? `warp-stokes "
+            "cage MESH -o CAGE.obj` makes one)")
     if outside > 0.5 * len(inside):
         raise MeshError(
             f"{surface.name}: {outside} of {len(inside)} vertices ({100 * outside / len(inside):.0f}%) lie outside "
