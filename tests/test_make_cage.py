@@ -461,3 +461,19 @@ def test_the_cpus_field_by_even_nodes_is_every_nodes_field(mesh):
             changes = np.sign(every[tuple(a)]) != np.sign(every[tuple(b)])
             np.testing.assert_array_equal(even[tuple(a)][changes], every[tuple(a)][changes])
             np.testing.assert_array_equal(even[tuple(b)][changes], every[tuple(b)][changes])
+
+
+def test_a_mesh_of_few_vertices_gets_no_more_handles_than_it_has(tmp_path):
+    # a tetrahedron's rounded offset surface asked for 97 handles; the count is capped by the mesh's vertices
+    # (at least 8), through the command line as a user meets it
+    mesh = tmp_path / "tetra.obj"
+    mesh.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")
+    out = tmp_path / "made.obj"
+    proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "cage", str(mesh), "-o", str(out), "--device",
+                           "cpu"], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    assert "cage of 8 handles (chosen from the mesh's shape: 8)" in proc.stdout
+    read = trimesh.load(out, process=False)
+    inside, _ = ws.classify_points(check_cage((read.vertices, read.faces)), np.array(
+        [[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]]), device="cpu")
+    assert len(read.vertices) == 8 and inside.all()

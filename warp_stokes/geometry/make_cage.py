@@ -159,8 +159,9 @@ def make_cage(mesh, handles: int | None = None, offset: float | None = None, dev
         space). Open, self-intersecting and many-piece meshes are fine, and vertices on no face are enclosed too;
         it needs faces (not a point set).
     handles : int, optional
-        The cage's vertex count (at least 8). Default: chosen from the shape (:func:`default_handles`). Where no
-        further collapse keeps the cage valid it stops above the count, with a note.
+        The cage's vertex count (at least 8). Default: chosen from the shape (:func:`default_handles`), at most
+        the mesh's vertex count (and at least 8). Where no further collapse keeps the cage valid it stops above the
+        count, with a note.
     offset : float, optional
         How far the cage starts from the mesh, as a fraction of its bounding diagonal. Larger offsets leave the
         simplification more room (fewer handles possible, smoother cages); smaller ones fit tighter. Default:
@@ -288,7 +289,8 @@ def _made_at(surface, points, faces, stray, name, diag, fraction, handles, devic
         raise MeshError(f"{name}: no surface at the offset around the mesh")
     seconds["surface"] = time.perf_counter() - t
     if handles is None:
-        handles = default_handles(_area(v, f), signed_volume(v, f))
+        # never more handles than the mesh has vertices (a tetrahedron's rounded offset surface asked for 97)
+        handles = min(default_handles(_area(v, f), signed_volume(v, f)), max(8, len(points)))
         chosen = True
     else:
         handles, chosen = int(handles), False
