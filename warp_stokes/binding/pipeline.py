@@ -41,6 +41,9 @@ METHODS = {"stokes": "biharmonic", "harmonic": "laplace", "mvc": None}
 MVC_ROWS = 1 << 16
 #: resolution "auto" goes no coarser than this to fit the memory budget (the budget's error is raised instead)
 AUTO_MEMORY_FLOOR = 16
+#: a vertex this close to the cage (a fraction of its diagonal: float32 rounding of the distance, many times over) is
+#: on it
+ON_THE_CAGE = 1e-5
 
 
 def _suggest_resolution(resolution: int, spacing: float, distances: np.ndarray) -> int:
@@ -359,11 +362,6 @@ def _refuse_inexact(checked: Cage, surface, pu_error: float, lp_error: float, re
             f"precision ({lp_error:.2g} of the diagonal) beyond {limit:.1g} although every solve converged "
             f"({len(reports)} chunk(s)); no weights were returned: a fault of the solver; please report it with the "
             "cage")
-
-
-#: a vertex this close to the cage (a fraction of its diagonal: float32 rounding of the distance, many times over) is
-#: on it
-ON_THE_CAGE = 1e-5
 
 
 def _refuse_mesh_outside(surface, checked: Cage, inside: np.ndarray, distance: np.ndarray) -> None:
