@@ -216,9 +216,18 @@ def make_cage(mesh, handles: int | None = None, offset: float | None = None, dev
     # the default offset is raised where the cage cannot reach the handles asked: a cage of about the count asked
     # matters more to the user than one that hugs the mesh (an offset given is kept, with a note if it stops short)
     fractions = [offset] if offset is not None else [DEFAULT_OFFSET * factor for factor in OFFSET_STEPS]
-    seconds, tries = {}, []
+    centre = 0.5 * (points.min(axis=0) + points.max(axis=0))
+    t = time.perf_counter()
+    with wp.ScopedDevice(device):  # the mesh's BVH and its stray vertices', built once for every offset tried
+        body = wp.Mesh(points=wp.array((surface.vertices - centre).astype(np.float32), dtype=wp.vec3),
+                       indices=wp.array(faces.astype(np.int32).ravel(), dtype=wp.int32), support_winding_number=True)
+        strays = None
+        if len(stray):
+            rel = wp.array((stray - centre).astype(np.float32), dtype=wp.vec3)
+            strays = (rel, wp.Bvh(rel, rel))
+    seconds, tries = {"field": time.perf_counter() - t}, []
     for fraction in fractions:
-        made = _made_at(surface, points, faces, stray, name, diag, fraction, handles, device)
+        made = _made_at(body, strays, centre, points, name, diag, fraction, handles, device)
         handles = made.handles  # the count chosen from the first offset surface holds for the larger offsets
         for stage, spent in made.seconds.items():
             seconds[stage] = seconds.get(stage, 0.0) + spent
@@ -246,8 +255,9 @@ def _about(handles: int) -> int:
     return handles + max(1, int(0.05 * handles))
 
 
-def _made_at(surface, points, faces, stray, name, diag, fraction, handles, device) -> MadeCage:
-    """The cage made at an offset of ``fraction`` of the diagonal (see :func:`make_cage`)."""
+def _made_at(body: wp.Mesh, strays, centre, points, name, diag, fraction, handles, device) -> MadeCage:
+    """The cage made at an offset of ``fraction`` of the diagonal (see :func:`make_cage`): ``body`` the mesh and
+    ``strays`` (positions, BVH) its vertices on no face, or None, both on ``device`` relative to ``centre``."""
     seconds, notes = {}, []
     distance = fraction * diag
     lo, hi = points.min(axis=0), points.max(axis=0)
@@ -260,19 +270,14 @@ def _made_at(surface, points, faces, stray, name, diag, fraction, handles, devic
     pad = distance + 2.0 * spacing
     origin = lo - pad
     shape = tuple(int(s) for s in np.ceil((hi - lo + 2.0 * pad) / spacing).astype(int) + 1)
-    centre = 0.5 * (lo + hi)
     t = time.perf_counter()
     with wp.ScopedDevice(device):
-        body = wp.Mesh(points=wp.array((surface.vertices - centre).astype(np.float32), dtype=wp.vec3),
-                       indices=wp.array(faces.astype(np.int32).ravel(), dtype=wp.int32), support_winding_number=True)
         field_d = wp.empty(shape, dtype=float)
         corner = wp.vec3(*(origin - centre).astype(np.float32))
         # beyond the offset and two cells only the side matters: the level set and its neighbours lie within it
         signed_distance_field(body, corner, spacing, distance + 2.0 * spacing, field_d, device)
-        if len(stray):
-            rel = wp.array((stray - centre).astype(np.float32), dtype=wp.vec3)
-            stray_bvh = wp.Bvh(rel, rel)
-            # beyond the offset and a cell the distance is not needed: the level set lies within it
+        if strays is not None:
+            rel, stray_bvh = strays
             wp.launch(cage_kernels.distance_to_points, dim=shape,
                       inputs=[stray_bvh.id, rel, corner, float(spacing), float(distance + 2.0 * spacing)],
                       outputs=[field_d])
