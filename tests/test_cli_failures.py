@@ -125,7 +125,9 @@ def test_ctrl_c_exits_130_and_leaves_no_file(tmp_path):
     # inside the solve however fast the machine (a fixed sleep let a faster bind finish first). The child handles
     # SIGINT as a command started from a terminal does, even where the suite runs with SIGINT ignored.
     leader, follower = pty.openpty()
-    proc = subprocess.Popen(command + ["bind", MESH, CAGE, "-o", str(out), "--resolution", "128", "--device", "cpu"],
+    # two threads whatever the machine's cores: two chunks, each drawing at most one more iteration once signalled
+    proc = subprocess.Popen(command + ["bind", MESH, CAGE, "-o", str(out), "--resolution", "128", "--device", "cpu",
+                                       "--threads", "2"],
                             stdout=subprocess.PIPE, stderr=follower, text=True,
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     os.close(follower)
