@@ -108,3 +108,29 @@ def test_fast_and_general_obj_paths_agree(tmp_path, monkeypatch):
     mixed = tmp_path / "mixed.obj"
     mixed.write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1/1/1 2/2/2 3/3/3\nf 1 3 4 2\n")
     assert ws.load_surface(mixed).faces.tolist() == [[0, 1, 2], [0, 2, 3], [0, 3, 1]]
+
+
+def test_general_obj_path_reads_polygons_corners_normals_and_uvs(tmp_path):
+    # everything the fast path leaves to the general one, in one file: a triangle, a quad and a pentagon; v, v/vt,
+    # v//vn and v/vt/vn corners; negative indices (relative to the vertices read so far); vertex colours; tabs and
+    # CRLF line ends; comments, groups and smoothing records between
+    text = ("# a polygon soup\r\nv 0 0 0 1 0 0\r\nv 1 0 0\r\nv 1 1 0\r\nv\t0 1 0\r\n"
+            "vt 0 0\r\nvt 1 0\r\nvt 1 1\r\nvt 0 1\r\nvn 0 0 1\r\nvn 0 0 -1\r\n"
+            "g front\r\ns 1\r\nf 1/1/1 2/2/1 3/3/1\r\nf -4/1/1 -2/3/1 -1/4/1 -3/2/1\r\n"
+            "v 2 0 0\r\nf 2/2/1 5/1/2 3/3/1 4/4/1 1/1/1\r\n")
+    path = tmp_path / "soup.obj"
+    path.write_bytes(text.encode())
+    surface = ws.load_surface(path)
+    np.testing.assert_array_equal(surface.vertices, [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [2, 0, 0]])
+    assert surface.face_counts.tolist() == [3, 4, 5]
+    assert surface.face_indices.tolist() == [0, 1, 2, 0, 2, 3, 1, 1, 4, 2, 3, 0]
+    assert surface.faces.tolist() == [[0, 1, 2], [0, 2, 3], [0, 3, 1], [1, 4, 2], [1, 2, 3], [1, 3, 0]]
+    # per-vertex normals: the sum of the vertex's corner normals, normalised (vertex 4 only in the last face)
+    np.testing.assert_allclose(surface.normals, [[0, 0, 1]] * 4 + [[0, 0, -1]])
+    st, st_indices = surface.uvs
+    np.testing.assert_array_equal(st, [[0, 0], [1, 0], [1, 1], [0, 1]])
+    assert st_indices.tolist() == [0, 1, 2, 0, 2, 3, 1, 1, 0, 2, 3, 0]
+    # a corner without texture coordinates drops them all, with a warning naming the file
+    path.write_bytes(text.replace("f 1/1/1 2/2/1 3/3/1", "f 1//1 2//1 3//1").encode())
+    with pytest.warns(UserWarning, match="soup.obj: the texture coordinates"):
+        assert ws.load_surface(path).uvs is None

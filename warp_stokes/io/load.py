@@ -158,6 +158,21 @@ def _from_arrays(vertices, faces, name: str) -> Surface:
                    face_indices=indices)
 
 
+def _from_polygons(vertices, counts: np.ndarray, corners: np.ndarray, name: str) -> Surface:
+    """A surface from polygons of different sizes given as corner counts and flat corner indices (0-based)."""
+    points = _from_arrays(vertices, None, name).vertices
+    if (counts < 3).any():
+        bad = int(np.flatnonzero(counts < 3)[0])
+        raise MeshError(f"{name}: face {bad} has {counts[bad]} vertices; a face needs at least 3")
+    triangles, polygon = fan_triangles(counts, corners)
+    if triangles.size and (triangles.min() < 0 or triangles.max() >= len(points)):
+        bad = int(np.flatnonzero((triangles < 0).any(axis=1) | (triangles >= len(points)).any(axis=1))[0])
+        raise MeshError(f"{name}: face {bad} refers to vertex {triangles[bad].tolist()}, but there are only "
+                        f"{len(points)} vertices")
+    return Surface(vertices=points, faces=np.ascontiguousarray(triangles), name=name, face_counts=counts,
+                   face_indices=corners)
+
+
 def with_vertex_uvs(surface: Surface, mesh) -> Surface:
     """``surface`` with the per-vertex UVs of a trimesh mesh (glTF, PLY), as face-varying indexed coordinates."""
     uv = getattr(getattr(mesh, "visual", None), "uv", None)
@@ -217,7 +232,8 @@ def load_surface(source, name: str | None = None) -> Surface:
             verts, polys, normals, uvs = read_obj(path)
             if len(verts) == 0:
                 raise MeshError(f"{path}: the file has no vertices")
-            surface = _from_arrays(verts, polys, name)
+            surface = _from_arrays(verts, polys, name) if not isinstance(polys, tuple) else \
+                _from_polygons(verts, *polys, name)
             return Surface(surface.vertices, surface.faces, surface.name, normals, surface.face_counts,
                            surface.face_indices, uvs)
         import trimesh  # here only: importing it takes half a second, and OBJ files do not need it
