@@ -5,6 +5,7 @@ half and twice it: time, validity, enclosure, tightness, and how well the cage e
     python benchmarks/bench_cage.py --device cuda --pairs ogre --scales 1 --json cage.json
     python benchmarks/bench_cage.py --device cpu --pairs "" --synthetic 0,1    # the synthetic shapes only
     python benchmarks/bench_cage.py --device cpu --pairs "" --meshes models/*.obj --mesh-handles 30
+    python benchmarks/bench_cage.py --device cpu --scales 1 --offsets 0.019,0.0195,0.02,0.0205,0.021
 
 Per pair and scale (handles asked = scale x the artist's count):
 
@@ -19,6 +20,10 @@ Per pair and scale (handles asked = scale x the artist's count):
   cage (least squares, every frame): RMS and max error over the mesh's diagonal (the source paper's Table 1 measure),
   beside the artist's own cage; the binding's partition of unity and linear precision; the model reduction
   1 - handles / vertices. Both bindings at ``--resolution`` (default 64), Stokes, the package's defaults.
+
+``--offsets F,F,...``: each pair's cages made at each of these offsets (fractions of the diagonal) instead of the
+default, and a summary per pair and scale: the mean and range of RMS and max over the offsets. Small changes of the
+offset change the cage's handles a little and its expression by more than that (a single offset's figure is one draw).
 
 ``--meshes FILES``: also meshes that have no artist's cage (any file ``bind`` reads), each made into a cage at
 ``--mesh-handles`` (default: chosen from its shape) and bound at ``--resolution``: handles asked and made, the offset
@@ -85,7 +90,7 @@ def expression(binding, targets: np.ndarray, diag: float) -> tuple[float, float]
     return float(np.sqrt(np.mean(e ** 2))), float(e.max())
 
 
-def measure(name: str, scales, device, resolution: int) -> list[dict]:
+def measure(name: str, scales, device, resolution: int, offsets=(None,)) -> list[dict]:
     from warp_stokes.geometry.cage import crossing_faces
     from warp_stokes.geometry.topology import bounding_diagonal
 
@@ -103,25 +108,37 @@ def measure(name: str, scales, device, resolution: int) -> list[dict]:
                  pu=reference.stats["partition_of_unity_error"], lp=reference.stats["linear_precision_error"],
                  reduction=1 - artist.n_handles / len(mesh.vertices), moved=float(
                      np.linalg.norm(targets - mesh.vertices, axis=2).max() / diag))]
-    for scale in scales:
+    for scale, offset in [(scale, offset) for scale in scales for offset in offsets]:
         asked = int(round(scale * artist.n_handles))
         t = time.perf_counter()
-        made = ws.make_cage(mesh_path, handles=asked, device=device)
+        made = ws.make_cage(mesh_path, handles=asked, offset=offset, device=device)
         seconds = time.perf_counter() - t
         cage = made.cage
         inside, _ = ws.classify_points(cage, mesh.vertices, device=device)
         _, cage_volume = volumes(mesh, cage, device)
         binding = ws.bind(mesh_path, cage, resolution=resolution, device=device)
         rms, worst = expression(binding, targets, diag)
-        rows.append(dict(pair=name, cage=f"made x{scale:g}", asked=asked, handles=cage.n_handles, seconds=seconds,
+        label = f"made x{scale:g}" + ("" if offset is None else f" at {100 * offset:g} %")
+        rows.append(dict(pair=name, cage=label, scale=scale, offset=offset, asked=asked, handles=cage.n_handles, seconds=seconds,
                          stages={k: round(v, 3) for k, v in made.seconds.items()}, inside=float(inside.mean()),
                          crossing=int(len(crossing_faces(cage.vertices, cage.faces))),
                          mean_distance=made.distance[0], max_distance=made.distance[1],
                          volume_between=(cage_volume - mesh_volume) / mesh_volume, rms=rms, max=worst,
                          pu=binding.stats["partition_of_unity_error"], lp=binding.stats["linear_precision_error"],
                          reduction=1 - cage.n_handles / len(mesh.vertices), notes=made.notes))
-        print(f"{name} x{scale:g}: {made.summary()}", file=sys.stderr, flush=True)
+        print(f"{name} {label}: {made.summary()}", file=sys.stderr, flush=True)
     return rows
+
+
+def spread(rows: list[dict]) -> list[list]:
+    """A row per pair and scale: the mean and range of the made cages' RMS and max errors over the offsets, in %."""
+    out = []
+    for key in dict.fromkeys((r["pair"], r["scale"]) for r in rows if "scale" in r):
+        group = [r for r in rows if (r["pair"], r.get("scale")) == key]
+        rms, worst = 100 * np.array([r["rms"] for r in group]), 100 * np.array([r["max"] for r in group])
+        out.append([key[0], f"made x{key[1]:g}", len(group), f"{rms.mean():.3f}", f"{rms.min():.3f}-{rms.max():.3f}",
+                    f"{worst.mean():.2f}", f"{worst.min():.2f}-{worst.max():.2f}"])
+    return out
 
 
 def meshes(paths, handles, device, resolution: int) -> list[dict]:
@@ -178,6 +195,10 @@ def main(argv=None) -> int:
     parser.add_argument("--meshes", nargs="*", default=[], help="mesh files without an artist's cage")
     parser.add_argument("--mesh-handles", type=int, default=None,
                         help="the handles asked for the --meshes (default: chosen from each one's shape)")
+    parser.add_argument("--offsets", default=None,
+                        help="offsets (fractions of the diagonal) to make each pair's cages at, e.g. "
+                             "0.019,0.0195,0.02,0.0205,0.021: how much the expression moves with small changes of the "
+                             "cage, with a summary per pair and scale (default: the default offset only)")
     parser.add_argument("--json", default=None)
     args = parser.parse_args(argv)
     device, device_label = select_device(args.device)
@@ -185,9 +206,10 @@ def main(argv=None) -> int:
     from warp_stokes.geometry.shapes import latitude_longitude_sphere
 
     ws.make_cage(latitude_longitude_sphere(12, 16), handles=60, device=device)  # compile the kernels
+    offsets = [float(x) for x in args.offsets.split(",")] if args.offsets else [None]
     rows = []
     for name in filter(None, args.pairs.split(",")):
-        rows += measure(name, [float(s) for s in args.scales.split(",")], device, args.resolution)
+        rows += measure(name, [float(s) for s in args.scales.split(",")], device, args.resolution, offsets)
 
     def pct(x):
         return "" if x is None else f"{100 * x:.2f}"
@@ -202,6 +224,9 @@ def main(argv=None) -> int:
               f"{r['inside']:.4f}", r["crossing"], pct(r["mean_distance"]), pct(r["max_distance"]),
               f"{100 * r['volume_between']:.0f}", f"{100 * r['rms']:.3f}", f"{100 * r['max']:.2f}", f"{r['pu']:.1e}",
               f"{r['lp']:.1e}", f"{100 * r['reduction']:.1f}%"] for r in rows]))
+    if len(offsets) > 1 and rows:
+        print(markdown_table(["pair", "cage", "offsets", "RMS mean", "RMS min-max", "max mean", "max min-max"],
+                             spread(rows)))
     shapes = synthetic([int(x) for x in filter(None, args.synthetic.split(","))], args.synthetic_handles, device)
     if shapes:
         print(markdown_table(
