@@ -114,11 +114,11 @@ def test_default_handles_said_and_stopping_short_noted():
     assert made.chosen and made.cage.n_handles == made.handles
     assert abs(made.handles - default_handles(4 * np.pi, 4 / 3 * np.pi)) <= 2
     assert f"chosen from the mesh's shape: {made.handles}" in made.summary()
-    few = make_cage((v, f), handles=8, device="cpu")  # a ball stops at 43 at the default offset, 15 at 4 times it
+    few = make_cage((v, f), handles=8, device="cpu")  # a ball stops at 43 at the default offset, 9 at 8 times it
     assert_valid(few, v)
     assert few.cage.n_handles > 8 and any(f"stopped at {few.cage.n_handles} handles (asked 8)" in note
                                           for note in few.notes)
-    assert few.notes[0].endswith("it was made at 0.08 instead, which leaves the collapses more room")
+    assert few.notes[0].endswith("it was made at 0.16 instead, which leaves the collapses more room")
 
 
 def test_the_default_offset_is_raised_to_reach_the_handles_but_one_given_is_kept(tmp_path):

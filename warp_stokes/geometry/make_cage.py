@@ -36,8 +36,9 @@ __all__ = ["make_cage", "MadeCage", "default_handles", "made_cage_record", "DEFA
 DEFAULT_OFFSET = 0.02
 #: the default offset's steps (times DEFAULT_OFFSET) where the handles asked are not reached: 14 public meshes nobody
 #: here had seen, asked for 30 handles, 11 stopped at 31-58 at 0.02; with the steps every one has 30 or 31
-#: (benchmarks/RESULTS.md, section 19)
-OFFSET_STEPS = (1.0, 2.0, 4.0)
+#: (benchmarks/RESULTS.md, section 19); asked for 8 they stopped at 9-16 with steps up to 0.08 (so coarse a cage needs
+#: room around limbs and ears), at 8-11 with 0.16; asked for 12, at 12-16 and at 12-13
+OFFSET_STEPS = (1.0, 2.0, 4.0, 8.0)
 #: every mesh vertex stays at least this fraction of the offset inside the cage
 #: (less room for the collapses made the pairs' cages express their artists' deformations worse: at 0.25 / 0.4 / 0.5,
 #: SMPL's RMS error 0.269 / 0.278 / 0.350 % and the arm's 0.104 / 0.107 / 0.112 %, against 0.239 % and 0.088 % at
@@ -165,8 +166,8 @@ def make_cage(mesh, handles: int | None = None, offset: float | None = None, dev
     offset : float, optional
         How far the cage starts from the mesh, as a fraction of its bounding diagonal. Larger offsets leave the
         simplification more room (fewer handles possible, smoother cages); smaller ones fit tighter. Default:
-        0.02, doubled (up to twice) where the cage would stop well above the handles asked, with a note; an offset
-        given is kept.
+        0.02, doubled (up to three times) where the cage would stop well above the handles asked, with a note; an
+        offset given is kept.
     device : None | str
         The Warp device of the voxel work and the final inside test (default: CUDA when present, else the CPU);
         the collapses are checked on the CPU.
