@@ -119,6 +119,11 @@ def test_default_handles_said_and_stopping_short_noted():
     assert few.cage.n_handles > 8 and any(f"stopped at {few.cage.n_handles} handles (asked 8)" in note
                                           for note in few.notes)
     assert few.notes[0].endswith("it was made at 0.16 instead, which leaves the collapses more room")
+    many = make_cage((v, f), handles=100_000, device="cpu")  # more than the offset surface has: it is the cage
+    assert_valid(many, v)
+    assert many.cage.n_handles < 100_000 and many.notes == [
+        f"<arrays>: {many.cage.n_handles} handles (asked 100000): the offset surface has no more vertices; a smaller "
+        "offset makes a finer one"]
 
 
 def test_the_default_offset_is_raised_to_reach_the_handles_but_one_given_is_kept(tmp_path):

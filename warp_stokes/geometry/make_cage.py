@@ -314,6 +314,9 @@ def _made_at(body: wp.Mesh, strays, centre, points, name, diag, fraction, handle
     seconds["check"] = time.perf_counter() - t
     if not inside.all():  # the collapses keep every vertex inside: this would be a bug, never a cage to return
         raise CageError(f"{name}: the made cage leaves {int((~inside).sum())} vertex(es) outside")
+    if cage.n_handles < handles:  # nothing to collapse: the surface is coarser than the count asked
+        notes.append(f"{name}: {cage.n_handles} handles (asked {handles}): the offset surface has no more vertices; "
+                     "a smaller offset makes a finer one")
     if cage.n_handles > handles:
         refused = ", ".join(f"{why} {count}" for why, count in sorted(simplified.refusals.items(), key=lambda x: -x[1]))
         notes.append(f"{name}: stopped at {cage.n_handles} handles (asked {handles}): no further collapse keeps the "
