@@ -251,3 +251,29 @@ def test_a_mesh_given_as_its_own_cage_is_refused_saying_so(tmp_path):
         f"warp-stokes: error: {ball}: 162 of 162 vertices (100%) lie on {ball} itself; a cage must enclose the mesh "
         "with room around it (is the cage the mesh itself? `warp-stokes cage MESH -o CAGE.obj` makes one)")
     assert sorted(os.listdir(tmp_path)) == ["ball.obj"]
+
+
+@pytest.mark.parametrize("scale", [1e-11, 1e20])
+def test_a_mesh_float32_cannot_resolve_is_refused_by_its_size(tmp_path, scale):
+    # a ball 3.5e-11 or 3.5e20 across: `cage` said "no surface at the offset" or crashed in marching cubes with a
+    # traceback (squared lengths overflow float32), `bind` that the mesh lay on its cage; now both name the size
+    import trimesh
+
+    ball = trimesh.creation.icosphere(2)
+    mesh, cage = tmp_path / "ball.obj", tmp_path / "cage.obj"
+    write_obj(mesh, ball.vertices * scale, ball.faces)
+    write_obj(cage, 1.3 * ball.vertices * scale, ball.faces)
+    diagonal = np.linalg.norm(np.ptp(ball.vertices * scale, axis=0))
+    message = (f"its bounding diagonal is {diagonal:.3g}, outside what the solver's float32 arithmetic resolves "
+               "(1e-08 to 1e+18 in any unit); scale it (to metres, say)")
+    for args in (("cage", str(mesh), "-o", str(tmp_path / "made.obj")),
+                 ("bind", str(mesh), str(cage), "-o", str(tmp_path / "b.npz"), "--resolution", "16")):
+        proc = warp_stokes(*args, "--device", "cpu")
+        assert proc.returncode == 2 and one_error_line(proc) == f"warp-stokes: error: {mesh}: {message}", args
+    assert sorted(os.listdir(tmp_path)) == ["ball.obj", "cage.obj"]
+    # just inside the range, the same ball is made a cage and bound as at any size
+    inside = (3e-8 if scale < 1 else 3e17) / np.linalg.norm(np.ptp(ball.vertices, axis=0))
+    made = ws.make_cage((ball.vertices * inside, ball.faces), handles=30, device="cpu")
+    binding = ws.bind((ball.vertices * inside, ball.faces), made.cage, resolution=16, device="cpu")
+    assert made.cage.n_handles == 30
+    assert binding.stats["partition_of_unity_error"] <= 1e-5 and binding.stats["linear_precision_error"] <= 1e-5

@@ -13,7 +13,12 @@ import numpy as np
 from ..errors import MeshError
 from .obj import read_obj
 
-__all__ = ["Surface", "load_surface", "fan_triangles", "polygons_by_part"]
+__all__ = ["Surface", "load_surface", "fan_triangles", "polygons_by_part", "EXTENTS"]
+
+#: the bounding diagonals the package's float32 kernels resolve, in any unit: a sphere binds and gets a cage at
+#: diagonals of 3.5e-10 to 3.5e19; at 3.5e-11 the distances and inside tests lose the mesh, at 3.5e20 squared lengths
+#: overflow (both ends kept about 30 times inside what was measured)
+EXTENTS = (1e-8, 1e18)
 
 
 @dataclass(frozen=True)
@@ -138,6 +143,10 @@ def _from_arrays(vertices, faces, name: str) -> Surface:
     if not np.all(np.isfinite(v)):
         bad = int(np.flatnonzero(~np.isfinite(v).all(axis=1))[0])
         raise MeshError(f"{name}: vertex {bad} has a non-finite coordinate {v[bad].tolist()}")
+    diagonal = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
+    if diagonal > 0 and not EXTENTS[0] <= diagonal <= EXTENTS[1]:  # one point (or none apart) is said elsewhere
+        raise MeshError(f"{name}: its bounding diagonal is {diagonal:.3g}, outside what the solver's float32 "
+                        f"arithmetic resolves ({EXTENTS[0]:g} to {EXTENTS[1]:g} in any unit); scale it (to metres, say)")
     counts = indices = None
     if faces is None:
         f = np.zeros((0, 3), dtype=np.int64)
