@@ -257,6 +257,8 @@ def test_cli_usd_asset_cage_as_a_prim_of_a_new_layer(tmp_path):
     (["--offset", "0"], "must be > 0"),
     (["-o", "{tmp}/cage.stl"], "unsupported cage format 'stl'"),
     (["mesh={tmp}/points.obj"], "has no faces"),
+    (["mesh={tmp}/lines.obj"], "lines.obj: every face has zero area (its vertices lie on lines); a cage is made around "
+                               "a surface"),
     (["mesh={tmp}/missing.obj"], "missing.obj: no such file"),
     (["-o", "{tmp}/cage.usda"], "a cage layer goes over a USD asset, and"),
     (["--cage-prim", "/Cage"], "--cage-prim names the cage's prim in a USD layer"),
@@ -266,6 +268,7 @@ def test_cli_usd_asset_cage_as_a_prim_of_a_new_layer(tmp_path):
 ])
 def test_cli_refuses_bad_input(tmp_path, args, message):
     (tmp_path / "points.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\n")
+    (tmp_path / "lines.obj").write_text("v 0 0 0\nv 1 0 0\nv 2 0 0\nv 0 1 0\nf 1 2 3\nf 1 4 4\n")  # no area
     mesh, output, rest = str(EXAMPLE / "arm.obj"), str(tmp_path / "cage.obj"), []
     for a in args:
         a = a.replace("{tmp}", str(tmp_path))
