@@ -412,17 +412,28 @@ def test_encode_a_sequence_without_a_cage(tmp_path):
     assert len(poses.positions) == len(frames) and np.sqrt(np.mean(error ** 2)) <= 0.003 and error.max() <= 0.02
 
 
-def test_bench_cage_measures_meshes_without_an_artists_cage():
-    # the harness for meshes nobody made a cage for (issue 33's "meshes you have not seen"), on the bundled arm
+def test_bench_cage_measures_meshes_without_an_artists_cage_and_the_spread_over_offsets():
+    # the harness for meshes nobody made a cage for (issue 33's "meshes you have not seen"), on the bundled arm; and
+    # --offsets: the pair's cages at each offset (labelled with it) and a summary row of their mean and range
     repo = EXAMPLE.parents[1]
     proc = subprocess.run([sys.executable, str(repo / "benchmarks" / "bench_cage.py"), "--device", "cpu", "--pairs",
-                           "", "--meshes", str(EXAMPLE / "arm.obj"), "--mesh-handles", "40", "--resolution", "16"],
-                          capture_output=True, text=True, timeout=600)
+                           "arm", "--scales", "0.5", "--offsets", "0.02,0.03", "--meshes", str(EXAMPLE / "arm.obj"),
+                           "--mesh-handles", "40", "--resolution", "16"], capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-2000:]
-    row = next(line for line in proc.stdout.splitlines() if line.startswith("| arm.obj |"))
+    lines = proc.stdout.splitlines()
+    row = next(line for line in lines if line.startswith("| arm.obj |"))
     cells = [c.strip() for c in row.strip("|").split("|")]
     assert cells[1:5] == ["2089", "40", "40", "2.00"]
     assert cells[6:8] == ["1.0000", "0"] and float(cells[10]) <= 1e-5 and float(cells[11]) <= 1e-5
+    rows = [[c.strip() for c in line.strip("|").split("|")] for line in lines if line.startswith("| arm | made x0.5 ")]
+    at = {row[1]: row for row in rows}
+    assert set(at) == {"made x0.5 at 2 %", "made x0.5 at 3 %", "made x0.5"}, at
+    rms = [float(at[f"made x0.5 at {k} %"][10]) for k in (2, 3)]
+    worst = [float(at[f"made x0.5 at {k} %"][11]) for k in (2, 3)]
+    summary = at["made x0.5"]
+    assert summary[2] == "2"
+    assert abs(float(summary[3]) - np.mean(rms)) <= 1e-3 and summary[4] == f"{min(rms):.3f}-{max(rms):.3f}"
+    assert abs(float(summary[5]) - np.mean(worst)) <= 1e-2 and summary[6] == f"{min(worst):.2f}-{max(worst):.2f}"
 
 
 @pytest.mark.parametrize("mesh", [
@@ -489,22 +500,3 @@ def test_a_mesh_of_few_vertices_gets_no_more_handles_than_it_has(tmp_path):
     inside, _ = ws.classify_points(check_cage((read.vertices, read.faces)), np.array(
         [[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]]), device="cpu")
     assert len(read.vertices) == 8 and inside.all()
-
-
-def test_bench_cage_offsets_give_a_row_each_and_their_spread():
-    # --offsets: the pair's cages at each offset (labelled with it) and a summary row of their mean and range
-    repo = EXAMPLE.parents[1]
-    proc = subprocess.run([sys.executable, str(repo / "benchmarks" / "bench_cage.py"), "--device", "cpu", "--pairs",
-                           "arm", "--scales", "0.5", "--offsets", "0.02,0.03", "--resolution", "16"],
-                          capture_output=True, text=True, timeout=600)
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    lines = proc.stdout.splitlines()
-    rows = [[c.strip() for c in line.strip("|").split("|")] for line in lines if line.startswith("| arm | made x0.5 ")]
-    at = {row[1]: row for row in rows}
-    assert set(at) == {"made x0.5 at 2 %", "made x0.5 at 3 %", "made x0.5"}, at
-    rms = [float(at[f"made x0.5 at {k} %"][10]) for k in (2, 3)]
-    worst = [float(at[f"made x0.5 at {k} %"][11]) for k in (2, 3)]
-    summary = at["made x0.5"]
-    assert summary[2] == "2"
-    assert abs(float(summary[3]) - np.mean(rms)) <= 1e-3 and summary[4] == f"{min(rms):.3f}-{max(rms):.3f}"
-    assert abs(float(summary[5]) - np.mean(worst)) <= 1e-2 and summary[6] == f"{min(worst):.2f}-{max(worst):.2f}"
