@@ -119,8 +119,9 @@ def measure(name: str, scales, device, resolution: int, offsets=(None,)) -> list
         binding = ws.bind(mesh_path, cage, resolution=resolution, device=device)
         rms, worst = expression(binding, targets, diag)
         label = f"made x{scale:g}" + ("" if offset is None else f" at {100 * offset:g} %")
-        rows.append(dict(pair=name, cage=label, scale=scale, offset=offset, asked=asked, handles=cage.n_handles, seconds=seconds,
-                         stages={k: round(v, 3) for k, v in made.seconds.items()}, inside=float(inside.mean()),
+        rows.append(dict(pair=name, cage=label, scale=scale, offset=offset, asked=asked, handles=cage.n_handles,
+                         seconds=seconds, stages={k: round(v, 3) for k, v in made.seconds.items()},
+                         inside=float(inside.mean()),
                          crossing=int(len(crossing_faces(cage.vertices, cage.faces))),
                          mean_distance=made.distance[0], max_distance=made.distance[1],
                          volume_between=(cage_volume - mesh_volume) / mesh_volume, rms=rms, max=worst,

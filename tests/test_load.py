@@ -134,3 +134,7 @@ def test_general_obj_path_reads_polygons_corners_normals_and_uvs(tmp_path):
     path.write_bytes(text.replace("f 1/1/1 2/2/1 3/3/1", "f 1//1 2//1 3//1").encode())
     with pytest.warns(UserWarning, match="soup.obj: the texture coordinates"):
         assert ws.load_surface(path).uvs is None
+    # a polygon that names a vertex the file does not have is named by its number among the faces
+    path.write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3\nf 1 3 4 9\n")
+    with pytest.raises(ws.MeshError, match=r"soup.obj: face 1 refers to vertex \[0, 2, 3, 8\], but there are only 4 "):
+        ws.load_surface(path)

@@ -213,10 +213,11 @@ def make_cage(mesh, handles: int | None = None, offset: float | None = None, dev
     diag = bounding_diagonal(points)
     if not diag > 0:
         raise MeshError(f"{name}: all vertices coincide")
-    areas = np.linalg.norm(np.cross(points[faces[:, 1]] - points[faces[:, 0]], points[faces[:, 2]] - points[faces[:, 0]]),
-                           axis=1)
+    corner = points[faces]
+    areas = np.linalg.norm(np.cross(corner[:, 1] - corner[:, 0], corner[:, 2] - corner[:, 0]), axis=1)
     if not (areas > 1e-12 * diag ** 2).any():  # a distance field needs a surface: lines have no inside or outside
-        raise MeshError(f"{name}: every face has zero area (its vertices lie on lines); a cage is made around a surface")
+        raise MeshError(f"{name}: every face has zero area (its vertices lie on lines); a cage is made around a "
+                        "surface")
     device = resolve_device(device)
     # the default offset is raised where the cage cannot reach the handles asked: a cage of about the count asked
     # matters more to the user than one that hugs the mesh (an offset given is kept, with a note if it stops short)

@@ -146,7 +146,8 @@ def _from_arrays(vertices, faces, name: str) -> Surface:
     diagonal = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
     if diagonal > 0 and not EXTENTS[0] <= diagonal <= EXTENTS[1]:  # one point (or none apart) is said elsewhere
         raise MeshError(f"{name}: its bounding diagonal is {diagonal:.3g}, outside what the solver's float32 "
-                        f"arithmetic resolves ({EXTENTS[0]:g} to {EXTENTS[1]:g} in any unit); scale it (to metres, say)")
+                        f"arithmetic resolves ({EXTENTS[0]:g} to {EXTENTS[1]:g} in any unit); "
+                        "scale it (to metres, say)")
     counts = indices = None
     if faces is None:
         f = np.zeros((0, 3), dtype=np.int64)
@@ -175,9 +176,10 @@ def _from_polygons(vertices, counts: np.ndarray, corners: np.ndarray, name: str)
         raise MeshError(f"{name}: face {bad} has {counts[bad]} vertices; a face needs at least 3")
     triangles, polygon = fan_triangles(counts, corners)
     if triangles.size and (triangles.min() < 0 or triangles.max() >= len(points)):
-        bad = int(np.flatnonzero((triangles < 0).any(axis=1) | (triangles >= len(points)).any(axis=1))[0])
-        raise MeshError(f"{name}: face {bad} refers to vertex {triangles[bad].tolist()}, but there are only "
-                        f"{len(points)} vertices")
+        bad = int(polygon[np.flatnonzero((triangles < 0).any(axis=1) | (triangles >= len(points)).any(axis=1))[0]])
+        start = int(counts[:bad].sum())
+        raise MeshError(f"{name}: face {bad} refers to vertex {corners[start:start + counts[bad]].tolist()}, but "
+                        f"there are only {len(points)} vertices")
     return Surface(vertices=points, faces=np.ascontiguousarray(triangles), name=name, face_counts=counts,
                    face_indices=corners)
 
