@@ -134,7 +134,28 @@ def test_general_obj_path_reads_polygons_corners_normals_and_uvs(tmp_path):
     path.write_bytes(text.replace("f 1/1/1 2/2/1 3/3/1", "f 1//1 2//1 3//1").encode())
     with pytest.warns(UserWarning, match="soup.obj: the texture coordinates"):
         assert ws.load_surface(path).uvs is None
-    # a polygon that names a vertex the file does not have is named by its number among the faces
-    path.write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3\nf 1 3 4 9\n")
-    with pytest.raises(ws.MeshError, match=r"soup.obj: face 1 refers to vertex \[0, 2, 3, 8\], but there are only 4 "):
-        ws.load_surface(path)
+    # a polygon that names a vertex the file does not have is named by its number among the faces (not its fan
+    # triangles'), with sizes mixed or not
+    for faces in ("f 1 2 3\nf 1 3 4 9\n", "f 1 2 3 4\nf 1 3 4 9\n"):
+        path.write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n" + faces)
+        with pytest.raises(ws.MeshError, match=r"soup.obj: face 1 refers to vertex 8, but there are only 4 vertices"):
+            ws.load_surface(path)
+
+
+@pytest.mark.parametrize("text, faces, uvs", [
+    # a byte-order mark is not part of the first record
+    ("\ufeffv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\n", [[0, 1, 2], [0, 2, 3]], False),
+    # form feeds and Unicode line breaks end lines, as Python's splitlines has them
+    ("v 0 0 0\nv 1 0 0\nv 1 1 0\x0cv 0 1 0\nf 1 2 3 4\u2028f 1 2 4\n", [[0, 1, 2], [0, 2, 3], [0, 1, 3]], False),
+    # a slash after a corner's last field leaves its texture coordinates as they are
+    ("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvt 1 1\nvn 0 0 1\nf 1/1/1/ 2/2/1/ 3/1/1/ 4/2/1/\n",
+     [[0, 1, 2], [0, 2, 3]], True),
+])
+def test_general_obj_path_reads_what_exporters_write(tmp_path, text, faces, uvs):
+    path = tmp_path / "odd.obj"
+    path.write_bytes(text.encode())
+    surface = ws.load_surface(path)
+    assert surface.faces.tolist() == faces and len(surface.vertices) == 4
+    assert (surface.uvs is not None) == uvs
+    if uvs:
+        assert surface.uvs[1].tolist() == [0, 1, 0, 1]

@@ -112,6 +112,7 @@ def _triangulate(polygons, name: str, n_vertices: int) -> np.ndarray:
             if not np.all(np.isfinite(rows)) or np.any(rows != np.round(rows)):
                 raise MeshError(f"{name}: face indices must be integers")
             rows = rows.astype(np.int64)
+        _check_corners(np.full(len(rows), rows.shape[1]), rows.ravel(), n_vertices, name)
         tris = [np.stack([rows[:, 0], rows[:, k], rows[:, k + 1]], axis=1) for k in range(1, rows.shape[1] - 1)]
         # interleave so that each polygon's triangles stay together
         out = np.stack(tris, axis=1).reshape(-1, 3)
@@ -121,14 +122,21 @@ def _triangulate(polygons, name: str, n_vertices: int) -> np.ndarray:
             if poly.ndim != 1 or len(poly) < 3:
                 raise MeshError(f"{name}: face {i} has {poly.size} vertices; a face needs at least 3")
         counts = np.array([len(p) for p in polys], dtype=np.int64)
-        out, _ = fan_triangles(counts, np.concatenate(polys) if polys else np.zeros(0, dtype=np.int64))
-    out = out.astype(np.int64)
-    if out.size and (out.min() < 0 or out.max() >= n_vertices):
-        bad = int(np.flatnonzero((out < 0).any(axis=1) | (out >= n_vertices).any(axis=1))[0])
-        raise MeshError(
-            f"{name}: face {bad} refers to vertex {out[bad].tolist()}, but there are only {n_vertices} vertices"
-        )
-    return out
+        corners = np.concatenate(polys).astype(np.int64) if polys else np.zeros(0, dtype=np.int64)
+        _check_corners(counts, corners, n_vertices, name)
+        out, _ = fan_triangles(counts, corners)
+    return out.astype(np.int64)
+
+
+def _check_corners(counts: np.ndarray, corners: np.ndarray, n_vertices: int, name: str) -> None:
+    """A one-line error for the first polygon that names a vertex the mesh does not have, by its number among the
+    faces (as the file counts them, not the fan triangles')."""
+    outside = (corners < 0) | (corners >= n_vertices)
+    if outside.any():
+        corner = int(np.flatnonzero(outside)[0])
+        face = int(np.searchsorted(np.cumsum(counts), corner, side="right"))
+        raise MeshError(f"{name}: face {face} refers to vertex {int(corners[corner])}, but there are only "
+                        f"{n_vertices} vertices")
 
 
 def _from_arrays(vertices, faces, name: str) -> Surface:
@@ -174,12 +182,8 @@ def _from_polygons(vertices, counts: np.ndarray, corners: np.ndarray, name: str)
     if (counts < 3).any():
         bad = int(np.flatnonzero(counts < 3)[0])
         raise MeshError(f"{name}: face {bad} has {counts[bad]} vertices; a face needs at least 3")
-    triangles, polygon = fan_triangles(counts, corners)
-    if triangles.size and (triangles.min() < 0 or triangles.max() >= len(points)):
-        bad = int(polygon[np.flatnonzero((triangles < 0).any(axis=1) | (triangles >= len(points)).any(axis=1))[0]])
-        start = int(counts[:bad].sum())
-        raise MeshError(f"{name}: face {bad} refers to vertex {corners[start:start + counts[bad]].tolist()}, but "
-                        f"there are only {len(points)} vertices")
+    _check_corners(counts, corners, len(points), name)
+    triangles, _ = fan_triangles(counts, corners)
     return Surface(vertices=points, faces=np.ascontiguousarray(triangles), name=name, face_counts=counts,
                    face_indices=corners)
 

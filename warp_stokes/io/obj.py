@@ -81,14 +81,15 @@ def read_obj(path: str) -> tuple[np.ndarray, np.ndarray | list, np.ndarray | Non
         An unreadable file, vertex or face, naming the line.
     """
     try:
-        with open(path, encoding="utf-8", errors="replace") as fh:
+        with open(path, encoding="utf-8-sig", errors="replace") as fh:  # -sig: a byte-order mark is no part of line 1
             text = fh.read()
     except OSError as exc:
         raise MeshError(f"{path}: cannot read it ({exc.strerror or exc})") from None
     fast = _read_obj_triangles(text)
     if fast is not None:
         return fast
-    text = "\n" + text.replace("\r\n", "\n").replace("\r", "\n").replace("\t", " ")
+    # lines end where Python's splitlines ends them (form feeds, vertical tabs and Unicode line breaks too)
+    text = "\n" + "\n".join(text.replace("\t", " ").splitlines())
     vertex_bodies = _bodies(text, "v")
     if not vertex_bodies:
         return np.zeros((0, 3)), [], None, None
@@ -150,7 +151,7 @@ def _obj_uvs(text: str, corners: str, n_corners: int) -> tuple | None:
     """Face-varying texture coordinates: the ``vt`` table and, per face corner, its ``v/vt[/vn]`` index (None
     unless every corner names one in range)."""
     bodies = _bodies(text, "vt")
-    refs = re.findall(r"[^\s/]+/([^\s/]*)", corners)
+    refs = re.findall(r"(?<!\S)[^\s/]+/([^\s/]*)", corners)  # a corner's second field (from its start)
     if not bodies or len(refs) != n_corners or n_corners == 0 or "" in refs:
         return None
     try:
@@ -185,7 +186,7 @@ def _obj_normals(text: str, corners: str, indices: np.ndarray, n_vertices: int) 
                 if len(record) != 3 or not all(_is_number(x) for x in record):
                     raise MeshError(f"line {line_no}: unreadable normal 'vn {' '.join(record)}'") from None
         raise
-    refs = re.findall(r"[^\s/]+/[^\s/]*/([^\s/]+)", corners)
+    refs = re.findall(r"(?<!\S)[^\s/]+/[^\s/]*/([^\s/]+)", corners)  # a corner's third field
     if len(refs) != len(indices) or len(indices) == 0:
         return None
     try:
