@@ -13,7 +13,7 @@ import numpy as np
 from ..errors import MeshError
 from .obj import read_obj
 
-__all__ = ["Surface", "load_surface", "fan_triangles", "polygons_by_part", "EXTENTS"]
+__all__ = ["Surface", "load_surface", "fan_triangles", "first_missing_vertex", "polygons_by_part", "EXTENTS"]
 
 #: the bounding diagonals the package's float32 kernels resolve, in any unit: a sphere binds and gets a cage at
 #: diagonals of 3.5e-10 to 3.5e19; at 3.5e-11 the distances and inside tests lose the mesh, at 3.5e20 squared lengths
@@ -128,15 +128,29 @@ def _triangulate(polygons, name: str, n_vertices: int) -> np.ndarray:
     return out.astype(np.int64)
 
 
-def _check_corners(counts: np.ndarray, corners: np.ndarray, n_vertices: int, name: str) -> None:
-    """A one-line error for the first polygon that names a vertex the mesh does not have, by its number among the
-    faces (as the file counts them, not the fan triangles')."""
+def first_missing_vertex(counts, corners, n_vertices: int) -> tuple[int, int] | None:
+    """The first polygon that names a vertex outside ``0 .. n_vertices - 1``, as (its number among the faces, as a
+    file counts them, not the fan triangles'; that vertex), or None.
+
+    Examples
+    --------
+    >>> first_missing_vertex([3, 4], [0, 1, 2, 0, 2, 3, 8], 4)
+    (1, 8)
+    """
+    corners = np.asarray(corners)
     outside = (corners < 0) | (corners >= n_vertices)
-    if outside.any():
-        corner = int(np.flatnonzero(outside)[0])
-        face = int(np.searchsorted(np.cumsum(counts), corner, side="right"))
-        raise MeshError(f"{name}: face {face} refers to vertex {int(corners[corner])}, but there are only "
-                        f"{n_vertices} vertices")
+    if not outside.any():
+        return None
+    corner = int(np.flatnonzero(outside)[0])
+    return int(np.searchsorted(np.cumsum(counts), corner, side="right")), int(corners[corner])
+
+
+def _check_corners(counts: np.ndarray, corners: np.ndarray, n_vertices: int, name: str) -> None:
+    """A one-line error for the first polygon that names a vertex the mesh does not have."""
+    missing = first_missing_vertex(counts, corners, n_vertices)
+    if missing is not None:
+        raise MeshError(f"{name}: face {missing[0]} refers to vertex {missing[1]}, but there are only {n_vertices} "
+                        "vertices")
 
 
 def _from_arrays(vertices, faces, name: str) -> Surface:

@@ -8,7 +8,7 @@ import warnings
 import numpy as np
 
 from ...errors import BindingError, CageError, MeshError, WarpStokesError
-from ..load import Surface, fan_triangles, load_surface
+from ..load import Surface, fan_triangles, first_missing_vertex, load_surface
 from ..scene import MeshPart, Scene
 
 __all__ = ["open_stage", "layer_files", "read_asset", "read_cage_prim", "rest_time_code", "mesh_prim",
@@ -120,11 +120,9 @@ def _surface(mesh, time, name: str, error) -> tuple[Surface, np.ndarray]:
     counts, indices = np.asarray(counts, dtype=np.int64), np.asarray(indices, dtype=np.int64)
     if counts.min() < 3 or counts.sum() != len(indices):
         raise error(f"{name}: {path} has inconsistent faceVertexCounts and faceVertexIndices")
-    outside = (indices < 0) | (indices >= len(points))
-    if outside.any():
-        corner = int(np.flatnonzero(outside)[0])
-        polygon = int(np.searchsorted(np.cumsum(counts), corner, side="right"))
-        raise error(f"{name}:{path}: face {polygon} refers to vertex {int(indices[corner])}, but there are only "
+    missing = first_missing_vertex(counts, indices, len(points))
+    if missing is not None:
+        raise error(f"{name}:{path}: face {missing[0]} refers to vertex {missing[1]}, but there are only "
                     f"{len(points)} points")
     matrix = world_matrix(mesh.GetPrim(), time)
     triangles, _ = fan_triangles(counts, indices)  # vectorised: a USD mesh may have a million polygons
