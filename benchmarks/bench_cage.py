@@ -6,8 +6,9 @@ half and twice it: time, validity, enclosure, tightness, and how well the cage e
     python benchmarks/bench_cage.py --device cpu --pairs "" --synthetic 0,1    # the synthetic shapes only
     python benchmarks/bench_cage.py --device cpu --pairs "" --meshes models/*.obj --mesh-handles 30
     python benchmarks/bench_cage.py --device cpu --scales 1 --offsets 0.019,0.0195,0.02,0.0205,0.021
+    python benchmarks/bench_cage.py --device cpu --pairs "" --artist Beast.obj Beast_Cage.obj Beast_Cage_Deformed.obj
 
-Per pair and scale (handles asked = scale x the artist's count):
+Per pair and scale (handles asked = scale x the artist's count, at least 8):
 
 - time: ``make_cage`` wall time after a warm-up on a small sphere (the kernels compiled), and its stages;
 - handles made; the package's cage checks (``check_cage``: closed, outward, manifold) and crossing face pairs (must
@@ -20,6 +21,11 @@ Per pair and scale (handles asked = scale x the artist's count):
   cage (least squares, every frame): RMS and max error over the mesh's diagonal (the source paper's Table 1 measure),
   beside the artist's own cage; the binding's partition of unity and linear precision; the model reduction
   1 - handles / vertices. Both bindings at ``--resolution`` (default 64), Stokes, the package's defaults.
+
+``--artist MESH CAGE POSES`` (repeatable): another pair with an artist's cage, measured as the pairs above; POSES is
+the artist's posed cage (a mesh file with the cage's vertices in the same order, faces ignored) or a ``.npy`` of
+frames (F, L, 3). The artist's row gives the fraction of the mesh's vertices its cage encloses (artists' cages do not
+always hold them all).
 
 ``--offsets F,F,...``: each pair's cages made at each of these offsets (fractions of the diagonal) instead of the
 default, and a summary per pair and scale: the mean and range of RMS and max over the offsets. Small changes of the
@@ -90,26 +96,38 @@ def expression(binding, targets: np.ndarray, diag: float) -> tuple[float, float]
     return float(np.sqrt(np.mean(e ** 2))), float(e.max())
 
 
-def measure(name: str, scales, device, resolution: int, offsets=(None,)) -> list[dict]:
+def artist_poses(path, artist_cage) -> np.ndarray:
+    """(F, L, 3) an artist's cage poses from a posed cage file (its vertices, in the cage's order) or a .npy."""
+    poses = np.asarray(np.load(path) if str(path).endswith(".npy") else ws.load_surface(path).vertices, dtype=float)
+    if poses.size % (3 * artist_cage.n_handles):
+        raise SystemExit(f"{path}: not poses of the {artist_cage.n_handles}-handle cage ({poses.shape})")
+    return poses.reshape(-1, artist_cage.n_handles, 3)
+
+
+def measure(name: str, scales, device, resolution: int, offsets=(None,), files=None) -> list[dict]:
+    """Rows of the artist's cage and the made ones for pair ``name``: one of PAIRS, or ``files`` = (mesh, cage,
+    poses) as ``--artist`` takes them."""
     from warp_stokes.geometry.cage import crossing_faces
     from warp_stokes.geometry.topology import bounding_diagonal
 
-    mesh_path, cage_path = PAIRS[name]
+    mesh_path, cage_path = PAIRS[name] if files is None else files[:2]
     mesh = ws.load_surface(mesh_path)
     artist = ws.check_cage(cage_path)
     diag = bounding_diagonal(mesh.vertices)
     reference = ws.bind(mesh_path, cage_path, resolution=resolution, device=device)
-    targets = np.stack([reference.deform(pose) for pose in artist_frames(name, artist)])
+    poses = artist_frames(name, artist) if files is None else artist_poses(files[2], artist)
+    targets = np.stack([reference.deform(pose) for pose in poses])
     artist_rms, artist_max = expression(reference, targets, diag)
     mesh_volume, artist_volume = volumes(mesh, artist, device)
+    held, _ = ws.classify_points(artist, mesh.vertices, device=device)
     rows = [dict(pair=name, cage="artist", asked=artist.n_handles, handles=artist.n_handles, seconds=None,
-                 inside=1.0, crossing=0, mean_distance=None, max_distance=None,
+                 inside=float(held.mean()), crossing=0, mean_distance=None, max_distance=None,
                  volume_between=(artist_volume - mesh_volume) / mesh_volume, rms=artist_rms, max=artist_max,
                  pu=reference.stats["partition_of_unity_error"], lp=reference.stats["linear_precision_error"],
                  reduction=1 - artist.n_handles / len(mesh.vertices), moved=float(
                      np.linalg.norm(targets - mesh.vertices, axis=2).max() / diag))]
     for scale, offset in [(scale, offset) for scale in scales for offset in offsets]:
-        asked = int(round(scale * artist.n_handles))
+        asked = max(8, int(round(scale * artist.n_handles)))  # a made cage's least count
         t = time.perf_counter()
         made = ws.make_cage(mesh_path, handles=asked, offset=offset, device=device)
         seconds = time.perf_counter() - t
@@ -196,6 +214,8 @@ def main(argv=None) -> int:
     parser.add_argument("--meshes", nargs="*", default=[], help="mesh files without an artist's cage")
     parser.add_argument("--mesh-handles", type=int, default=None,
                         help="the handles asked for the --meshes (default: chosen from each one's shape)")
+    parser.add_argument("--artist", nargs=3, action="append", default=[], metavar=("MESH", "CAGE", "POSES"),
+                        help="another pair with an artist's cage: its mesh, cage and posed cage (or .npy of frames)")
     parser.add_argument("--offsets", default=None,
                         help="offsets (fractions of the diagonal) to make each pair's cages at, e.g. "
                              "0.019,0.0195,0.02,0.0205,0.021: how much the expression moves with small changes of the "
@@ -211,6 +231,9 @@ def main(argv=None) -> int:
     rows = []
     for name in filter(None, args.pairs.split(",")):
         rows += measure(name, [float(s) for s in args.scales.split(",")], device, args.resolution, offsets)
+    for files in args.artist:
+        rows += measure(Path(files[0]).stem, [float(s) for s in args.scales.split(",")], device, args.resolution,
+                        offsets, files=files)
 
     def pct(x):
         return "" if x is None else f"{100 * x:.2f}"

@@ -413,14 +413,20 @@ def test_encode_a_sequence_without_a_cage(tmp_path):
 
 
 def test_bench_cage_measures_meshes_without_an_artists_cage_and_the_spread_over_offsets():
-    # the harness for meshes nobody made a cage for (issue 33's "meshes you have not seen"), on the bundled arm; and
-    # --offsets: the pair's cages at each offset (labelled with it) and a summary row of their mean and range
+    # the harness for meshes nobody made a cage for (issue 33's "meshes you have not seen"), on the bundled arm; for
+    # pairs given as files (--artist MESH CAGE POSES: the arm's, its poses a .npy); and --offsets: the pair's cages
+    # at each offset (labelled with it) and a summary row of their mean and range
     repo = EXAMPLE.parents[1]
     proc = subprocess.run([sys.executable, str(repo / "benchmarks" / "bench_cage.py"), "--device", "cpu", "--pairs",
-                           "arm", "--scales", "0.5", "--offsets", "0.02,0.03", "--meshes", str(EXAMPLE / "arm.obj"),
-                           "--mesh-handles", "40", "--resolution", "16"], capture_output=True, text=True, timeout=600)
+                           "", "--artist", str(EXAMPLE / "arm.obj"), str(EXAMPLE / "arm_cage.obj"),
+                           str(EXAMPLE / "bend_poses.npy"), "--scales", "0.5", "--offsets", "0.02,0.03", "--meshes",
+                           str(EXAMPLE / "arm.obj"), "--mesh-handles", "40", "--resolution", "16"],
+                          capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-2000:]
     lines = proc.stdout.splitlines()
+    artist = next([c.strip() for c in line.strip("|").split("|")] for line in lines if line.startswith("| arm | artist"))
+    # the artist's own cage: all the arm's vertices inside, its own deformation expressed exactly
+    assert artist[2:4] == ["58", "58"] and artist[5] == "1.0000" and float(artist[10]) < 1e-3
     row = next(line for line in lines if line.startswith("| arm.obj |"))
     cells = [c.strip() for c in row.strip("|").split("|")]
     assert cells[1:5] == ["2089", "40", "40", "2.00"]
