@@ -156,6 +156,35 @@ def test_the_default_offset_is_raised_to_reach_the_handles_but_one_given_is_kept
         assert ("it was made at 0.04 instead" in proc.stdout) == (handles == 30)
 
 
+def test_a_try_with_a_larger_offset_left_gives_up_where_collapses_grow_rare(monkeypatch):
+    """simplify_enclosing gives up only when asked (give_up_above) and only where, at the pace of its last
+    STALL_WINDOW rounds, coming down to that count would take more than STALL_ROUNDS rounds: at the shipped constants
+    a ball that reaches its count quickly is the same with or without; with a pace no try can keep (one round, one
+    round to go), it stops early, valid, every point inside at the margin. make_cage then goes on to the larger
+    offsets, and the last one never gives up: the ball asked for 30 is made at 0.16 of the diagonal, with 30."""
+    simplify = importlib.import_module("warp_stokes.geometry.simplify")
+    v, f = latitude_longitude_sphere(12, 16, radius=1.0)
+    centre = np.zeros((1, 3))
+    full = simplify_enclosing(v, f, 40, centre, margin=0.5, device="cpu")
+    same = simplify_enclosing(v, f, 40, centre, margin=0.5, device="cpu", give_up_above=42)
+    assert not full.gave_up and not same.gave_up and len(full.vertices) == 40
+    assert np.array_equal(full.vertices, same.vertices) and np.array_equal(full.faces, same.faces)
+    monkeypatch.setattr(simplify, "STALL_WINDOW", 1)
+    monkeypatch.setattr(simplify, "STALL_ROUNDS", 1)
+    hasty = simplify_enclosing(v, f, 40, centre, margin=0.5, device="cpu", give_up_above=42)
+    assert hasty.gave_up and len(hasty.vertices) > 42 and hasty.rounds == 2
+    cage = check_cage((hasty.vertices, hasty.faces))
+    inside, distance = ws.classify_points(cage, centre, device="cpu")
+    assert inside.all() and distance.min() >= 0.5
+    assert not simplify_enclosing(v, f, 40, centre, margin=0.5, device="cpu").gave_up  # not asked: never
+
+    ball, faces = sphere()
+    made = make_cage((ball, faces), handles=30, device="cpu")
+    assert_valid(made, ball, handles=30)
+    assert made.offset == pytest.approx(0.16 * bounding_diagonal(ball), rel=1e-9)
+    assert len(made.notes) == 1 and "(asked 30); it was made at 0.16 instead" in made.notes[0]
+
+
 def test_offset_finer_than_the_grid_is_raised(monkeypatch):
     """An offset the grid cannot resolve is raised to what it can (a cell), said in a note; the cage stays
     valid with every vertex inside at the raised offset's margin."""

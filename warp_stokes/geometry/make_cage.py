@@ -232,8 +232,9 @@ def make_cage(mesh, handles: int | None = None, offset: float | None = None, dev
             rel = wp.array((stray - centre).astype(np.float32), dtype=wp.vec3)
             strays = (rel, wp.Bvh(rel, rel))
     seconds, tries = {"field": time.perf_counter() - t}, []
-    for fraction in fractions:
-        made = _made_at(body, strays, centre, points, name, diag, fraction, handles, device)
+    for j, fraction in enumerate(fractions):
+        made = _made_at(body, strays, centre, points, name, diag, fraction, handles, device,
+                        last=j == len(fractions) - 1)
         handles = made.handles  # the count chosen from the first offset surface holds for the larger offsets
         for stage, spent in made.seconds.items():
             seconds[stage] = seconds.get(stage, 0.0) + spent
@@ -261,9 +262,10 @@ def _about(handles: int) -> int:
     return handles + max(1, int(0.05 * handles))
 
 
-def _made_at(body: wp.Mesh, strays, centre, points, name, diag, fraction, handles, device) -> MadeCage:
+def _made_at(body: wp.Mesh, strays, centre, points, name, diag, fraction, handles, device, last=True) -> MadeCage:
     """The cage made at an offset of ``fraction`` of the diagonal (see :func:`make_cage`): ``body`` the mesh and
-    ``strays`` (positions, BVH) its vertices on no face, or None, both on ``device`` relative to ``centre``."""
+    ``strays`` (positions, BVH) its vertices on no face, or None, both on ``device`` relative to ``centre``. Unless
+    it is the ``last`` offset to try, the collapses give up where they could not reach about the count soon."""
     seconds, notes = {}, []
     distance = fraction * diag
     lo, hi = points.min(axis=0), points.max(axis=0)
@@ -311,7 +313,8 @@ def _made_at(body: wp.Mesh, strays, centre, points, name, diag, fraction, handle
     # the collapse checks run on the CPU whatever the device: a round holds a few hundred candidates, too few for a
     # GPU, whose copies and launches per round then cost more than the checks (ogre on an H100: 3.7 s on CUDA,
     # 1.6 s on the host's CPU)
-    simplified = simplify_enclosing(v, f, handles, points, margin, device="cpu")
+    simplified = simplify_enclosing(v, f, handles, points, margin, device="cpu",
+                                    give_up_above=None if last else _about(handles))
     seconds["simplify"] = time.perf_counter() - t
     t = time.perf_counter()
     cage = check_cage((simplified.vertices, simplified.faces), name=f"cage of {name}")
@@ -322,7 +325,10 @@ def _made_at(body: wp.Mesh, strays, centre, points, name, diag, fraction, handle
     if cage.n_handles < handles:  # nothing to collapse: the surface is coarser than the count asked
         notes.append(f"{name}: {cage.n_handles} handles (asked {handles}): the offset surface has no more vertices; "
                      "a smaller offset makes a finer one")
-    if cage.n_handles > handles:
+    if cage.n_handles > handles and simplified.gave_up:
+        notes.append(f"{name}: left at {cage.n_handles} handles (asked {handles}), a larger offset to try: the "
+                     "collapses that keep the cage valid had become too rare to reach the count")
+    elif cage.n_handles > handles:
         refused = ", ".join(f"{why} {count}" for why, count in sorted(simplified.refusals.items(), key=lambda x: -x[1]))
         notes.append(f"{name}: stopped at {cage.n_handles} handles (asked {handles}): no further collapse keeps the "
                      f"cage valid with every vertex inside (collapses refused: {refused}); a larger offset leaves more "
