@@ -159,9 +159,10 @@ def test_the_default_offset_is_raised_to_reach_the_handles_but_one_given_is_kept
 def test_a_try_with_a_larger_offset_left_gives_up_where_collapses_grow_rare(monkeypatch):
     """simplify_enclosing gives up only when asked (give_up_above) and only where, at the pace of its last
     STALL_WINDOW rounds, coming down to that count would take more than STALL_ROUNDS rounds: at the shipped constants
-    a ball that reaches its count quickly is the same with or without; with a pace no try can keep (one round, one
-    round to go), it stops early, valid, every point inside at the margin. make_cage then goes on to the larger
-    offsets, and the last one never gives up: the ball asked for 30 is made at 0.16 of the diagonal, with 30."""
+    a ball that reaches its count quickly is the same with or without; with both set to 1 (give up when the last
+    round made fewer collapses than are left to make) it stops early, valid, every point inside at the margin.
+    make_cage then goes on to the larger offsets, and the last one never gives up: the ball asked for 30 is made at
+    0.16 of the diagonal, with 30."""
     simplify = importlib.import_module("warp_stokes.geometry.simplify")
     v, f = latitude_longitude_sphere(12, 16, radius=1.0)
     centre = np.zeros((1, 3))
