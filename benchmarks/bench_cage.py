@@ -99,7 +99,7 @@ def expression(binding, targets: np.ndarray, diag: float) -> tuple[float, float]
 def artist_poses(path, artist_cage) -> np.ndarray:
     """(F, L, 3) an artist's cage poses from a posed cage file (its vertices, in the cage's order) or a .npy."""
     poses = np.asarray(np.load(path) if str(path).endswith(".npy") else ws.load_surface(path).vertices, dtype=float)
-    if poses.size % (3 * artist_cage.n_handles):
+    if poses.size == 0 or poses.size % (3 * artist_cage.n_handles):
         raise SystemExit(f"{path}: not poses of the {artist_cage.n_handles}-handle cage ({poses.shape})")
     return poses.reshape(-1, artist_cage.n_handles, 3)
 
@@ -232,8 +232,11 @@ def main(argv=None) -> int:
     for name in filter(None, args.pairs.split(",")):
         rows += measure(name, [float(s) for s in args.scales.split(",")], device, args.resolution, offsets)
     for files in args.artist:
-        rows += measure(Path(files[0]).stem, [float(s) for s in args.scales.split(",")], device, args.resolution,
-                        offsets, files=files)
+        name = Path(files[0]).stem
+        while name in {row["pair"] for row in rows}:  # each pair's rows and summary under a name of its own
+            name += "'"
+        rows += measure(name, [float(s) for s in args.scales.split(",")], device, args.resolution, offsets,
+                        files=files)
 
     def pct(x):
         return "" if x is None else f"{100 * x:.2f}"

@@ -166,8 +166,9 @@ def make_cage(mesh, handles: int | None = None, offset: float | None = None, dev
     offset : float, optional
         How far the cage starts from the mesh, as a fraction of its bounding diagonal. Larger offsets leave the
         simplification more room (fewer handles possible, smoother cages); smaller ones fit tighter. Default:
-        0.02, doubled (up to three times) where the cage would stop well above the handles asked, with a note; an
-        offset given is kept.
+        0.02, doubled (up to three times) where the cage would stop well above the handles asked, with a note (a try
+        with a larger offset still to come gives up early where its valid collapses have grown too rare to reach the
+        count); an offset given is kept.
     device : None | str
         The Warp device of the voxel work and the final inside test (default: CUDA when present, else the CPU);
         the collapses are checked on the CPU.
@@ -231,21 +232,29 @@ def make_cage(mesh, handles: int | None = None, offset: float | None = None, dev
         if len(stray):
             rel = wp.array((stray - centre).astype(np.float32), dtype=wp.vec3)
             strays = (rel, wp.Bvh(rel, rel))
-    seconds, tries = {"field": time.perf_counter() - t}, []
-    for j, fraction in enumerate(fractions):
-        made = _made_at(body, strays, centre, points, name, diag, fraction, handles, device,
-                        last=j == len(fractions) - 1)
-        handles = made.handles  # the count chosen from the first offset surface holds for the larger offsets
+    seconds, tries, quit = {"field": time.perf_counter() - t}, [], []
+
+    def attempt(fraction, last):
+        made, gave_up = _made_at(body, strays, centre, points, name, diag, fraction, handles, device, last=last)
         for stage, spent in made.seconds.items():
             seconds[stage] = seconds.get(stage, 0.0) + spent
+        return made, gave_up
+
+    for j, fraction in enumerate(fractions):
+        made, gave_up = attempt(fraction, last=j == len(fractions) - 1)
+        handles = made.handles  # the count chosen from the first offset surface holds for the larger offsets
         tries.append(made)
+        quit.append(gave_up)
         if made.cage.n_handles <= _about(made.handles):
             break
     k = min(range(len(tries)), key=lambda j: tries[j].cage.n_handles)  # the first of the fewest: the tightest
+    if quit[k]:  # every larger offset stopped higher than this one gave up at: this one is finished after all
+        tries[k], _ = attempt(fractions[k], last=True)
     best = tries[k]
     notes = list(best.notes)
     if k > 0:
-        notes.insert(0, f"{name}: at an offset of {fractions[0]:g} of the diagonal the cage stopped at "
+        stopped = "the collapses had all but stopped at" if quit[0] else "the cage stopped at"
+        notes.insert(0, f"{name}: at an offset of {fractions[0]:g} of the diagonal {stopped} "
                         f"{tries[0].cage.n_handles} handles (asked {handles}); it was made at {fractions[k]:g} "
                         "instead, which leaves the collapses more room")
     return replace(best, chosen=tries[0].chosen, seconds=seconds, notes=notes)
@@ -262,10 +271,12 @@ def _about(handles: int) -> int:
     return handles + max(1, int(0.05 * handles))
 
 
-def _made_at(body: wp.Mesh, strays, centre, points, name, diag, fraction, handles, device, last=True) -> MadeCage:
-    """The cage made at an offset of ``fraction`` of the diagonal (see :func:`make_cage`): ``body`` the mesh and
-    ``strays`` (positions, BVH) its vertices on no face, or None, both on ``device`` relative to ``centre``. Unless
-    it is the ``last`` offset to try, the collapses give up where they could not reach about the count soon."""
+def _made_at(body: wp.Mesh, strays, centre, points, name, diag, fraction, handles, device,
+             last=True) -> tuple[MadeCage, bool]:
+    """The cage made at an offset of ``fraction`` of the diagonal (see :func:`make_cage`), and whether its collapses
+    gave up: ``body`` the mesh and ``strays`` (positions, BVH) its vertices on no face, or None, both on ``device``
+    relative to ``centre``. Unless it is the ``last`` offset to try, the collapses give up where they could not
+    reach about the count soon."""
     seconds, notes = {}, []
     distance = fraction * diag
     lo, hi = points.min(axis=0), points.max(axis=0)
@@ -325,17 +336,14 @@ def _made_at(body: wp.Mesh, strays, centre, points, name, diag, fraction, handle
     if cage.n_handles < handles:  # nothing to collapse: the surface is coarser than the count asked
         notes.append(f"{name}: {cage.n_handles} handles (asked {handles}): the offset surface has no more vertices; "
                      "a smaller offset makes a finer one")
-    if cage.n_handles > handles and simplified.gave_up:
-        notes.append(f"{name}: left at {cage.n_handles} handles (asked {handles}), a larger offset to try: the "
-                     "collapses that keep the cage valid had become too rare to reach the count")
-    elif cage.n_handles > handles:
+    if cage.n_handles > handles:
         refused = ", ".join(f"{why} {count}" for why, count in sorted(simplified.refusals.items(), key=lambda x: -x[1]))
         notes.append(f"{name}: stopped at {cage.n_handles} handles (asked {handles}): no further collapse keeps the "
                      f"cage valid with every vertex inside (collapses refused: {refused}); a larger offset leaves more "
                      "room")
     return MadeCage(cage=cage, handles=handles, chosen=chosen, offset=distance, margin=margin, grid=shape,
                     distance=(float(gap.mean() / diag), float(gap.max() / diag)), seconds=seconds,
-                    notes=notes + list(cage.notes))
+                    notes=notes + list(cage.notes)), simplified.gave_up
 
 
 def signed_distance_field(body: wp.Mesh, corner: wp.vec3, spacing: float, cap: float, field: wp.array,

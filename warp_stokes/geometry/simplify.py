@@ -38,8 +38,8 @@ COLLAPSE_BLOCK = 64
 #: still need. Near its end a surface makes a collapse every 10-100 rounds, or none, for thousands of rounds: on 33
 #: meshes and counts (the shared pairs, 14 public test meshes, six QMVC pairs; 8 to 126 handles) no try that reached
 #: the count would have given up (with 500 two would have); 30 meshes and counts made again came out bit for bit the
-#: same; asked for 8,
-#: the QMVC SpikyBox and WireSphere (61k, 49k vertices) took 5.6 and 6.5 s instead of 10.0 and 14.2 on 2 cores
+#: same; asked for 8, the QMVC SpikyBox and WireSphere (61k, 49k vertices) took 5.6 and 6.5 s instead of 10.0 and
+#: 14.2 on 2 cores
 STALL_WINDOW = 128
 STALL_ROUNDS = 1000
 #: why collapses were refused (the kernel's codes, in ``Simplified.refusals``)
