@@ -49,6 +49,10 @@ def test_polygon_list_input():
     v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0.5, 1.5, 0]], float)
     s = ws.load_surface((v, [[0, 1, 2, 4, 3], [0, 1, 2]]))
     assert s.faces.tolist() == [[0, 1, 2], [0, 2, 4], [0, 4, 3], [0, 1, 2]]
+    # the same polygons as a numpy array of arrays (what a ragged np.array(..., dtype=object) holds)
+    ragged = np.empty(2, dtype=object)
+    ragged[0], ragged[1] = np.array([0, 1, 2, 4, 3]), np.array([0, 1, 2])
+    assert ws.load_surface((v, ragged)).faces.tolist() == s.faces.tolist()
 
 
 @pytest.mark.parametrize(

@@ -102,32 +102,6 @@ def fan_triangles(face_counts, face_indices) -> tuple[np.ndarray, np.ndarray]:
     return triangles.reshape(-1, 3), polygon
 
 
-def _triangulate(polygons, name: str, n_vertices: int) -> np.ndarray:
-    """Fan-triangulate a list of polygons (or an (F, k) array) into (T, 3) int64 triangles."""
-    if isinstance(polygons, np.ndarray) and polygons.ndim == 2:
-        rows = polygons
-        if rows.shape[1] < 3:
-            raise MeshError(f"{name}: faces must have at least 3 vertices, got an array of shape {rows.shape}")
-        if not np.issubdtype(rows.dtype, np.integer):
-            if not np.all(np.isfinite(rows)) or np.any(rows != np.round(rows)):
-                raise MeshError(f"{name}: face indices must be integers")
-            rows = rows.astype(np.int64)
-        _check_corners(np.full(len(rows), rows.shape[1]), rows.ravel(), n_vertices, name)
-        tris = [np.stack([rows[:, 0], rows[:, k], rows[:, k + 1]], axis=1) for k in range(1, rows.shape[1] - 1)]
-        # interleave so that each polygon's triangles stay together
-        out = np.stack(tris, axis=1).reshape(-1, 3)
-    else:
-        polys = [np.asarray(poly) for poly in polygons]
-        for i, poly in enumerate(polys):
-            if poly.ndim != 1 or len(poly) < 3:
-                raise MeshError(f"{name}: face {i} has {poly.size} vertices; a face needs at least 3")
-        counts = np.array([len(p) for p in polys], dtype=np.int64)
-        corners = np.concatenate(polys).astype(np.int64) if polys else np.zeros(0, dtype=np.int64)
-        _check_corners(counts, corners, n_vertices, name)
-        out, _ = fan_triangles(counts, corners)
-    return out.astype(np.int64)
-
-
 def first_missing_vertex(counts, corners, n_vertices: int) -> tuple[int, int] | None:
     """The first polygon that names a vertex outside ``0 .. n_vertices - 1``, as (its number among the faces, as a
     file counts them, not the fan triangles'; that vertex), or None.
@@ -153,7 +127,9 @@ def _check_corners(counts: np.ndarray, corners: np.ndarray, n_vertices: int, nam
                         "vertices")
 
 
-def _from_arrays(vertices, faces, name: str) -> Surface:
+def _checked_vertices(vertices, name: str) -> np.ndarray:
+    """(V, 3) float64 vertices, or a one-line error: not numbers, the wrong shape, none, non-finite, or an extent
+    outside :data:`EXTENTS`."""
     try:
         v = np.asarray(vertices, dtype=np.float64)
     except (TypeError, ValueError) as exc:
@@ -170,36 +146,48 @@ def _from_arrays(vertices, faces, name: str) -> Surface:
         raise MeshError(f"{name}: its bounding diagonal is {diagonal:.3g}, outside what the solver's float32 "
                         f"arithmetic resolves ({EXTENTS[0]:g} to {EXTENTS[1]:g} in any unit); "
                         "scale it (to metres, say)")
-    counts = indices = None
-    if faces is None:
-        f = np.zeros((0, 3), dtype=np.int64)
-    else:
-        if isinstance(faces, np.ndarray) or (
-            hasattr(faces, "__len__") and len(faces) and np.ndim(faces[0]) == 1 and len({len(x) for x in faces}) == 1
-        ):
-            faces = np.asarray(faces)
-        f = _triangulate(faces, name, len(v)) if len(faces) else np.zeros((0, 3), dtype=np.int64)
-        if len(faces):  # checked by _triangulate: integer polygons of at least 3 in-range vertices
-            if isinstance(faces, np.ndarray):
-                counts = np.full(len(faces), faces.shape[1], dtype=np.int64)
-                indices = faces.astype(np.int64).ravel()
-            else:
-                counts = np.array([len(p) for p in faces], dtype=np.int64)
-                indices = np.concatenate([np.asarray(p, dtype=np.int64) for p in faces])
-    return Surface(vertices=np.ascontiguousarray(v), faces=np.ascontiguousarray(f), name=name, face_counts=counts,
-                   face_indices=indices)
+    return np.ascontiguousarray(v)
+
+
+def _polygon_surface(v: np.ndarray, counts: np.ndarray, corners: np.ndarray, name: str) -> Surface:
+    """The surface of checked vertices ``v`` and polygons given as corner counts and flat corner indices (0-based,
+    int64), fan-triangulated, each polygon's triangles together; a one-line error for a polygon of fewer than three
+    corners or one naming a vertex the mesh does not have."""
+    if (counts < 3).any():
+        bad = int(np.flatnonzero(counts < 3)[0])
+        raise MeshError(f"{name}: face {bad} has {counts[bad]} vertices; a face needs at least 3")
+    _check_corners(counts, corners, len(v), name)
+    triangles, _ = fan_triangles(counts, corners)
+    return Surface(vertices=v, faces=np.ascontiguousarray(triangles, dtype=np.int64), name=name, face_counts=counts,
+                   face_indices=corners)
+
+
+def _from_arrays(vertices, faces, name: str) -> Surface:
+    """A surface from vertices and faces: None, an (F, k) array, or a list of index lists (polygons)."""
+    v = _checked_vertices(vertices, name)
+    if faces is None or len(faces) == 0:
+        return Surface(vertices=v, faces=np.zeros((0, 3), dtype=np.int64), name=name)
+    if (faces.ndim == 2 if isinstance(faces, np.ndarray) else
+            np.ndim(faces[0]) == 1 and len({len(x) for x in faces}) == 1):  # all polygons of one size
+        rows = np.asarray(faces)
+        if rows.shape[1] < 3:
+            raise MeshError(f"{name}: faces must have at least 3 vertices, got an array of shape {rows.shape}")
+        if not np.issubdtype(rows.dtype, np.integer):
+            if not np.all(np.isfinite(rows)) or np.any(rows != np.round(rows)):
+                raise MeshError(f"{name}: face indices must be integers")
+        return _polygon_surface(v, np.full(len(rows), rows.shape[1], dtype=np.int64), rows.astype(np.int64).ravel(),
+                                name)
+    polys = [np.asarray(poly) for poly in faces]
+    for i, poly in enumerate(polys):
+        if poly.ndim != 1 or len(poly) < 3:
+            raise MeshError(f"{name}: face {i} has {poly.size} vertices; a face needs at least 3")
+    counts = np.array([len(p) for p in polys], dtype=np.int64)
+    return _polygon_surface(v, counts, np.concatenate(polys).astype(np.int64), name)
 
 
 def _from_polygons(vertices, counts: np.ndarray, corners: np.ndarray, name: str) -> Surface:
     """A surface from polygons of different sizes given as corner counts and flat corner indices (0-based)."""
-    points = _from_arrays(vertices, None, name).vertices
-    if (counts < 3).any():
-        bad = int(np.flatnonzero(counts < 3)[0])
-        raise MeshError(f"{name}: face {bad} has {counts[bad]} vertices; a face needs at least 3")
-    _check_corners(counts, corners, len(points), name)
-    triangles, _ = fan_triangles(counts, corners)
-    return Surface(vertices=points, faces=np.ascontiguousarray(triangles), name=name, face_counts=counts,
-                   face_indices=corners)
+    return _polygon_surface(_checked_vertices(vertices, name), counts, corners, name)
 
 
 def with_vertex_uvs(surface: Surface, mesh) -> Surface:
