@@ -18,6 +18,11 @@ def _bodies(text: str, tag: str) -> list:
     return re.findall("\n" + tag + " ([^\n]*)", text)
 
 
+def _numbered(text: str, tag: str):
+    """(line number, line) of every record with ``tag``: for naming the line of an unreadable one."""
+    return ((line_no, ln) for line_no, ln in enumerate(text[1:].split("\n"), 1) if ln.startswith(tag + " "))
+
+
 def _counts(bodies: list) -> np.ndarray:
     """Each record's token count."""
     return np.fromiter(map(len, map(str.split, bodies)), dtype=np.int64, count=len(bodies))
@@ -96,13 +101,12 @@ def read_obj(path: str) -> tuple[np.ndarray, np.ndarray | list, np.ndarray | Non
     try:
         verts = _firsts(vertex_bodies, 3, np.float64)
     except ValueError:  # find the offending line for the message
-        for line_no, ln in enumerate(text[1:].split("\n"), 1):
-            if ln.startswith("v "):
-                try:
-                    if len([float(x) for x in ln.split()[1:4]]) != 3:
-                        raise ValueError
-                except ValueError:
-                    raise MeshError(f"{path}: line {line_no}: unreadable vertex {ln.strip()!r}") from None
+        for line_no, ln in _numbered(text, "v"):
+            try:
+                if len([float(x) for x in ln.split()[1:4]]) != 3:
+                    raise ValueError
+            except ValueError:
+                raise MeshError(f"{path}: line {line_no}: unreadable vertex {ln.strip()!r}") from None
         raise
     face_bodies = _bodies(text, "f")
     corners = " ".join(face_bodies)
@@ -113,15 +117,14 @@ def read_obj(path: str) -> tuple[np.ndarray, np.ndarray | list, np.ndarray | Non
         if (counts < 3).any() or len(indices) != counts.sum():
             raise ValueError
     except (ValueError, OverflowError):
-        for line_no, ln in enumerate(text[1:].split("\n"), 1):
-            if ln.startswith("f "):
-                try:
-                    ids = [int(tok.split("/", 1)[0]) for tok in ln.split()[1:]]
-                    if len(ids) < 3 or max(abs(c) for c in ids) > len(verts):
-                        raise ValueError
-                except ValueError:
-                    raise MeshError(f"{path}: line {line_no}: unreadable face {ln.strip()!r} (three or more vertex "
-                                    f"indices within the file's {len(verts)} vertices)") from None
+        for line_no, ln in _numbered(text, "f"):
+            try:
+                ids = [int(tok.split("/", 1)[0]) for tok in ln.split()[1:]]
+                if len(ids) < 3 or max(abs(c) for c in ids) > len(verts):
+                    raise ValueError
+            except ValueError:
+                raise MeshError(f"{path}: line {line_no}: unreadable face {ln.strip()!r} (three or more vertex "
+                                f"indices within the file's {len(verts)} vertices)") from None
         raise
     if len(indices) and indices.min() < 0:
         # negative indices count back from the last vertex read before the face
@@ -180,11 +183,10 @@ def _obj_normals(text: str, corners: str, indices: np.ndarray, n_vertices: int) 
     try:
         table = _firsts(bodies, 3, np.float64)
     except ValueError:  # a record with fewer than three numbers, or words
-        for line_no, ln in enumerate(text[1:].split("\n"), 1):
-            if ln.startswith("vn "):
-                record = ln.split()[1:4]
-                if len(record) != 3 or not all(_is_number(x) for x in record):
-                    raise MeshError(f"line {line_no}: unreadable normal 'vn {' '.join(record)}'") from None
+        for line_no, ln in _numbered(text, "vn"):
+            record = ln.split()[1:4]
+            if len(record) != 3 or not all(_is_number(x) for x in record):
+                raise MeshError(f"line {line_no}: unreadable normal 'vn {' '.join(record)}'") from None
         raise
     refs = re.findall(r"(?<!\S)[^\s/]+/[^\s/]*/([^\s/]+)", corners)  # a corner's third field
     if len(refs) != len(indices) or len(indices) == 0:
