@@ -228,15 +228,15 @@ def main(argv=None) -> int:
 
     ws.make_cage(latitude_longitude_sphere(12, 16), handles=60, device=device)  # compile the kernels
     offsets = [float(x) for x in args.offsets.split(",")] if args.offsets else [None]
+    scales = [float(x) for x in args.scales.split(",")]
     rows = []
     for name in filter(None, args.pairs.split(",")):
-        rows += measure(name, [float(s) for s in args.scales.split(",")], device, args.resolution, offsets)
+        rows += measure(name, scales, device, args.resolution, offsets)
     for files in args.artist:
         name = Path(files[0]).stem
         while name in {row["pair"] for row in rows}:  # each pair's rows and summary under a name of its own
             name += "'"
-        rows += measure(name, [float(s) for s in args.scales.split(",")], device, args.resolution, offsets,
-                        files=files)
+        rows += measure(name, scales, device, args.resolution, offsets, files=files)
 
     def pct(x):
         return "" if x is None else f"{100 * x:.2f}"

@@ -232,7 +232,7 @@ def make_cage(mesh, handles: int | None = None, offset: float | None = None, dev
         if len(stray):
             rel = wp.array((stray - centre).astype(np.float32), dtype=wp.vec3)
             strays = (rel, wp.Bvh(rel, rel))
-    seconds, tries, gave_up_at = {"field": time.perf_counter() - t}, [], []
+    seconds, tries, gave_up_early = {"field": time.perf_counter() - t}, [], []
 
     def attempt(fraction, last):
         made, gave_up = _made_at(body, strays, centre, points, name, diag, fraction, handles, device, last=last)
@@ -244,16 +244,16 @@ def make_cage(mesh, handles: int | None = None, offset: float | None = None, dev
         made, gave_up = attempt(fraction, last=j == len(fractions) - 1)
         handles = made.handles  # the count chosen from the first offset surface holds for the larger offsets
         tries.append(made)
-        gave_up_at.append(gave_up)
+        gave_up_early.append(gave_up)
         if made.cage.n_handles <= _about(made.handles):
             break
     k = min(range(len(tries)), key=lambda j: tries[j].cage.n_handles)  # the first of the fewest: the tightest
-    if gave_up_at[k]:  # every larger offset stopped higher than this one gave up at: this one is finished after all
+    if gave_up_early[k]:  # every larger offset stopped higher than this one gave up at: this one is finished after all
         tries[k], _ = attempt(fractions[k], last=True)
     best = tries[k]
     notes = list(best.notes)
     if k > 0:
-        stopped = "the collapses had all but stopped at" if gave_up_at[0] else "the cage stopped at"
+        stopped = "the collapses had all but stopped at" if gave_up_early[0] else "the cage stopped at"
         notes.insert(0, f"{name}: at an offset of {fractions[0]:g} of the diagonal {stopped} "
                         f"{tries[0].cage.n_handles} handles (asked {handles}); it was made at {fractions[k]:g} "
                         "instead, which leaves the collapses more room")
