@@ -486,7 +486,8 @@ def test_bench_cage_measures_meshes_without_an_artists_cage_and_the_spread_over_
                           capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-2000:]
     lines = proc.stdout.splitlines()
-    artist = next([c.strip() for c in line.strip("|").split("|")] for line in lines if line.startswith("| arm | artist"))
+    artist = next([c.strip() for c in line.strip("|").split("|")] for line in lines
+                  if line.startswith("| arm | artist"))
     # the artist's own cage: the share of the arm's vertices it holds, measured; its own deformation expressed exactly
     assert artist[2:4] == ["58", "58"] and artist[5] == f"{held.mean():.4f}" and float(artist[10]) < 1e-3
     row = next(line for line in lines if line.startswith("| arm.obj |"))

@@ -350,12 +350,13 @@ def signed_distance_field(body: wp.Mesh, corner: wp.vec3, spacing: float, cap: f
                           device) -> None:
     """``field`` (a 3D array) = the signed distance to ``body`` at the nodes ``corner + spacing (i, j, k)``, negative
     inside (winding number > 1/2), exact where it is within ``cap`` (at least two spacings) of the mesh or beside a
-    node of the other side, and of the right sign elsewhere. On a CPU winding numbers only at the nodes of even coordinates and where the mesh passes
-    near (``kernels.cage.signed_distance_between_even_nodes``); a GPU takes every node's."""
+    node of the other side, and of the right sign elsewhere. On a CPU winding numbers only at the nodes of even
+    coordinates and where the mesh passes near (``kernels.cage.signed_distance_between_even_nodes``); a GPU takes
+    every node's."""
     shape = field.shape
     if device.is_cuda:
-        wp.launch(cage_kernels.signed_distance, dim=shape, inputs=[body.id, corner, float(spacing), WINDING_ACCURACY, 1],
-                  outputs=[field], device=device)
+        wp.launch(cage_kernels.signed_distance, dim=shape,
+                  inputs=[body.id, corner, float(spacing), WINDING_ACCURACY, 1], outputs=[field], device=device)
         return
     even = tuple((s + 1) // 2 for s in shape)
     wp.launch(cage_kernels.signed_distance, dim=even, inputs=[body.id, corner, float(spacing), WINDING_ACCURACY, 2],
