@@ -211,6 +211,47 @@ def test_a_try_with_a_larger_offset_left_gives_up_where_collapses_grow_rare(monk
     assert np.array_equal(finished.cage.vertices, kept.cage.vertices) and finished.notes == kept.notes
 
 
+def test_rounds_worked_out_ahead_are_the_rounds_one_at_a_time(monkeypatch):
+    """Where its rounds make no collapse, simplify_enclosing works the next rounds out ahead and checks their
+    candidates in one launch: the same surface, rounds, refusals and giving up as one round at a time
+    (AHEAD_CANDIDATES = 0), in fewer launches. An edge refused again keeps only its latest refusal (it was kept
+    twice, and retried before its fan changed, when the edges came unsorted)."""
+    import warp as wp
+
+    simplify = importlib.import_module("warp_stokes.geometry.simplify")
+    collapse = importlib.import_module("warp_stokes.kernels.collapse")
+    keys, at = simplify._refuse(np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.array([9, 2, 5]), 1)
+    keys, at = simplify._refuse(keys, at, np.array([7, 5, 2]), 4)
+    assert keys.tolist() == [2, 5, 7, 9] and at.tolist() == [4, 4, 4, 1]
+
+    launches = []
+    launch = wp.launch
+
+    def counted(kernel, *args, **kwargs):
+        launches.append(kernel is collapse.collapse_choice)
+        return launch(kernel, *args, **kwargs)
+
+    monkeypatch.setattr(wp, "launch", counted)
+    v, f = latitude_longitude_sphere(24, 32, radius=1.0)
+    directions = np.random.default_rng(0).normal(size=(400, 3))
+    points = 0.93 * directions / np.linalg.norm(directions, axis=1, keepdims=True)
+    monkeypatch.setattr(simplify, "STALL_WINDOW", 32)
+    monkeypatch.setattr(simplify, "STALL_ROUNDS", 100)
+    default = simplify.AHEAD_CANDIDATES
+    for give_up_above in (None, 9):  # the give-up comes within a launch's rounds
+        results = []
+        for ahead in (default, 0):
+            monkeypatch.setattr(simplify, "AHEAD_CANDIDATES", ahead)
+            launches.clear()
+            s = simplify_enclosing(v, f, 8, points, margin=0.02, device="cpu", give_up_above=give_up_above)
+            results.append((s, sum(launches)))
+        (ahead_of, ahead_launches), (one, one_launches) = results
+        assert np.array_equal(ahead_of.vertices, one.vertices) and np.array_equal(ahead_of.faces, one.faces)
+        assert (ahead_of.rounds, ahead_of.refusals, ahead_of.gave_up) == (one.rounds, one.refusals, one.gave_up)
+        assert one_launches == one.rounds and ahead_launches < 0.8 * one.rounds
+        assert one.gave_up == (give_up_above is not None) and len(one.vertices) > 9
+
+
 def test_offset_finer_than_the_grid_is_raised(monkeypatch):
     """An offset the grid cannot resolve is raised to what it can (a cell), said in a note; the cage stays
     valid with every vertex inside at the raised offset's margin."""
