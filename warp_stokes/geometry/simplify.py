@@ -374,36 +374,35 @@ def simplify_enclosing(vertices: np.ndarray, faces: np.ndarray, handles: int, po
                 count += len(chosen)
                 if count >= ahead:
                     break
-                eligible = eligible.copy()
                 eligible[chosen] = False  # a refused edge waits until its fan changes
             if not plan:
                 break
-            every = np.concatenate(plan)
+            candidates = np.concatenate(plan)
             vf_start, vf = _csr(f.ravel(), np.repeat(np.arange(len(f)), 3), n)
             rel_v = (v - centre).astype(np.float32)
             surface = wp.Mesh(points=wp.array(rel_v, dtype=wp.vec3), indices=wp.array(f.astype(np.int32).ravel(),
                                                                                        dtype=wp.int32))
-            choice_d = wp.empty(len(every), dtype=wp.int32)
-            reason_d = wp.empty(len(every), dtype=wp.int32)
-            wp.launch(collapse.collapse_choice, dim=len(every),
+            choice_out = wp.empty(len(candidates), dtype=wp.int32)
+            reason_out = wp.empty(len(candidates), dtype=wp.int32)
+            wp.launch(collapse.collapse_choice, dim=len(candidates),
                       inputs=[wp.array(v, dtype=wp.vec3d), wp.array(f.astype(np.int32), dtype=wp.vec3i),
                               wp.array(vf_start.astype(np.int32), dtype=wp.int32),
                               wp.array(vf.astype(np.int32), dtype=wp.int32),
-                              wp.array(edges[every, 0].astype(np.int32), dtype=wp.int32),
-                              wp.array(edges[every, 1].astype(np.int32), dtype=wp.int32),
-                              wp.array(np.ascontiguousarray(place[every]), dtype=wp.vec3d), surface.id,
+                              wp.array(edges[candidates, 0].astype(np.int32), dtype=wp.int32),
+                              wp.array(edges[candidates, 1].astype(np.int32), dtype=wp.int32),
+                              wp.array(np.ascontiguousarray(place[candidates]), dtype=wp.vec3d), surface.id,
                               wp.vec3d(*centre), points_bvh.id, points_d, float(margin), float(cos_flip),
                               float(cos_fold), float(sin_angle)],
-                      outputs=[choice_d, reason_d], block_dim=COLLAPSE_BLOCK)
-            choices, whys = choice_d.numpy(), reason_d.numpy()
+                      outputs=[choice_out, reason_out], block_dim=COLLAPSE_BLOCK)
+            all_choices, all_reasons = choice_out.numpy(), reason_out.numpy()
             start = 0
-            for chosen in plan:
-                choice, reason = choices[start:start + len(chosen)], whys[start:start + len(chosen)]
+            for walked, chosen in enumerate(plan):
+                choice, reason = all_choices[start:start + len(chosen)], all_reasons[start:start + len(chosen)]
                 start += len(chosen)
                 rounds += 1
                 reasons += np.bincount(reason[choice < 0], minlength=8)
-                if (choice >= 0).any() or start == len(every):
-                    break
+                if (choice >= 0).any() or start == len(candidates):
+                    break  # this round (one passed, or the plan's last) is made and its refusals kept below
                 refused_keys, refused_at = _refuse(refused_keys, refused_at, keys[chosen], rounds)
                 if give_up_above is not None:
                     left.append(int(alive.sum()))
@@ -412,6 +411,9 @@ def simplify_enclosing(vertices: np.ndarray, faces: np.ndarray, handles: int, po
                         break
             if gave_up:
                 break
+            if walked:  # the placements kept for the next round: of this round's eligible edges, as one at a time
+                held = ~_contains(np.sort(keys[np.concatenate(plan[:walked])]), cached_keys)
+                cached_keys, cached_place, cached_costs = cached_keys[held], cached_place[held], cached_costs[held]
             a, b = edges[chosen, 0], edges[chosen, 1]
             passed = np.flatnonzero(choice >= 0)
             made = passed[:0]
@@ -421,6 +423,7 @@ def simplify_enclosing(vertices: np.ndarray, faces: np.ndarray, handles: int, po
             no = choice < 0
             if no.any():
                 refused_keys, refused_at = _refuse(refused_keys, refused_at, keys[chosen[no]], rounds)
+            # how many candidates the next launch works out ahead: its size only, never its outcome
             ahead = 0 if len(made) else min(max(2 * ahead, AHEAD_CANDIDATES), AHEAD_MOST)
             if len(made):
                 a, b, x = a[made], b[made], place[chosen[made], choice[made]]
