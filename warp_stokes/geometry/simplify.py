@@ -47,8 +47,8 @@ STALL_ROUNDS = 1000
 #: nearly all do there), and their candidates checked in one launch: at least AHEAD_CANDIDATES, twice as many after
 #: each launch where none passed, up to AHEAD_MOST. The rounds are then taken in order up to the first where one
 #: passed: the same collapses, refusals and rounds as one round at a time, without each round's edges, placements
-#: and BVH (the shared ogre at an offset of 0.5 %: 2,532 rounds in 14.7 s before, 383 rounds in 8-9 s on 2 cores,
-#: with the refusals' fix of the same commit)
+#: and BVH (the shared ogre made at an offset of 0.5 %: 2,532 rounds and 12-15 s before, 383 rounds and 7 s on 2
+#: cores, with the refusals' fix of the same commit)
 AHEAD_CANDIDATES = 16
 AHEAD_MOST = 256
 #: why collapses were refused (the kernel's codes, in ``Simplified.refusals``)
