@@ -396,53 +396,45 @@ def simplify_enclosing(vertices: np.ndarray, faces: np.ndarray, handles: int, po
                       outputs=[choice_out, reason_out], block_dim=COLLAPSE_BLOCK)
             all_choices, all_reasons = choice_out.numpy(), reason_out.numpy()
             start = 0
-            for walked, chosen in enumerate(plan):
+            for walked, chosen in enumerate(plan):  # in order, up to the first round where a collapse passed
                 choice, reason = all_choices[start:start + len(chosen)], all_reasons[start:start + len(chosen)]
                 start += len(chosen)
                 rounds += 1
                 reasons += np.bincount(reason[choice < 0], minlength=8)
-                if (choice >= 0).any() or start == len(candidates):
-                    break  # this round (one passed, or the plan's last) is made and its refusals kept below
-                refused_keys, refused_at = _refuse(refused_keys, refused_at, keys[chosen], rounds)
+                a, b = edges[chosen, 0], edges[chosen, 1]
+                passed = np.flatnonzero(choice >= 0)
+                made = passed[:0]
+                if len(passed):
+                    made = passed[_apart(v, f, vf_start, vf, a[passed], b[passed],
+                                         place[chosen[passed], choice[passed]], device)]
+                no = choice < 0
+                if no.any():
+                    refused_keys, refused_at = _refuse(refused_keys, refused_at, keys[chosen[no]], rounds)
+                if len(made):
+                    a, b, x = a[made], b[made], place[chosen[made], choice[made]]
+                    v[a] = x
+                    q[a] += q[b]
+                    relabel = np.arange(n)
+                    relabel[b] = a
+                    f = relabel[f]
+                    f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 2] != f[:, 0])]
+                    alive[b] = False
+                    _, touched = _expand(nbr_start, nbr, np.concatenate([a, b]))
+                    changed_at[touched] = rounds
+                    changed_at[a] = rounds
+                    moved_at[a] = rounds  # the next round recomputes the placements of the edges at a
                 if give_up_above is not None:
                     left.append(int(alive.sum()))
-                    if _stalled(left, give_up_above):
-                        gave_up = True
-                        break
+                    gave_up = _stalled(left, give_up_above)
+                if gave_up or len(passed):
+                    break
             if gave_up:
                 break
-            if walked:  # the placements kept for the next round: of this round's eligible edges, as one at a time
-                held = ~_contains(np.sort(keys[np.concatenate(plan[:walked])]), cached_keys)
-                cached_keys, cached_place, cached_costs = cached_keys[held], cached_place[held], cached_costs[held]
-            a, b = edges[chosen, 0], edges[chosen, 1]
-            passed = np.flatnonzero(choice >= 0)
-            made = passed[:0]
-            if len(passed):
-                made = passed[_apart(v, f, vf_start, vf, a[passed], b[passed], place[chosen[passed], choice[passed]],
-                                     device)]
-            no = choice < 0
-            if no.any():
-                refused_keys, refused_at = _refuse(refused_keys, refused_at, keys[chosen[no]], rounds)
             # how many candidates the next launch works out ahead: its size only, never its outcome
             ahead = 0 if len(made) else min(max(2 * ahead, AHEAD_CANDIDATES), AHEAD_MOST)
-            if len(made):
-                a, b, x = a[made], b[made], place[chosen[made], choice[made]]
-                v[a] = x
-                q[a] += q[b]
-                relabel = np.arange(n)
-                relabel[b] = a
-                f = relabel[f]
-                f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 2] != f[:, 0])]
-                alive[b] = False
-                _, touched = _expand(nbr_start, nbr, np.concatenate([a, b]))
-                changed_at[touched] = rounds
-                changed_at[a] = rounds
-                moved_at[a] = rounds  # the next round recomputes the placements of the edges at a
-            if give_up_above is not None:
-                left.append(int(alive.sum()))
-                if _stalled(left, give_up_above):
-                    gave_up = True
-                    break
+            if walked:  # the placements kept for the next round: of its eligible edges, as one round at a time
+                held = ~_contains(np.sort(keys[np.concatenate(plan[:walked])]), cached_keys)
+                cached_keys, cached_place, cached_costs = cached_keys[held], cached_place[held], cached_costs[held]
     keep = np.flatnonzero(alive)
     remap = np.full(n, -1, dtype=np.int64)
     remap[keep] = np.arange(len(keep))
