@@ -1,12 +1,23 @@
-"""Input and output: meshes and cages from files, whole-or-nothing output files, cage poses, animated USD.
+"""Input and output: every file read through one door (:mod:`.door`) and written through another (:mod:`.outputs`),
+the inputs' full set (:mod:`.inputs`), meshes and cages (:mod:`.load`), cage poses (:mod:`.poses`), animated USD
+(:mod:`.usd`).
 
-Nothing here solves anything: these modules read what users have and write what pipelines take.
+Nothing here solves anything: these modules read what users have and write what pipelines take. The names below are
+imported when first used (PEP 562): the command line's start-up and its signal handling need none of numpy.
 """
 
-from .files import atomic_output
-from .load import Surface, load_surface
-from .poses import Poses, load_poses, pose_vertices, same_triangles
-from .usd import write_animation
+import importlib
+
+_HOME = {"atomic_output": ".outputs", "Surface": ".load", "load_surface": ".load", "Poses": ".poses",
+         "load_poses": ".poses", "pose_vertices": ".poses", "same_triangles": ".poses", "write_animation": ".usd"}
 
 __all__ = ["atomic_output", "Surface", "load_surface", "Poses", "load_poses", "pose_vertices", "same_triangles",
            "write_animation"]
+
+
+def __getattr__(name: str):
+    if name in _HOME:
+        value = getattr(importlib.import_module(_HOME[name], __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -7,7 +7,8 @@ import os
 import numpy as np
 
 from ..errors import BindingError
-from .poses import Poses, numeric, obj_sequence, read_positions, same_triangles
+from .door import checked_input
+from .poses import Poses, checked_poses, numeric, obj_sequence, read_positions, same_triangles
 
 __all__ = ["load_mesh_frames"]
 
@@ -93,16 +94,14 @@ def load_mesh_frames(source, faces: np.ndarray, n_vertices: int, prims=None) -> 
         array = array[None] if array.ndim == 2 else array
         if array.ndim != 3 or array.shape[1:] != (n_vertices, 3):
             raise BindingError(f"frames must have shape (frames, {n_vertices}, 3), got {source.shape}")
-        return Poses(array, np.arange(1, len(array) + 1, dtype=np.float64), "<array>")
-    path = os.fspath(source)
-    if not os.path.exists(path):
-        raise BindingError(f"{path}: no such file or folder")
+        return checked_poses(Poses(array, np.arange(1, len(array) + 1, dtype=np.float64), "<array>"), "frames")
+    path = checked_input(source, BindingError, "frames", folder=True)
     if os.path.isdir(path):
-        return _from_folder(path, np.asarray(faces), n_vertices)
+        return checked_poses(_from_folder(path, np.asarray(faces), n_vertices), "frames")
     ext = os.path.splitext(path)[1].lower()
     if ext in (".npy", ".npz"):
-        return read_positions(path, n_vertices, keys=("frames", "positions", "vertices"), numbers_key="times",
-                              what="frames", of="mesh")
+        return checked_poses(read_positions(path, n_vertices, keys=("frames", "positions", "vertices"),
+                                            numbers_key="times", what="frames", of="mesh"), "frames")
     if ext in (".usd", ".usda", ".usdc", ".usdz"):
-        return _from_usd(path, n_vertices, prims)
+        return checked_poses(_from_usd(path, n_vertices, prims), "frames")
     raise BindingError(f"{path}: frames must be a folder of OBJ files, a .npy/.npz array or a USD file")

@@ -6,14 +6,17 @@ Vertex order is preserved exactly (no merging, no reordering): users map weights
 from __future__ import annotations
 
 import os
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..errors import MeshError
+from .door import checked_input, gltf_dependencies, input_bytes, read_input, reason
 from .obj import read_obj
 
-__all__ = ["Surface", "load_surface", "fan_triangles", "first_missing_vertex", "polygons_by_part", "EXTENTS"]
+__all__ = ["Surface", "load_surface", "fan_triangles", "first_missing_vertex", "polygons_by_part", "EXTENTS",
+           "COORDINATE_LIMIT", "finite_coordinates", "read_with_trimesh"]
 
 #: the bounding diagonals the package's float32 kernels resolve, in any unit: a sphere binds and gets a cage at
 #: diagonals of 3.5e-10 to 3.5e19; at 3.5e-11 the distances and inside tests lose the mesh, at 3.5e20 squared lengths
@@ -127,6 +130,36 @@ def _check_corners(counts: np.ndarray, corners: np.ndarray, n_vertices: int, nam
                         "vertices")
 
 
+#: the largest coordinate taken anywhere (vertices, cages, poses, frames): the diagonals' upper end, so that the
+#: float32 arithmetic of the kernels and of the files written (USD points, glTF) holds every position and its square
+COORDINATE_LIMIT = EXTENTS[1]
+
+
+def finite_coordinates(values: np.ndarray, name: str, what: str = "vertex", error=MeshError) -> np.ndarray:
+    """``values`` (..., 3) float64 when every coordinate is finite and within :data:`COORDINATE_LIMIT` in magnitude;
+    else one ``error`` naming the first ``what`` (its index over the leading axes) that is not.
+
+    Examples
+    --------
+    >>> finite_coordinates(np.array([[0.0, 1e300, 0.0]]), "p.npy", "pose point")
+    Traceback (most recent call last):
+    ...
+    warp_stokes.errors.MeshError: p.npy: pose point 0 has a coordinate beyond 1e+18 ([0.0, 1e+300, 0.0]); scale it (to metres, say)
+    """
+    values = np.asarray(values, dtype=np.float64)
+    with np.errstate(invalid="ignore"):
+        bad = ~(np.abs(values) <= COORDINATE_LIMIT).all(axis=-1)
+    if bad.any():
+        where = np.argwhere(bad)[0]
+        row = values[tuple(where)]
+        index = ", ".join(str(int(i)) for i in where)
+        if np.isfinite(row).all():
+            raise error(f"{name}: {what} {index} has a coordinate beyond {COORDINATE_LIMIT:g} ({row.tolist()}); "
+                        "scale it (to metres, say)")
+        raise error(f"{name}: {what} {index} has a non-finite coordinate {row.tolist()}")
+    return values
+
+
 def _checked_vertices(vertices, name: str) -> np.ndarray:
     """(V, 3) float64 vertices, or a one-line error: not numbers, the wrong shape, none, non-finite, or an extent
     outside :data:`EXTENTS`."""
@@ -138,14 +171,15 @@ def _checked_vertices(vertices, name: str) -> np.ndarray:
         raise MeshError(f"{name}: vertices must have shape (V, 3), got {v.shape}")
     if len(v) == 0:
         raise MeshError(f"{name}: the mesh has no vertices")
-    if not np.all(np.isfinite(v)):
-        bad = int(np.flatnonzero(~np.isfinite(v).all(axis=1))[0])
-        raise MeshError(f"{name}: vertex {bad} has a non-finite coordinate {v[bad].tolist()}")
-    diagonal = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
+    if not np.isfinite(v).all():
+        finite_coordinates(v, name, "vertex", MeshError)  # names the first vertex that is not finite
+    with np.errstate(over="ignore"):
+        diagonal = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
     if diagonal > 0 and not EXTENTS[0] <= diagonal <= EXTENTS[1]:  # one point (or none apart) is said elsewhere
         raise MeshError(f"{name}: its bounding diagonal is {diagonal:.3g}, outside what the solver's float32 "
                         f"arithmetic resolves ({EXTENTS[0]:g} to {EXTENTS[1]:g} in any unit); "
                         "scale it (to metres, say)")
+    finite_coordinates(v, name, "vertex", MeshError)  # and no coordinate beyond the limit (far from the origin)
     return np.ascontiguousarray(v)
 
 
@@ -196,8 +230,96 @@ def with_vertex_uvs(surface: Surface, mesh) -> Surface:
     if uv is None or len(uv) != len(surface.vertices) or np.ndim(uv) != 2 or np.shape(uv)[1] < 2:
         return surface
     counts, indices = surface.polygons()
-    return Surface(surface.vertices, surface.faces, surface.name, surface.normals, counts, indices,
-                   (np.asarray(uv, dtype=np.float64)[:, :2].copy(), indices.copy()))
+    return _finite_attributes(Surface(surface.vertices, surface.faces, surface.name, surface.normals, counts, indices,
+                                      (np.asarray(uv, dtype=np.float64)[:, :2].copy(), indices.copy())))
+
+
+class _CheckedResolver:
+    """trimesh's resolver for the files a glTF names, through the one door in: exactly the file named beside it
+    (trimesh's own resolver tries other names, and so can read another file than the one named)."""
+
+    def __init__(self, path: str):
+        self.folder = os.path.dirname(os.path.abspath(path))
+        self.name = path
+
+    def get(self, key: str) -> bytes:
+        from urllib.parse import unquote
+
+        return read_input(os.path.join(self.folder, unquote(key)), MeshError, f"glTF resource ({self.name})")
+
+    __getitem__ = get
+
+    def keys(self):
+        return []
+
+    def namespaced(self, namespace: str):
+        return _CheckedResolver(os.path.join(self.folder, namespace, "x"))
+
+    def write(self, name, data):
+        raise MeshError(f"{self.name}: reading it would write {name}")
+
+
+def read_with_trimesh(path: str, force: str):
+    """A mesh file trimesh reads (PLY, STL, OFF, glTF/GLB, ...), its bytes through the one door in: any failure to
+    parse it, whatever trimesh raises, is one MeshError naming the file.
+
+    Parameters
+    ----------
+    path : str
+    force : "mesh" (all geometry as one mesh) or "scene" (the scene graph kept)
+    """
+    import trimesh
+
+    ext = os.path.splitext(path)[1].lower().lstrip(".")
+    if ext == "gltf":
+        for dependency in gltf_dependencies(path, MeshError):
+            checked_input(dependency, MeshError, f"glTF resource ({path})")
+    data = input_bytes(path, MeshError, "mesh")
+    if ext == "stl":
+        _check_stl(path, data.getvalue())
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # trimesh warns of what it then raises for
+            return trimesh.load(data, file_type=ext, resolver=_CheckedResolver(path), force=force, process=False,
+                                maintain_order=True)
+    except MeshError:
+        raise
+    except Exception as exc:  # trimesh raises many different types for unreadable files, ImportError among them
+        why = "not a valid file of this format" if isinstance(exc, ImportError) else reason(exc)
+        raise MeshError(f"{path}: cannot read it as a {ext.upper() or 'mesh'} file ({why})") from None
+
+
+def _check_stl(path: str, data: bytes) -> None:
+    """An STL file whole: a binary one's size is what its triangle count says (trimesh reads a binary STL cut short
+    as an empty mesh, or as text), a text one starts with ``solid`` and has facets."""
+    if len(data) >= 84 and 84 + 50 * int.from_bytes(data[80:84], "little") == len(data):
+        return  # binary, whole
+    head = data[:1024].lstrip().lower()
+    if head.startswith(b"solid") and (b"facet" in data[:1 << 16].lower() or b"endsolid" in data[-1024:].lower()):
+        return  # text
+    if len(data) >= 84:
+        count = int.from_bytes(data[80:84], "little")
+        raise MeshError(f"{path}: cannot read it as a STL file (a binary STL of {count} triangles has "
+                        f"{84 + 50 * count} bytes, this file {len(data)}: cut short or damaged)")
+    raise MeshError(f"{path}: cannot read it as a STL file (neither a binary STL nor one of text)")
+
+
+def _finite_attributes(surface: "Surface") -> "Surface":
+    """``surface`` without normals or texture coordinates that are not finite (dropped with a warning naming the
+    file): a binding holds only finite numbers, and a mesh's shape does not depend on them."""
+    normals, uvs = surface.normals, surface.uvs
+    dropped = []
+    if normals is not None and not np.isfinite(normals).all():
+        normals = None
+        dropped.append("normals")
+    if uvs is not None and not np.isfinite(uvs[0]).all():
+        uvs = None
+        dropped.append("texture coordinates")
+    if not dropped:
+        return surface
+    warnings.warn(f"{surface.name}: its {' and '.join(dropped)} are not all finite numbers; dropped", stacklevel=3)
+    return Surface(surface.vertices, surface.faces, surface.name, normals, surface.face_counts, surface.face_indices,
+                   uvs)
 
 
 def _is_trimesh(source) -> bool:
@@ -241,24 +363,18 @@ def load_surface(source, name: str | None = None) -> Surface:
     if isinstance(source, (str, os.PathLike)):
         path = os.fspath(source)
         name = name or path
-        if not os.path.exists(path):
-            raise MeshError(f"{path}: no such file")
-        if os.path.isdir(path):
-            raise MeshError(f"{path}: is a folder, not a mesh file")
+        checked_input(path, MeshError, "mesh")
         if path.lower().endswith(".obj"):
             verts, polys, normals, uvs = read_obj(path)
             if len(verts) == 0:
                 raise MeshError(f"{path}: the file has no vertices")
             surface = _from_arrays(verts, polys, name) if not isinstance(polys, tuple) else \
                 _from_polygons(verts, *polys, name)
-            return Surface(surface.vertices, surface.faces, surface.name, normals, surface.face_counts,
-                           surface.face_indices, uvs)
+            return _finite_attributes(Surface(surface.vertices, surface.faces, surface.name, normals,
+                                              surface.face_counts, surface.face_indices, uvs))
         import trimesh  # here only: importing it takes half a second, and OBJ files do not need it
 
-        try:
-            loaded = trimesh.load(path, force="mesh", process=False, maintain_order=True)
-        except Exception as exc:  # trimesh raises many different types for unreadable files
-            raise MeshError(f"{path}: cannot read it as a mesh ({type(exc).__name__}: {exc})") from None
+        loaded = read_with_trimesh(path, "mesh")
         if not isinstance(loaded, trimesh.Trimesh) or len(loaded.vertices) == 0:
             raise MeshError(f"{path}: the file has no mesh vertices")
         return with_vertex_uvs(_from_arrays(loaded.vertices, loaded.faces, name), loaded)

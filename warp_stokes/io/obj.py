@@ -9,6 +9,7 @@ import warnings
 import numpy as np
 
 from ..errors import MeshError
+from .door import read_input
 
 __all__ = ["read_obj"]
 
@@ -85,11 +86,9 @@ def read_obj(path: str) -> tuple[np.ndarray, np.ndarray | list, np.ndarray | Non
     MeshError
         An unreadable file, vertex or face, naming the line.
     """
-    try:
-        with open(path, encoding="utf-8-sig", errors="replace") as fh:  # -sig: a byte-order mark is no part of line 1
-            text = fh.read()
-    except OSError as exc:
-        raise MeshError(f"{path}: cannot read it ({exc.strerror or exc})") from None
+    # -sig: a byte-order mark is no part of line 1; universal newlines as text mode reads them
+    text = read_input(path, MeshError, "mesh").decode("utf-8-sig", errors="replace")
+    text = text.replace("\r\n", "\n").replace("\r", "\n")
     fast = _read_obj_triangles(text)
     if fast is not None:
         return fast

@@ -8,11 +8,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..arguments import FLOAT32_MAX, number
 from ..errors import BindingError
-from .load import load_surface
+from .door import checked_input, read_numpy
+from .load import finite_coordinates, load_surface
 
-__all__ = ["Poses", "load_poses", "natural_key", "numeric", "obj_sequence", "pose_vertices", "read_positions",
-           "same_triangles"]
+__all__ = ["Poses", "load_poses", "checked_poses", "natural_key", "numeric", "obj_sequence", "pose_vertices",
+           "read_positions", "same_triangles"]
 
 
 @dataclass
@@ -144,7 +146,10 @@ def numeric(value, name: str, what: str) -> np.ndarray:
     ...
     warp_stokes.errors.BindingError: s.npy: poses must be numbers, not an array of <U1
     """
-    array = np.asarray(value)
+    try:
+        array = np.asarray(value)
+    except (TypeError, ValueError):  # ragged lists
+        raise BindingError(f"{name}: {what} must be an array of numbers of one shape") from None
     if array.dtype.kind not in "biuf":
         raise BindingError(f"{name}: {what} must be numbers, not an array of {array.dtype}")
     return array.astype(np.float64)
@@ -160,31 +165,23 @@ def read_positions(path: str, n_points: int, keys=("poses",), numbers_key: str =
     ------
     BindingError, naming the file and the problem
     """
-    try:
-        data = np.load(path, allow_pickle=False)
-        numbers = None
-        if isinstance(data, np.lib.npyio.NpzFile):
-            with data:
-                key = next((k for k in keys if k in data.files), data.files[0] if data.files else None)
-                if key is None:
-                    raise BindingError(f"{path}: the archive is empty")
-                array = data[key]
-                if numbers_key in data.files:
-                    numbers = numeric(data[numbers_key], path, f"'{numbers_key}'")
-        else:
-            array = data
-    except BindingError:
-        raise
-    except Exception as exc:  # unreadable, or an object array (it would need unpickling)
-        raise BindingError(f"{path}: cannot read it as a numpy array ({type(exc).__name__}: {exc})") from None
+    data = read_numpy(path, BindingError, what)
+    numbers = None
+    if isinstance(data, dict):
+        key = next((k for k in keys if k in data), next(iter(data), None))
+        if key is None:
+            raise BindingError(f"{path}: the archive is empty")
+        array = data[key]
+        if numbers_key in data:
+            numbers = numeric(data[numbers_key], path, f"'{numbers_key}'")
+    else:
+        array = data
     array = numeric(array, path, what)
     if array.ndim == 2:
         array = array[None]
     if array.ndim != 3 or array.shape[1:] != (n_points, 3):
         raise BindingError(f"{path}: {what} must have shape (frames, {n_points}, 3) for this {of}, got {array.shape}")
-    if not np.all(np.isfinite(array)):
-        bad = int(np.flatnonzero(~np.isfinite(array).all(axis=(1, 2)))[0])
-        raise BindingError(f"{path}: frame {bad} has non-finite coordinates")
+    finite_coordinates(array, path, "frame, point" if what == "poses" else "frame, vertex", BindingError)
     if numbers is None:
         numbers = np.arange(1, len(array) + 1, dtype=np.float64)
     elif numbers.shape != (len(array),):
@@ -223,13 +220,32 @@ def _from_usd(path: str, cage_faces: np.ndarray, n_handles: int, source_index=No
     return Poses(positions, times, name, rate)
 
 
-def _checked(poses: Poses) -> Poses:
-    if len(poses.positions) == 0:
-        raise BindingError(f"{poses.name}: there are no poses")
-    frames = np.asarray(poses.frames, dtype=np.float64)
-    if not np.all(np.isfinite(frames)) or len(np.unique(frames)) != len(frames):
-        raise BindingError(f"{poses.name}: frame numbers must be finite and distinct, got {frames.tolist()[:10]}")
-    return poses
+def checked_poses(poses: Poses, what: str = "poses") -> Poses:
+    """Poses (or mesh frames) as every writer takes them: at least one, every position finite and within
+    :data:`~warp_stokes.io.load.COORDINATE_LIMIT`, frame numbers finite, distinct and within float32's range (glTF
+    keeps times as float32), one per pose. The one place where a sequence's numbers are checked, whatever it came
+    from.
+
+    Raises
+    ------
+    BindingError, naming where the poses came from
+    """
+    positions = numeric(poses.positions, poses.name, what)
+    if positions.ndim != 3 or positions.shape[2] != 3:
+        raise BindingError(f"{poses.name}: {what} must have shape (frames, points, 3), got {positions.shape}")
+    if len(positions) == 0:
+        raise BindingError(f"{poses.name}: there are no {what}")
+    finite_coordinates(positions, poses.name, "frame, point", BindingError)
+    frames = numeric(poses.frames, poses.name, "frame numbers")
+    if frames.shape != (len(positions),):
+        raise BindingError(f"{poses.name}: {len(frames.ravel())} frame numbers for {len(positions)} {what}")
+    if not np.all(np.abs(frames) <= FLOAT32_MAX) or len(np.unique(frames)) != len(frames):
+        raise BindingError(f"{poses.name}: frame numbers must be finite, distinct and within float32's range, got "
+                           f"{frames.tolist()[:10]}")
+    rate = poses.time_codes_per_second
+    if rate is not None:
+        number(rate, f"{poses.name}: time codes per second", 0, low_open=True)
+    return Poses(positions, frames, poses.name, rate)
 
 
 def load_poses(source, cage_faces: np.ndarray, n_handles: int | None = None, source_index=None,
@@ -267,7 +283,7 @@ def load_poses(source, cage_faces: np.ndarray, n_handles: int | None = None, sou
     cage_faces = np.asarray(cage_faces, dtype=np.int64)
     n_handles = int(cage_faces.max()) + 1 if n_handles is None else int(n_handles)
     if isinstance(source, Poses):
-        return _checked(source)
+        return checked_poses(source)
     if isinstance(source, (list, tuple)):  # a list of (L, 3) poses, as a user collects them
         try:
             source = np.asarray(source, dtype=np.float64)
@@ -279,17 +295,15 @@ def load_poses(source, cage_faces: np.ndarray, n_handles: int | None = None, sou
         array = array[None] if array.ndim == 2 else array
         if array.ndim != 3 or array.shape[1:] != (n_handles, 3):
             raise BindingError(f"poses must have shape (frames, {n_handles}, 3) for this cage, got {source.shape}")
-        return _checked(Poses(array, np.arange(1, len(array) + 1, dtype=np.float64), "<array>"))
-    path = os.fspath(source)
-    if not os.path.exists(path):
-        raise BindingError(f"{path}: no such file or folder")
+        return checked_poses(Poses(array, np.arange(1, len(array) + 1, dtype=np.float64), "<array>"))
+    path = checked_input(source, BindingError, "poses", folder=True)
     if os.path.isdir(path):
-        return _checked(_from_folder(path, cage_faces, n_handles, source_index))
+        return checked_poses(_from_folder(path, cage_faces, n_handles, source_index))
     ext = os.path.splitext(path)[1].lower()
     if ext in (".npy", ".npz"):
-        return _checked(read_positions(path, n_handles))
+        return checked_poses(read_positions(path, n_handles))
     if ext in (".usd", ".usda", ".usdc", ".usdz"):
-        return _checked(_from_usd(path, cage_faces, n_handles, source_index, cage_prim))
+        return checked_poses(_from_usd(path, cage_faces, n_handles, source_index, cage_prim))
     if cage_prim is not None:
         raise BindingError(f"{path}: a cage prim is named, but the poses are not a USD file")
     raise BindingError(f"{path}: poses must be a folder of OBJ frames, a .npy/.npz array or a USD file")

@@ -13,7 +13,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import MeshError
-from .load import Surface, load_surface, with_vertex_uvs
+from .door import checked_input
+from .load import Surface, load_surface, read_with_trimesh, with_vertex_uvs
 
 __all__ = ["MeshPart", "Scene", "load_scene", "USD_EXTENSIONS", "is_usd"]
 
@@ -111,10 +112,7 @@ def _gltf_scene(path: str) -> Scene:
 
     from .poses import natural_key
 
-    try:
-        loaded = trimesh.load(path, force="scene", process=False, maintain_order=True)
-    except Exception as exc:  # trimesh raises many different types for unreadable files
-        raise MeshError(f"{path}: cannot read it as a scene ({type(exc).__name__}: {exc})") from None
+    loaded = read_with_trimesh(path, "scene")
     parts = []
     for node in sorted(loaded.graph.nodes_geometry, key=lambda n: natural_key(str(n))):
         matrix, geometry_name = loaded.graph[node]
@@ -171,9 +169,6 @@ def load_scene(source, mesh_prims=None, cage_prim: str | None = None, rest_time=
     if mesh_prims:
         raise MeshError(f"{source}: mesh prims are named, but it is not a USD file")
     if isinstance(source, (str, os.PathLike)) and os.fspath(source).lower().endswith((".glb", ".gltf")):
-        path = os.fspath(source)
-        if not os.path.isfile(path):
-            raise MeshError(f"{path}: no such file")
-        return _gltf_scene(path)
+        return _gltf_scene(checked_input(source, MeshError, "mesh"))
     surface = load_surface(source)
     return Scene((MeshPart(surface.name, surface),), surface.name)

@@ -10,22 +10,22 @@ import numpy as np
 from ...errors import BindingError, CageError, MeshError, WarpStokesError
 from ..load import Surface, fan_triangles, first_missing_vertex, load_surface
 from ..scene import MeshPart, Scene
+from .layers import layer_stack, usd_reason
 
-__all__ = ["open_stage", "layer_files", "read_asset", "read_cage_prim", "rest_time_code", "mesh_prim",
+__all__ = ["open_stage", "read_asset", "read_cage_prim", "rest_time_code", "mesh_prim",
            "world_matrix", "stage_metadata"]
 
 
 def open_stage(path: str, error=MeshError):
-    """The composed stage of a USD file; an unreadable file is one ``error`` naming it."""
+    """The composed stage of a USD file, every layer of its stack read first (:func:`~.layers.layer_stack`): a
+    layer that is missing or unreadable is one ``error`` naming it, never a stage composed without it."""
     from pxr import Usd
 
-    if not os.path.isfile(path):
-        raise error(f"{path}: no such file")
+    stack = layer_stack(path, error)  # held while the stage opens: it composes these very layers
     try:
-        stage = Usd.Stage.Open(path)
+        stage = Usd.Stage.Open(stack.layers[0])
     except Exception as exc:  # pxr raises Tf.ErrorException (a RuntimeError) for unreadable layers
-        lines = str(exc).strip().splitlines() or [type(exc).__name__]
-        raise error(f"{path}: cannot open it as a USD stage ({lines[-1].strip()})") from None
+        raise error(f"{path}: cannot open it as a USD stage ({usd_reason(exc)})") from None
     if stage is None:
         raise error(f"{path}: cannot open it as a USD stage")
     return stage
@@ -38,31 +38,6 @@ def time_codes_per_second(stage, path, error=BindingError) -> float:
     if not (np.isfinite(rate) and rate > 0):
         raise error(f"{path}: timeCodesPerSecond is {rate:g}, not a positive number of time codes per second")
     return rate
-
-
-def layer_files(path) -> list[str]:
-    """The files a USD asset is made of: its root layer and every layer it sublayers, references or takes as a payload,
-    recursively (read as layers, not composed: payloads need not load). Absolute real paths; a layer that cannot be
-    opened is left out (opening the stage names it).
-
-    Examples
-    --------
-    >>> layer_files("examples/arm/arm.usda")   # doctest: +SKIP
-    ['/.../examples/arm/arm.usda']
-    """
-    from pxr import Sdf
-
-    seen, pending = {}, [os.path.abspath(os.fspath(path))]
-    while pending:
-        name = pending.pop()
-        layer = Sdf.Layer.FindOrOpen(name)
-        if layer is None or layer.identifier in seen:
-            continue
-        seen[layer.identifier] = os.path.realpath(layer.realPath) if layer.realPath else None
-        for dependency in layer.GetCompositionAssetDependencies():
-            if dependency:
-                pending.append(layer.ComputeAbsolutePath(dependency))
-    return [real for real in seen.values() if real]
 
 
 def mesh_prim(stage, prim_path: str, name: str, error=MeshError):
