@@ -238,6 +238,17 @@ def require_ray(what: str = "--workers and --ray-address need"):
     return ray
 
 
+def start_ray(ray, **options) -> None:
+    """``ray.init(**options)``, a failure to start or join the cluster (a raylet that does not start, an address with
+    no cluster) one WarpStokesError saying so."""
+    try:
+        ray.init(**options)
+    except Exception as exc:  # Ray raises ConnectionError, RuntimeError and plain Exceptions
+        where = f"join the Ray cluster at {options['address']}" if options.get("address") else "start Ray"
+        text = " ".join(str(exc).split())[:200] or type(exc).__name__
+        raise WarpStokesError(f"could not {where} ({text})") from None
+
+
 def cuda_device_count() -> int:
     """CUDA devices this process can see (0 without a driver): a batch on Ray starts one worker per GPU."""
     init_warp()

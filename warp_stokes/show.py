@@ -24,7 +24,7 @@ from .geometry.cage import check_cage
 from .geometry.grid import voxelize
 from .geometry.inside import classify_points
 from .geometry.topology import bounding_diagonal
-from .io.files import atomic_output
+from .io.outputs import atomic_output
 from .io.load import load_surface
 from .quality import conformal_distortion
 from .solver.solve import solve_biharmonic
@@ -378,11 +378,11 @@ def mesh_colours(binding, pose=None, reference=None) -> MeshColours:
     surface = load_surface(reference)
     if len(surface.vertices) == len(vertices):
         distance = np.linalg.norm(vertices - surface.vertices, axis=1)
-    elif len(surface.faces):
-        import trimesh
+    elif len(surface.faces):  # each vertex's distance to the reference's closest point (Warp's BVH, no rtree)
+        from .geometry.cage import Cage
 
-        target = trimesh.Trimesh(surface.vertices, surface.faces, process=False)
-        distance = trimesh.proximity.closest_point(target, vertices)[1]
+        reference_mesh = Cage(surface.vertices, surface.faces, surface.name)
+        distance = classify_points(reference_mesh, vertices, device=binding.device)[1]
     else:
         raise WarpStokesError(f"{surface.name}: a reference with another vertex count ({len(surface.vertices)}, the "
                               f"mesh has {len(vertices)}) needs faces to measure the distance to")

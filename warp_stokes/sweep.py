@@ -29,7 +29,7 @@ from .binding.stats import identity_errors
 from .device import BIND_MODULES, compile_kernels, device_name, reset_peak_memory, resolve_device
 from .errors import ConvergenceError, WarpStokesError
 from .geometry.cage import check_cage
-from .io.files import atomic_output
+from .io.outputs import atomic_output
 from .io.load import load_surface
 from .quality import deformation_quality, vertex_weight_difference
 

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..arguments import flag, integer, number
 from ..errors import WarpStokesError
 
 __all__ = ["SkinWeights", "SkinError", "SkinReport", "skin_weights", "skin_points", "skin_error", "joint_names",
@@ -107,9 +108,12 @@ def skin_weights(binding, influences: int | None = None, non_negative: bool = Fa
     """
     weights = np.asarray(binding.weights, dtype=np.float64)
     n_vertices, n_handles = weights.shape
+    if influences is not None and not (isinstance(influences, (int, np.integer)) and not isinstance(influences, bool)
+                                       and 1 <= influences <= n_handles):
+        raise WarpStokesError(f"influences must be an integer between 1 and the cage's {n_handles} handles, got "
+                              f"{influences!r}")
     k = n_handles if influences is None else int(influences)
-    if not 1 <= k <= n_handles:
-        raise WarpStokesError(f"influences must be between 1 and the cage's {n_handles} handles, got {influences}")
+    non_negative = flag(non_negative, "non_negative")
     if non_negative:
         weights = np.maximum(weights, 0.0)
     if k == n_handles and not non_negative:
@@ -293,8 +297,16 @@ def write_skin(path, binding, poses, influences: int | None = None, non_negative
 
     from ..io.gltf import GLTF_EXTENSIONS, write_gltf_skin
     from ..io.poses import Poses, load_poses
-    from ..io.usd.write import check_animation
+    from ..io.usd.common import animation_rate
+    from ..io.usd.write import check_animation, check_options
 
+    check_options(fps, up_axis, meters_per_unit, with_cage=with_cage)
+    if max_error is not None:
+        number(max_error, "max_error", 0, low_open=True)
+    if influences is not None:
+        integer(influences, "influences", 1)
+    if non_negative is not None:
+        flag(non_negative, "non_negative")
     if not isinstance(poses, Poses):
         poses = load_poses(poses, binding.cage_faces, binding.n_handles, binding.cage_source_index)
     ext, positions, frames = check_animation(path, binding, poses, fps,
@@ -306,8 +318,6 @@ def write_skin(path, binding, poses, influences: int | None = None, non_negative
     if gltf and (with_cage or up_axis is not None or meters_per_unit is not None or asset is not None):
         raise WarpStokesError(f"{path}: a glTF skin takes no cage, up axis, units or asset (glTF is Y-up in metres; "
                               "a USD asset's own are converted)")
-    if max_error is not None and not (np.isfinite(max_error) and max_error > 0):
-        raise WarpStokesError(f"max error must be a positive fraction of the diagonal, got {max_error!r}")
     if influences is None:
         influences = min(8, binding.n_handles) if gltf else binding.n_handles
     non_negative = gltf if non_negative is None else bool(non_negative)
@@ -326,7 +336,7 @@ def write_skin(path, binding, poses, influences: int | None = None, non_negative
     # the SkelRoot's extent: the deformed points' box widened by how far the skin may be from them
     pad = (error.max + 1e-6) * diagonal
     if gltf:
-        rate = fps or poses.time_codes_per_second or ((binding.asset or {}).get("time_codes_per_second")) or 24.0
+        rate = animation_rate(fps, poses, (binding.asset or {}).get("time_codes_per_second"))
         write_gltf_skin(path, ext, binding, skin, joints, positions, frames, rate, metadata)
         form = "glTF skin"
     elif binding.asset is not None:
@@ -334,7 +344,7 @@ def write_skin(path, binding, poses, influences: int | None = None, non_negative
         from ..io.usd.skel import write_layer_skeleton
 
         asset_path, asset_metadata = asset_context(path, binding, asset, up_axis, meters_per_unit)
-        rate = fps or poses.time_codes_per_second or asset_metadata["time_codes_per_second"] or 24.0
+        rate = animation_rate(fps, poses, asset_metadata["time_codes_per_second"])
         write_layer_skeleton(path, ext, binding, skin, joints, positions, frames, rate, with_cage, asset_path,
                              asset_metadata, pad, metadata)
         form = f"UsdSkel layer over {os.path.relpath(asset_path, os.path.dirname(os.path.abspath(path)))}"
@@ -343,7 +353,7 @@ def write_skin(path, binding, poses, influences: int | None = None, non_negative
 
         if up_axis not in (None, "Y", "Z"):
             raise WarpStokesError(f"up axis must be 'Y' or 'Z', got {up_axis!r}")
-        rate = fps or poses.time_codes_per_second or 24.0
+        rate = animation_rate(fps, poses)
         write_standalone_skeleton(path, ext, binding, skin, joints, positions, frames, rate, with_cage,
                                   up_axis or "Y", 1.0 if meters_per_unit is None else meters_per_unit, pad, metadata)
         form = "UsdSkel stage"

@@ -24,7 +24,7 @@ import warnings
 
 import numpy as np
 
-from ..device import cpu_threads, device_name, require_ray, resolve_device
+from ..device import cpu_threads, device_name, require_ray, resolve_device, start_ray
 from ..errors import WarpStokesError
 from .columns import GridColumns, grid_columns
 
@@ -105,8 +105,8 @@ def spread_columns(checked, points: np.ndarray, resolution: int, devices: list[s
     on_cpu = devices[0] == "cpu"
     started = not ray.is_initialized()
     if started:
-        ray.init(num_cpus=len(devices) if on_cpu else None, num_gpus=0 if on_cpu else None, include_dashboard=False,
-                 log_to_driver=False, logging_level=logging.ERROR)
+        start_ray(ray, num_cpus=len(devices) if on_cpu else None, num_gpus=0 if on_cpu else None,
+                  include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR)
     try:
         gpus = int(ray.cluster_resources().get("GPU", 0))
         if not on_cpu and gpus == 0:

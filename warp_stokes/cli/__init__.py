@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 import warnings
 
+from ..arguments import number
+from ..errors import WarpStokesError
 from . import commands
 from .commands import format_stats
 
@@ -14,30 +17,29 @@ __all__ = ["main", "format_stats"]
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None):
-    print(f"warning: {message}", file=sys.stderr)
+    print(one_line(f"warning: {message}"), file=sys.stderr)
 
 
 class _Parser(argparse.ArgumentParser):
     """argparse with its errors on one line (exit code 2), as every other error of the command."""
 
     def error(self, message):
-        self.exit(2, f"{self.prog}: error: {message}\n")
+        self.exit(2, one_line(f"{self.prog}: error: {message}") + "\n")
 
 
 def _number(kind, low=None, high=None, low_open=False):
-    """An argparse type: ``kind`` (int or float) within [low, high] (low excluded with ``low_open``)."""
+    """An argparse type: ``kind`` (int or float) within [low, high] (low excluded with ``low_open``), finite, and for
+    floats within float32's range (every number the package stores or computes with in its kernels is float32)."""
 
     def parse(text):
         try:
             value = kind(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"{text!r} is not {'an integer' if kind is int else 'a number'}") from None
-        if value != value or abs(value) == float("inf") or (
-                low is not None and (value <= low if low_open else value < low)) or (high is not None and value > high):
-            bound = (f"> {low:g}" if low_open else f">= {low:g}") if low is not None else ""
-            bound += (" and " if bound and high is not None else "") + (f"<= {high:g}" if high is not None else "")
-            raise argparse.ArgumentTypeError(f"must be {bound}, got {text}")
-        return value
+        try:
+            return number(value, "", low, high, low_open, integer=kind is int)
+        except WarpStokesError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
 
     parse.__name__ = kind.__name__  # what argparse names in "invalid int value"
     return parse
@@ -94,15 +96,72 @@ def _slice(text: str) -> tuple:
     return axis.strip().lower(), value
 
 
+def one_line(text: str) -> str:
+    """``text`` as one printable line: control characters (a newline in a file name) and bytes of a name that are
+    not text (surrogates) written as escapes, so that every error is one line and printing it cannot fail.
+
+    Examples
+    --------
+    >>> print(one_line("take\\n2.obj: no such file"))
+    take\\n2.obj: no such file
+    """
+    text = text.encode("utf-8", "backslashreplace").decode("utf-8")
+    return "".join(c if c.isprintable() else c.encode("unicode_escape").decode("ascii") for c in text)
+
+
 def main(argv=None) -> int:
     """Entry point of the ``warp-stokes`` command: its exit code (0 done, 1 a solve that did not converge or an asset
-    that failed, 2 bad input or a failed write, 130 interrupted)."""
+    that failed, 2 bad input or a failed write, 130 interrupted by Ctrl-C, 128 + N by signal N: SIGTERM, SIGHUP)."""
+    from ..io.outputs import Interrupted, interrupt_on_signals
+
+    for stream in (sys.stdout, sys.stderr):  # a file name of any bytes prints (escaped) instead of failing
+        if hasattr(stream, "reconfigure"):
+            stream.reconfigure(errors="backslashreplace")
     try:
-        return _main(argv)
+        with interrupt_on_signals():
+            return _main(argv)
     except KeyboardInterrupt:
         # outputs are written under temporary names and renamed when complete: nothing half-written stays
         print("warp-stokes: interrupted; no output was left half-written", file=sys.stderr)
         return 130
+    except Interrupted as exc:
+        import signal
+
+        print(f"warp-stokes: interrupted ({signal.Signals(exc.signum).name}); no output was left half-written",
+              file=sys.stderr)
+        return 128 + exc.signum
+
+
+def _values_taken_whole(parser: argparse.ArgumentParser, argv: list) -> list:
+    """``argv`` with the values that start with a dash taken as values, as a user means them: an option's value
+    joined to it (``--key-frames -10,0,10``, ``-o -take2.usd``), and a file named like an option (``-take2.npy``,
+    no option of the command) given as ``./-take2.npy``. argparse would read each as an option of its own."""
+    sub = parser._subparsers._group_actions[0].choices.get(argv[0]) if argv and parser._subparsers else None
+    if sub is None:
+        return argv
+    options = sub._option_string_actions
+
+    def is_option(token: str) -> bool:  # an option's name, or the start of one (argparse takes abbreviations)
+        name = token.split("=", 1)[0]
+        return name in options or (name.startswith("--") and any(o.startswith(name) for o in options))
+
+    joined, k = [argv[0]], 1
+    while k < len(argv):
+        token = argv[k]
+        action = options.get(token)
+        if (action is not None and action.nargs is None and k + 1 < len(argv) and argv[k + 1].startswith("-")
+                and not is_option(argv[k + 1]) and argv[k + 1] != "--"):
+            joined.append(f"{max(action.option_strings, key=len)}={argv[k + 1]}")
+            k += 2
+            continue
+        if token == "--":
+            joined += argv[k:]
+            break
+        if token.startswith("-") and token != "-" and not is_option(token) and os.path.lexists(token):
+            token = os.path.join(".", token)
+        joined.append(token)
+        k += 1
+    return joined
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -309,22 +368,24 @@ def _add_batch(sub) -> None:
 
 def _main(argv) -> int:
     parser = _parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
     try:
-        args = parser.parse_args(argv)
+        args = parser.parse_args(_values_taken_whole(parser, argv))
     except SystemExit as exc:  # --help, --version, or a bad argument (one line on stderr already)
         return exc.code if isinstance(exc.code, int) else 2
-    from warp_stokes.errors import ConvergenceError, WarpStokesError
+    from warp_stokes.errors import ConvergenceError
+    from warp_stokes.io.door import reading
 
     # warnings are shown once the command has run, so that bad input ends in its one-line error alone
-    with warnings.catch_warnings(record=True) as caught:
+    with warnings.catch_warnings(record=True) as caught, reading():
         warnings.simplefilter("always")
         try:
             rc = args.run(args)
         except ConvergenceError as exc:  # not bad input: the solve could not give exact weights (none written)
-            print(f"warp-stokes: error: {exc}", file=sys.stderr)
+            print(one_line(f"warp-stokes: error: {exc}"), file=sys.stderr)
             return 1
         except (WarpStokesError, OSError) as exc:
-            print(f"warp-stokes: error: {exc}", file=sys.stderr)
+            print(one_line(f"warp-stokes: error: {exc}"), file=sys.stderr)
             return 2
 
     shown = set()

@@ -7,7 +7,7 @@ import os
 import sys
 import tempfile
 
-__all__ = ["format_stats", "check_output", "announce_compilation", "cage_command", "bind_command",
+__all__ = ["format_stats", "output_folder", "announce_compilation", "cage_command", "bind_command",
            "deform_command", "animate_command", "encode_command", "sweep_command", "show_command", "batch_command"]
 
 
@@ -63,33 +63,12 @@ def format_stats(stats: dict) -> str:
     return "\n".join(f"{k:<{width}}  {v}" for k, v in rows)
 
 
-def check_output(path: str, inputs=(), folder: bool = False) -> None:
-    """Before any work: the output's folder exists and is writable, the output is not one of the inputs, and it
-    is not an existing folder (or, with ``folder``, not an existing file), nor a device, pipe or link to one."""
-    from warp_stokes.errors import WarpStokesError
-    from warp_stokes.io.files import check_output_target, same_file
+def output_folder(path: str):
+    """The output folder of ``sweep`` and ``batch``, checked before any work (its parent exists, it is not a file)
+    and made when missing; see :func:`warp_stokes.io.outputs.output_folder`."""
+    from warp_stokes.io.outputs import output_folder as folder
 
-    parent = os.path.dirname(os.path.abspath(path))
-    if not os.path.isdir(parent):
-        raise WarpStokesError(f"{path}: the output folder {parent} does not exist")
-    try:  # a real file, not os.access: root passes that test in read-only and virtual (/proc) folders
-        with tempfile.NamedTemporaryFile(prefix=".tmp-", dir=parent):
-            pass
-    except OSError as exc:
-        raise WarpStokesError(f"{path}: the output folder {parent} takes no new files ({exc.strerror})") from None
-    if folder:
-        if os.path.exists(path) and not os.path.isdir(path):
-            raise WarpStokesError(f"{path}: the output exists and is not a folder")
-        if os.path.isdir(path) and not os.access(path, os.W_OK | os.X_OK):
-            raise WarpStokesError(f"{path}: the output folder is not writable")
-    elif os.path.isdir(path):
-        raise WarpStokesError(f"{path}: the output is a folder, not a file")
-    else:
-        check_output_target(path, inputs)  # not an input, not a device, pipe or link to one
-    if folder:
-        for source in inputs:
-            if source and same_file(path, source):
-                raise WarpStokesError(f"{path}: the output is the input {source}; choose another output name")
+    return folder(path)
 
 
 def announce_compilation(device, harmonic: bool = False) -> None:
@@ -101,7 +80,9 @@ def announce_compilation(device, harmonic: bool = False) -> None:
 
 def cage_command(args) -> int:
     import warp_stokes as ws
-    from warp_stokes.io.files import write_cage_file
+    from warp_stokes.io.inputs import inputs_of
+    from warp_stokes.io.mesh_out import write_cage_file
+    from warp_stokes.io.outputs import writing
     from warp_stokes.io.scene import is_usd
 
     ext = os.path.splitext(args.output)[1].lower().lstrip(".")
@@ -114,17 +95,17 @@ def cage_command(args) -> int:
                                  "usda or usdc for a layer over a USD asset)")
     if args.cage_prim is not None and not layer:
         raise ws.WarpStokesError("--cage-prim names the cage's prim in a USD layer (-o CAGE.usda)")
-    check_output(args.output, (args.mesh,))
-    if layer:
-        from warp_stokes.io.usd.cage_layer import check_cage_layer, write_cage_layer
+    with writing([args.output], inputs_of(args.mesh, error=ws.MeshError)):
+        if layer:
+            from warp_stokes.io.usd.cage_layer import check_cage_layer, write_cage_layer
 
-        prim = check_cage_layer(args.output, args.mesh, args.cage_prim)
-    made = ws.make_cage(args.mesh, handles=args.handles, offset=args.offset, device=args.device,
-                        mesh_prims=args.mesh_prim)
-    if layer:
-        write_cage_layer(args.output, args.mesh, made.cage.vertices, made.cage.faces, prim)
-    else:
-        write_cage_file(args.output, made.cage.vertices, made.cage.faces)
+            prim = check_cage_layer(args.output, args.mesh, args.cage_prim)
+        made = ws.make_cage(args.mesh, handles=args.handles, offset=args.offset, device=args.device,
+                            mesh_prims=args.mesh_prim)
+        if layer:
+            write_cage_layer(args.output, args.mesh, made.cage.vertices, made.cage.faces, prim)
+        else:
+            write_cage_file(args.output, made.cage.vertices, made.cage.faces)
     for note in made.notes:
         print(f"note: {note}")
     print(made.summary())
@@ -139,42 +120,43 @@ def made_cage_path(binding_path: str) -> str:
 
 def bind_command(args) -> int:
     import warp_stokes as ws
-    from warp_stokes.io.files import write_cage_file
+    from warp_stokes.io.inputs import inputs_of
+    from warp_stokes.io.mesh_out import write_cage_file
+    from warp_stokes.io.outputs import writing
 
-    check_output(args.output, (args.mesh, args.cage))
     if not args.output.lower().endswith(".npz"):  # a binding under another format's name misleads every reader
         raise ws.WarpStokesError(f"{args.output}: a binding is written as .npz")
     made_cage = made_cage_path(args.output) if args.cage == "auto" else None
-    if made_cage is not None:
-        check_output(made_cage, (args.mesh,))
-    elif args.handles is not None or args.offset is not None:
+    if made_cage is None and (args.handles is not None or args.offset is not None):
         raise ws.WarpStokesError("--handles and --offset shape a made cage: give the cage as auto")
+    if made_cage is not None and args.cage_prim is not None:
+        raise ws.WarpStokesError(f"cage 'auto' and a cage prim ({args.cage_prim}): give one of them")
     from warp_stokes.binding.spread import driver_device, spread_devices
 
     spread = spread_devices(args.device)
-    if spread is None:  # spread: the Ray workers compile, on their devices
-        announce_compilation(args.device, harmonic=args.method == "harmonic")
-    cage = args.cage
-    if made_cage is not None and (args.handles is not None or args.offset is not None):
-        from warp_stokes.io.scene import load_scene
+    outputs = ([made_cage] if made_cage is not None else []) + [args.output]  # the cage renamed first
+    with writing(outputs, inputs_of(args.mesh, args.cage, error=ws.MeshError)):
+        if spread is None:  # spread: the Ray workers compile, on their devices
+            announce_compilation(args.device, harmonic=args.method == "harmonic")
+        cage = args.cage
+        if made_cage is not None and (args.handles is not None or args.offset is not None):
+            from warp_stokes.io.scene import load_scene
 
-        if args.cage_prim is not None:
-            raise ws.WarpStokesError(f"cage 'auto' and a cage prim ({args.cage_prim}): give one of them")
-        surface = load_scene(args.mesh, mesh_prims=args.mesh_prim, rest_time=args.rest_time).surface()
-        cage = ws.make_cage(surface, handles=args.handles, offset=args.offset,
-                            device=args.device if spread is None else driver_device(spread))
-    budget = None if args.memory_gb is None else args.memory_gb * 2**30
-    from .progress import ProgressLine
+            surface = load_scene(args.mesh, mesh_prims=args.mesh_prim, rest_time=args.rest_time).surface()
+            cage = ws.make_cage(surface, handles=args.handles, offset=args.offset,
+                                device=args.device if spread is None else driver_device(spread))
+        budget = None if args.memory_gb is None else args.memory_gb * 2**30
+        from .progress import ProgressLine
 
-    with ProgressLine(os.path.basename(args.mesh), enabled=False if args.quiet else None) as progress:
-        binding = ws.bind(args.mesh, cage, resolution=args.resolution, device=args.device, tol=args.tol,
-                          max_iterations=args.max_iterations, solver=args.solver, memory_budget=budget,
-                          boundary=args.boundary, sampling=args.sampling, cage_prim=args.cage_prim,
-                          mesh_prims=args.mesh_prim, rest_time=args.rest_time, method=args.method,
-                          progress=progress, threads=args.threads)
-    if made_cage is not None:  # first: a binding is never left without the cage it was bound to
-        write_cage_file(made_cage, binding.cage_vertices, binding.cage_faces)
-    binding.save(args.output)
+        with ProgressLine(os.path.basename(args.mesh), enabled=False if args.quiet else None) as progress:
+            binding = ws.bind(args.mesh, cage, resolution=args.resolution, device=args.device, tol=args.tol,
+                              max_iterations=args.max_iterations, solver=args.solver, memory_budget=budget,
+                              boundary=args.boundary, sampling=args.sampling, cage_prim=args.cage_prim,
+                              mesh_prims=args.mesh_prim, rest_time=args.rest_time, method=args.method,
+                              progress=progress, threads=args.threads)
+        if made_cage is not None:
+            write_cage_file(made_cage, binding.cage_vertices, binding.cage_faces)
+        binding.save(args.output)
     print(format_stats(binding.stats))
     if made_cage is not None:
         record = binding.stats["made_cage"]
@@ -193,51 +175,47 @@ def bind_command(args) -> int:
 
 
 def deform_command(args) -> int:
-    import trimesh
-
     import warp_stokes as ws
+    from warp_stokes.io.inputs import inputs_of
+    from warp_stokes.io.mesh_out import MESH_FORMATS, write_mesh_file
+    from warp_stokes.io.outputs import writing
 
     ext = os.path.splitext(args.output)[1].lower().lstrip(".")
-    if ext not in ("obj", "ply", "off", "stl", "glb"):
+    if ext not in MESH_FORMATS:
         raise ws.WarpStokesError(f"{args.output}: unsupported mesh format {ext!r} (use obj, ply, off, stl or glb)")
-    check_output(args.output, (args.binding, args.cage))
-    binding = ws.load_binding(args.binding, device=args.device)
-    if len(binding.mesh_faces) == 0 and ext in ("stl", "glb"):  # they keep triangles only: a file of no vertices
-        raise ws.WarpStokesError(f"{args.output}: the bound mesh has no faces (a point set), which {ext} cannot hold; "
-                                 "write obj, ply or off")
-    vertices = binding.deform(pose_argument(args.cage, binding.n_handles))
-    mesh = trimesh.Trimesh(vertices=vertices, faces=binding.mesh_faces, process=False)
-    from warp_stokes.io.files import atomic_output
-
-    with atomic_output(args.output, "." + ext) as tmp:
-        mesh.export(tmp, file_type=ext)
+    with writing([args.output], inputs_of(args.binding, args.cage, error=ws.BindingError)):
+        binding = ws.load_binding(args.binding, device=args.device)
+        if len(binding.mesh_faces) == 0 and ext in ("stl", "glb"):  # they keep triangles only
+            raise ws.WarpStokesError(f"{args.output}: the bound mesh has no faces (a point set), which {ext} cannot "
+                                     "hold; write obj, ply or off")
+        vertices = binding.deform(pose_argument(args.cage, binding.n_handles))
+        write_mesh_file(args.output, vertices, binding.mesh_faces)
     print(f"wrote {args.output} ({len(vertices)} vertices)")
     return 0
 
 
 def pose_argument(source: str, n_handles: int):
     """A deformed cage file, or plain handle positions: a .npy array of shape (L, 3)."""
-    import numpy as np
-
     from warp_stokes.errors import BindingError
+    from warp_stokes.io.door import read_numpy
+    from warp_stokes.io.load import finite_coordinates
     from warp_stokes.io.poses import numeric
 
     if not source.lower().endswith(".npy"):
         return source
-    try:
-        positions = np.load(source, allow_pickle=False)
-    except (OSError, ValueError) as exc:
-        raise BindingError(f"{source}: not a readable .npy array ({exc})") from None
+    positions = read_numpy(source, BindingError, "positions")
+    if isinstance(positions, dict):
+        raise BindingError(f"{source}: an archive, not a .npy array of positions")
     positions = numeric(positions, source, "the positions")
     if positions.shape != (n_handles, 3):
         raise BindingError(f"{source}: positions of shape {positions.shape}; the bound cage needs ({n_handles}, 3)")
-    if not np.isfinite(positions).all():
-        raise BindingError(f"{source}: the positions contain NaN or infinite values")
-    return positions.astype(np.float64)
+    return finite_coordinates(positions, source, "position", BindingError)
 
 
 def animate_command(args) -> int:
     import warp_stokes as ws
+    from warp_stokes.io.inputs import inputs_of
+    from warp_stokes.io.outputs import writing
 
     keyed = args.key_frames is not None or args.inbetween is not None
     skinned = args.skeleton or os.path.splitext(args.output)[1].lower() in (".glb", ".gltf")
@@ -250,31 +228,41 @@ def animate_command(args) -> int:
     if args.interpolation is not None and not keyed:
         raise ws.WarpStokesError("--interpolation needs --key-frames or --inbetween (without them the poses are "
                                  "written as they are)")
-    check_output(args.output, (args.binding, args.poses, args.asset))
-    binding = ws.load_binding(args.binding, device=args.device)
-    poses = ws.load_poses(args.poses, binding.cage_faces, binding.n_handles, binding.cage_source_index,
-                          cage_prim=args.cage_prim)
-    if args.key_frames is not None and len(args.key_frames) != len(poses.frames):
-        raise ws.WarpStokesError(f"--key-frames: {len(args.key_frames)} frame numbers for {len(poses.frames)} poses "
-                                 f"in {poses.name}; give one per pose")
-    if keyed:  # the poses are keys: the frames between them are interpolated
-        poses = ws.inbetween(poses, args.key_frames, args.inbetween, args.interpolation or "linear")
+    with writing([args.output], inputs_of(args.binding, args.poses, args.asset, error=ws.BindingError)):
+        binding = ws.load_binding(args.binding, device=args.device)
+        poses = ws.load_poses(args.poses, binding.cage_faces, binding.n_handles, binding.cage_source_index,
+                              cage_prim=args.cage_prim)
+        if args.key_frames is not None and len(args.key_frames) != len(poses.frames):
+            raise ws.WarpStokesError(f"--key-frames: {len(args.key_frames)} frame numbers for {len(poses.frames)} "
+                                     f"poses in {poses.name}; give one per pose")
+        if keyed:  # the poses are keys: the frames between them are interpolated
+            poses = ws.inbetween(poses, args.key_frames, args.inbetween, args.interpolation or "linear")
+        if skinned:
+            report = ws.write_skin(args.output, binding, poses, influences=args.influences,
+                                   non_negative=True if args.non_negative else None, max_error=args.max_error,
+                                   fps=args.fps, with_cage=args.with_cage, up_axis=args.up_axis,
+                                   meters_per_unit=args.meters_per_unit, asset=args.asset)
+        else:
+            ws.write_animation(args.output, binding, poses, fps=args.fps, with_cage=args.with_cage,
+                               with_weights=args.with_weights, up_axis=args.up_axis,
+                               meters_per_unit=args.meters_per_unit, asset=args.asset)
     if skinned:
-        print(ws.write_skin(args.output, binding, poses, influences=args.influences,
-                            non_negative=True if args.non_negative else None, max_error=args.max_error, fps=args.fps,
-                            with_cage=args.with_cage, up_axis=args.up_axis, meters_per_unit=args.meters_per_unit,
-                            asset=args.asset))
+        print(report)
         return 0
-    ws.write_animation(args.output, binding, poses, fps=args.fps, with_cage=args.with_cage,
-                       with_weights=args.with_weights, up_axis=args.up_axis, meters_per_unit=args.meters_per_unit,
-                       asset=args.asset)
-    from pxr import Usd
+    from warp_stokes.io.usd.common import animation_rate
 
-    stage = Usd.Stage.Open(args.output)
-    form = f"a layer over {stage.GetRootLayer().subLayerPaths[0]}" if binding.asset or args.asset else "a stage"
+    asset_rate = None
+    if binding.asset is not None:  # the layer's rate and place, as its writer chose them
+        from warp_stokes.io.usd.layer import asset_context
+
+        asset_path, metadata = asset_context(args.output, binding, args.asset, None, None)
+        asset_rate = metadata["time_codes_per_second"]
+        form = f"a layer over {os.path.relpath(asset_path, os.path.dirname(os.path.abspath(args.output)))}"
+    else:
+        form = "a stage"
     print(f"wrote {args.output} ({form}): {len(poses.frames)} frames ({poses.frames.min():g} to "
-          f"{poses.frames.max():g}) at {stage.GetTimeCodesPerSecond():g} fps, {binding.n_vertices} vertices in "
-          f"{len(binding.parts)} mesh(es)")
+          f"{poses.frames.max():g}) at {animation_rate(args.fps, poses, asset_rate):g} fps, {binding.n_vertices} "
+          f"vertices in {len(binding.parts)} mesh(es)")
     return 0
 
 
@@ -283,37 +271,51 @@ def encode_command(args) -> int:
 
     import warp_stokes as ws
     from warp_stokes.binding.encode import encode_poses
-    from warp_stokes.io.files import atomic_output
     from warp_stokes.io.frames import load_mesh_frames
+    from warp_stokes.io.inputs import inputs_of
+    from warp_stokes.io.outputs import atomic_output, writing
     from warp_stokes.io.usd import write_cage_poses
 
     ext = os.path.splitext(args.output)[1].lower()
     if ext not in (".npy", ".usd", ".usda", ".usdc"):
         raise ws.WarpStokesError(f"{args.output}: the poses are written as .npy or USD (.usd, .usda, .usdc)")
-    check_output(args.output, (args.binding, args.frames))
-    if args.binding == "auto":
-        binding = _bind_first_frame(args)
-    else:
-        binding = ws.load_binding(args.binding, device=args.device)
-    prims = args.mesh_prim or ([p["path"] for p in binding.parts] if binding.asset else None)
-    frames = load_mesh_frames(args.frames, binding.mesh_faces, binding.n_vertices, prims=prims)
-    poses, rms = encode_poses(binding, frames, smoothness=args.smooth)
-    if ext == ".npy":
-        with atomic_output(args.output, ext) as tmp, open(tmp, "wb") as fh:
-            np.save(fh, poses.positions)
-    else:
-        write_cage_poses(args.output, binding.cage_vertices, binding.cage_faces, poses)
+    made = made_beside(args.output) if args.binding == "auto" else ()
+    # with a cage made: the cage, its binding and the poses renamed together, once the frames are encoded
+    with writing([*made, args.output], inputs_of(args.binding, args.frames, error=ws.BindingError)):
+        if args.binding == "auto":
+            binding = _bind_first_frame(args, *made)
+        else:
+            binding = ws.load_binding(args.binding, device=args.device)
+        prims = args.mesh_prim or ([p["path"] for p in binding.parts] if binding.asset else None)
+        frames = load_mesh_frames(args.frames, binding.mesh_faces, binding.n_vertices, prims=prims)
+        poses, rms = encode_poses(binding, frames, smoothness=args.smooth)
+        if ext == ".npy":
+            with atomic_output(args.output) as tmp, open(tmp, "wb") as fh:
+                np.save(fh, poses.positions)
+        else:
+            write_cage_poses(args.output, binding.cage_vertices, binding.cage_faces, poses)
+    if made:
+        record = binding.stats["made_cage"]
+        print(f"made a cage of {record['handles']} handles: {made[0]}; bound at n = "
+              f"{binding.settings['resolution']}: {made[1]}")
     worst = int(np.argmax(rms))
     print(f"wrote {args.output}: {len(rms)} cage poses; RMS error over the cage's diagonal: mean {rms.mean():.2e}, "
           f"max {rms[worst]:.2e} (frame {poses.frames[worst]:g})")
     return 0
 
 
-def _bind_first_frame(args):
+def made_beside(output: str) -> tuple[str, str]:
+    """Where ``encode auto FRAMES -o POSES`` writes the cage it made and its binding: beside the poses, as
+    ``POSES.cage.obj`` and ``POSES.binding.npz`` (the stem of the poses' name)."""
+    stem = os.path.splitext(output)[0]
+    return stem + ".cage.obj", stem + ".binding.npz"
+
+
+def _bind_first_frame(args, cage_path: str, binding_path: str):
     """For ``encode auto FRAMES``: the first frame of the sequence bound to a cage made for it; the cage and the
-    binding written beside the poses (OUTPUT.cage.obj, OUTPUT.binding.npz), both checked before any work."""
+    binding written (in the command's group of outputs) beside the poses."""
     import warp_stokes as ws
-    from warp_stokes.io.files import write_cage_file
+    from warp_stokes.io.mesh_out import write_cage_file
     from warp_stokes.io.poses import natural_key
     from warp_stokes.io.scene import is_usd
 
@@ -328,42 +330,41 @@ def _bind_first_frame(args):
     else:
         raise ws.WarpStokesError(f"{frames}: 'encode auto' makes the cage around the first frame's surface: give a "
                                  "folder of OBJ frames or a USD file (an array of positions has no faces)")
-    stem = os.path.splitext(args.output)[0]
-    cage_path, binding_path = stem + ".cage.obj", stem + ".binding.npz"
-    for path in (cage_path, binding_path):
-        check_output(path, (frames,))
     binding = ws.bind(first, "auto", device=args.device, mesh_prims=args.mesh_prim)
     write_cage_file(cage_path, binding.cage_vertices, binding.cage_faces)
     binding.save(binding_path)
-    record = binding.stats["made_cage"]
-    print(f"made a cage of {record['handles']} handles around {first}: {cage_path}; bound at n = "
-          f"{binding.settings['resolution']}: {binding_path}")
     return binding
 
 
 def sweep_command(args) -> int:
     from warp_stokes.device import resolve_device
-    from warp_stokes.geometry.cage import check_cage
     from warp_stokes.errors import WarpStokesError
+    from warp_stokes.geometry.cage import check_cage
+    from warp_stokes.io.inputs import inputs_of
+    from warp_stokes.io.outputs import writing
     from warp_stokes.sweep import format_sweep, plot_sweep, sweep, write_sweep
 
-    check_output(args.output, (args.mesh, args.cage), folder=True)
-    announce_compilation(args.device, harmonic="harmonic" in args.methods.split(","))
-    pose = None
-    if args.pose:
-        pose = pose_argument(args.pose, check_cage(args.cage).n_handles)
-    rows = sweep(args.mesh, args.cage, args.resolutions, methods=args.methods.split(","), pose=pose,
-                 device=resolve_device(args.device), tol=args.tol, threads=args.threads)
+    device = resolve_device(args.device)
+    names = ("sweep.csv", "sweep.json", "convergence.png", "cost.png")
+    with output_folder(args.output) as folder, writing([os.path.join(folder, n) for n in names],
+                                                       inputs_of(args.mesh, args.cage, args.pose)):
+        announce_compilation(device, harmonic="harmonic" in args.methods.split(","))
+        pose = None
+        if args.pose:
+            pose = pose_argument(args.pose, check_cage(args.cage).n_handles)
+        rows = sweep(args.mesh, args.cage, args.resolutions, methods=args.methods.split(","), pose=pose,
+                     device=device, tol=args.tol, threads=args.threads)
+        csv_path, json_path = write_sweep(rows, folder)
+        pictures = None
+        if any(r["method"] != "mvc" for r in rows) and len(args.resolutions) > 1:
+            try:
+                pictures = plot_sweep(rows, folder)
+            except WarpStokesError as exc:  # matplotlib is an optional extra: the table stands without the pictures
+                print(f"no pictures: {exc}", file=sys.stderr)
     print(format_sweep(rows))
-    csv_path, json_path = write_sweep(rows, args.output)
     print(f"wrote {csv_path} and {json_path}")
-    if any(r["method"] != "mvc" for r in rows) and len(args.resolutions) > 1:
-        try:
-            pictures = plot_sweep(rows, args.output)
-        except WarpStokesError as exc:  # matplotlib is an optional extra: the table stands without the pictures
-            print(f"no pictures: {exc}", file=sys.stderr)
-        else:
-            print(f"drew {pictures[0]} and {pictures[1]}")
+    if pictures is not None:
+        print(f"drew {pictures[0]} and {pictures[1]}")
     failed = [r for r in rows if r.get("error")]
     for r in failed:
         print(f"warp-stokes: error: {r['method']} at resolution {r['resolution']}: {r['error']}", file=sys.stderr)
@@ -382,19 +383,26 @@ def show_command(args) -> int:
         raise WarpStokesError("--view goes with --pose, --error or --with-cage")
     if not args.output.lower().endswith(".png"):
         raise WarpStokesError(f"{args.output}: the picture is written as .png")
-    check_output(args.output, (args.binding, args.pose, args.error))
     import numpy as np
 
     import warp_stokes as ws
+    from warp_stokes.io.inputs import inputs_of
+    from warp_stokes.io.outputs import writing
     from warp_stokes.show import show_mesh, show_weights
 
-    binding = ws.load_binding(args.binding, device=args.device)
+    with writing([args.output], inputs_of(args.binding, args.pose, args.error)):
+        binding = ws.load_binding(args.binding, device=args.device)
+        if args.handle is not None:
+            if args.handle >= binding.n_handles:
+                raise WarpStokesError(f"--handle {args.handle}: the binding has handles 0 to {binding.n_handles - 1}")
+            axis, fraction = args.slice or ("z", 0.5)
+            announce_compilation(args.device)
+            s = show_weights(binding, args.handle, args.output, axis, fraction, device=args.device)
+        else:
+            pose = None if args.pose is None else pose_argument(args.pose, binding.n_handles)
+            drawn = show_mesh(binding, args.output, pose=pose, reference=args.error, view=args.view or "front",
+                              with_cage=args.with_cage)
     if args.handle is not None:
-        if args.handle >= binding.n_handles:
-            raise WarpStokesError(f"--handle {args.handle}: the binding has handles 0 to {binding.n_handles - 1}")
-        axis, fraction = args.slice or ("z", 0.5)
-        announce_compilation(args.device)
-        s = show_weights(binding, args.handle, args.output, axis, fraction, device=args.device)
         values = s.image[~np.isnan(s.image)]
         where = f"handle {args.handle} ({s.method}) on {axis} = {fraction:g} of the cage ({axis} = {s.position:.6g})"
         if values.size:
@@ -403,9 +411,6 @@ def show_command(args) -> int:
         else:
             print(f"wrote {args.output}: {where}: the plane misses the cage's inside")
         return 0
-    pose = None if args.pose is None else pose_argument(args.pose, binding.n_handles)
-    drawn = show_mesh(binding, args.output, pose=pose, reference=args.error, view=args.view or "front",
-                      with_cage=args.with_cage)
     cage = f" and the cage's {drawn['cage_edges']} edges" if args.with_cage else ""
     if drawn["range"] is None:
         print(f"wrote {args.output}: {len(drawn['values'])} triangles{cage}")
@@ -418,7 +423,6 @@ def show_command(args) -> int:
 def batch_command(args) -> int:
     from warp_stokes.batch import format_summary, run_batch
 
-    check_output(args.output, (args.manifest,), folder=True)
     results = run_batch(args.manifest, args.output, force=args.force, device=args.device, workers=args.workers,
                         ray_address=args.ray_address)
     print(format_summary(results))

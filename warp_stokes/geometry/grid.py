@@ -304,10 +304,11 @@ def voxelize(cage: Cage, resolution: int = 64, device=None, max_rows: int = MAX_
     room = available_memory(device) if memory_budget is None else int(memory_budget)
     if dense > room:
         fits = int(resolution * (room / dense) ** (1.0 / 3.0) * 0.9)
+        advice = (f"resolution {fits} or less would fit" if fits >= 8 else
+                  "no grid of the coarsest resolution (8) fits; give more memory")
         error = ResolutionError(
             f"{cage.name}: a grid at resolution {resolution} has {int(np.prod(counts)):,} nodes and needs "
-            f"{memory_size(dense)} before solving; {memory_size(room)} are available: resolution {fits} or less "
-            "would fit"
+            f"{memory_size(dense)} before solving; {memory_size(room)} are available: {advice}"
         )
         error.fits = fits  # what resolution "auto" tries instead
         raise error

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import WarpStokesError
-from .files import atomic_output
+from .outputs import atomic_output
 from .load import fan_triangles, polygons_by_part
 
 __all__ = ["write_gltf_skin", "GLTF_EXTENSIONS"]
@@ -96,6 +96,19 @@ def _part_primitive(binding, rows: slice, faces: np.ndarray, corners: np.ndarray
     return source, uvs, triangles
 
 
+def _seconds(path, frames, rate: float) -> np.ndarray:
+    """The frames' times in seconds as glTF keeps them (float32), refused unless finite and increasing there: a
+    frame rate or frame numbers that float32 cannot tell apart would make a file that glTF readers refuse."""
+    seconds = np.asarray(frames, dtype=np.float64) / float(rate)
+    with np.errstate(over="ignore"):
+        kept = seconds.astype(np.float32)
+    if not np.isfinite(kept).all() or len(np.unique(kept)) != len(kept):
+        raise WarpStokesError(f"{path}: the frames' times in seconds ({frames.min():g} to {frames.max():g} at {rate:g} "
+                              "fps) do not fit glTF's float32 times as distinct finite numbers; renumber the frames "
+                              "or choose another --fps")
+    return kept
+
+
 def write_gltf_skin(path, ext, binding, skin, joints, positions, frames, rate, metadata: dict) -> str:
     """Write the skin and the poses' animation as glTF; see :func:`warp_stokes.binding.skin.write_skin`.
 
@@ -162,7 +175,7 @@ def write_gltf_skin(path, ext, binding, skin, joints, positions, frames, rate, m
         gltf.nodes.append(Node(name=name, mesh=len(gltf.meshes) - 1, skin=0))
         mesh_nodes.append(len(gltf.nodes) - 1)
 
-    times = buffer.accessor((np.asarray(frames, dtype=np.float64) / rate).astype(np.float32), bounds=True)
+    times = buffer.accessor(_seconds(path, frames, rate), bounds=True)
     translations = np.ascontiguousarray(np.asarray(positions, dtype=np.float32).transpose(1, 0, 2))  # (L, F, 3)
     view = buffer.view(translations)
     animation = Animation(name="CageAnimation")

@@ -8,7 +8,8 @@ import os
 import numpy as np
 
 from ...errors import WarpStokesError
-from ..files import atomic_output, same_file
+from ..inputs import inputs_of
+from ..outputs import atomic_output
 from .common import define_mesh, new_stage, save_layer
 
 __all__ = ["write_cage_layer", "check_cage_layer", "default_cage_prim"]
@@ -44,15 +45,15 @@ def check_cage_layer(path, asset, prim: str | None = None) -> str:
     """
     from pxr import Sdf
 
-    from .asset import layer_files, open_stage
+    from .asset import open_stage
 
     path, asset = os.fspath(path), os.path.abspath(os.fspath(asset))
     if os.path.splitext(path)[1].lower() not in (".usd", ".usda", ".usdc"):
         raise WarpStokesError(f"{path}: a cage layer is a .usd, .usda or .usdc file")
-    for part in layer_files(asset):
-        if same_file(path, part):
-            raise WarpStokesError(f"{path}: the output is a file of the asset {asset} ({part}); write the cage layer "
-                                  "to another file (it sublayers the asset)")
+    whose = inputs_of(asset, error=WarpStokesError).meets(path)
+    if whose is not None:
+        raise WarpStokesError(f"{path}: the output would replace {whose}; write the cage layer to another file (it "
+                              "sublayers the asset)")
     stage = open_stage(asset, WarpStokesError)  # held: a prim does not keep its stage alive
     prim = _default_prim_path(stage) if prim is None else prim
     if not (Sdf.Path.IsValidPathString(prim) and Sdf.Path(prim).IsAbsolutePath() and Sdf.Path(prim).IsPrimPath()):

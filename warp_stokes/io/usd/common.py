@@ -7,7 +7,7 @@ import numpy as np
 
 from ...errors import WarpStokesError
 
-__all__ = ["FRAMES_PER_CHUNK", "extent", "vec3f", "define_mesh", "set_timing", "deformed_frames", "new_stage",
+__all__ = ["FRAMES_PER_CHUNK", "animation_rate", "extent", "vec3f", "define_mesh", "set_timing", "deformed_frames", "new_stage",
            "save_layer"]
 
 #: frames deformed per device launch (bounded so that frames x vertices x 12 bytes stays small)
@@ -41,6 +41,19 @@ def define_mesh(stage, path: str, counts: np.ndarray, indices: np.ndarray, rest:
     mesh.CreatePointsAttr(vec3f(rest))
     mesh.CreateExtentAttr(extent(rest))
     return mesh
+
+
+def animation_rate(fps, poses, asset_rate=None) -> float:
+    """The time codes per second of a written animation: ``fps`` when given, else the poses' own (a USD stage's),
+    else the asset's (``asset_rate``), else 24.
+
+    Examples
+    --------
+    >>> from warp_stokes.io.poses import Poses
+    >>> animation_rate(None, Poses(np.zeros((1, 4, 3)), np.ones(1), "p"), 30.0)
+    30.0
+    """
+    return float(fps or poses.time_codes_per_second or asset_rate or 24.0)
 
 
 def set_timing(stage, frames: np.ndarray, rate: float) -> None:

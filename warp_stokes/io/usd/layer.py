@@ -8,9 +8,10 @@ import os
 import numpy as np
 
 from ...errors import WarpStokesError
-from ..files import atomic_output, same_file
+from ..inputs import inputs_of
+from ..outputs import atomic_output
 from ..normals import NormalsPlan
-from .common import deformed_frames, extent, new_stage, save_layer, set_timing, vec3f
+from .common import animation_rate, deformed_frames, extent, new_stage, save_layer, set_timing, vec3f
 
 __all__ = ["write_layer", "asset_context"]
 
@@ -27,14 +28,13 @@ def _asset_path(binding, asset) -> str:
 def asset_context(path, binding, asset, up_axis, meters_per_unit) -> tuple[str, dict]:
     """The asset a layer at ``path`` goes over (the binding's, or ``asset``) and its stage metadata, refused when the
     output is one of the asset's files or the stage settings asked for differ from the asset's."""
-    from .asset import layer_files, open_stage, stage_metadata
+    from .asset import open_stage, stage_metadata
 
     asset_path = _asset_path(binding, asset)
-    for part in layer_files(asset_path):
-        if same_file(path, part):
-            what = "the asset itself" if same_file(part, asset_path) else f"a layer of the asset {asset_path} ({part})"
-            raise WarpStokesError(f"{path}: the output is {what}; write the animation layer to another file (it "
-                                  "sublayers the asset)")
+    whose = inputs_of(asset_path, error=WarpStokesError).meets(path)
+    if whose is not None:
+        raise WarpStokesError(f"{path}: the output would replace {whose}; write the animation layer to another file "
+                              "(it sublayers the asset)")
     metadata = stage_metadata(open_stage(asset_path, WarpStokesError))
     if up_axis is not None and up_axis != metadata["up_axis"]:
         raise WarpStokesError(f"up axis {up_axis}: a layer over {asset_path} keeps its up axis "
@@ -114,7 +114,7 @@ def write_layer(path, ext, binding, positions, frames, poses, fps, with_cage, wi
     from pxr import Sdf, Usd, UsdGeom, Vt
 
     asset_path, metadata = asset_context(path, binding, asset, up_axis, meters_per_unit)
-    rate = fps or poses.time_codes_per_second or metadata["time_codes_per_second"] or 24.0
+    rate = animation_rate(fps, poses, metadata["time_codes_per_second"])
     cage_prim = binding.settings.get("cage_prim")
     if with_cage and not cage_prim:
         raise WarpStokesError("--with-cage: the binding's cage is not a prim of its asset; over an asset only its "

@@ -27,7 +27,7 @@ import os
 import numpy as np
 
 from ...errors import WarpStokesError
-from ..files import atomic_output
+from ..outputs import atomic_output
 from .common import deformed_frames, define_mesh, extent, new_stage, save_layer, set_timing, vec3f
 
 __all__ = ["write_standalone_skeleton", "write_layer_skeleton"]

@@ -8,10 +8,10 @@ import re
 import numpy as np
 
 from ...errors import WarpStokesError
-from ..files import atomic_output
+from ..outputs import atomic_output
 from ..load import polygons_by_part
 from ..normals import NormalsPlan
-from .common import define_mesh, deformed_frames, extent, new_stage, save_layer, set_timing, vec3f
+from .common import animation_rate, define_mesh, deformed_frames, extent, new_stage, save_layer, set_timing, vec3f
 
 __all__ = ["write_standalone", "write_cage_poses"]
 
@@ -39,7 +39,7 @@ def write_standalone(path, ext, binding, positions, frames, poses, fps, with_cag
         raise WarpStokesError(f"up axis must be 'Y' or 'Z', got {up_axis!r}")
     if not meters_per_unit > 0:
         raise WarpStokesError(f"meters per unit must be positive, got {meters_per_unit!r}")
-    rate = fps or poses.time_codes_per_second or 24.0
+    rate = animation_rate(fps, poses)
     normals = binding.mesh_normals if normals is None else np.asarray(normals)
     with atomic_output(path, ext) as tmp:
         layer, stage = new_stage(tmp, ext)
@@ -135,7 +135,7 @@ def write_cage_poses(path, cage_vertices, cage_faces, poses, fps: float | None =
     frames = np.asarray(poses.frames, dtype=np.float64)
     with atomic_output(path, ext) as tmp:
         layer, stage = new_stage(tmp, ext)
-        set_timing(stage, frames, fps or poses.time_codes_per_second or 24.0)
+        set_timing(stage, frames, animation_rate(fps, poses))
         root = UsdGeom.Xform.Define(stage, "/Root")
         stage.SetDefaultPrim(root.GetPrim())
         cage = define_mesh(stage, "/Root/Cage", np.full(len(cage_faces), 3), np.asarray(cage_faces).ravel(),

@@ -20,12 +20,35 @@ import os
 
 import numpy as np
 
+from ...arguments import choice, flag, number
 from ...errors import WarpStokesError
 from ..poses import Poses, load_poses
 from .layer import write_layer
 from .standalone import write_standalone
 
-__all__ = ["write_animation", "check_animation"]
+__all__ = ["write_animation", "check_animation", "check_options"]
+
+
+def check_options(fps=None, up_axis=None, meters_per_unit=None, **flags) -> None:
+    """The options every animation writer takes, checked where they enter: a frame rate and meters per unit that
+    are positive numbers within float32's range, an up axis of Y or Z, and flags that are True or False.
+
+    Examples
+    --------
+    >>> check_options(24, "Z", 0.01, with_cage=True)
+    >>> check_options(meters_per_unit=True)
+    Traceback (most recent call last):
+    ...
+    warp_stokes.errors.WarpStokesError: meters_per_unit must be > 0, got True
+    """
+    if fps is not None:
+        number(fps, "fps", 0, low_open=True)
+    if up_axis is not None:
+        choice(up_axis, "up_axis", ("Y", "Z"))
+    if meters_per_unit is not None:
+        number(meters_per_unit, "meters_per_unit", 0, low_open=True)
+    for name, value in flags.items():
+        flag(value, name)
 
 
 def check_animation(path, binding, poses: Poses, fps, extensions=(".usd", ".usdc", ".usda"),
@@ -36,8 +59,7 @@ def check_animation(path, binding, poses: Poses, fps, extensions=(".usd", ".usdc
     ext = os.path.splitext(path)[1].lower()
     if ext not in extensions:
         raise WarpStokesError(f"{path}: the output must end in {', '.join(extensions[:-1])} or {extensions[-1]}")
-    if fps is not None and not (isinstance(fps, (int, float, np.number)) and np.isfinite(fps) and fps > 0):
-        raise WarpStokesError(f"fps must be a positive number, got {fps!r}")
+    check_options(fps)
     positions = np.asarray(poses.positions, dtype=np.float64)
     if positions.ndim != 3 or positions.shape[1:] != (binding.n_handles, 3):
         raise WarpStokesError(f"{poses.name}: poses of shape {positions.shape} do not fit a cage of "
@@ -47,6 +69,8 @@ def check_animation(path, binding, poses: Poses, fps, extensions=(".usd", ".usdc
         raise WarpStokesError(f"{poses.name}: need at least one pose and one distinct frame number per pose")
     if len(binding.mesh_faces) == 0:
         raise WarpStokesError("the bound mesh has no faces: there is nothing to write as a USD mesh")
+    order = np.argsort(frames, kind="stable")  # in time: glTF's samplers need it, USD does not mind
+    positions, frames = positions[order], frames[order]
     if binding.asset is None and asset is not None:
         raise WarpStokesError(f"{asset}: the binding is not of a USD asset (it was bound from "
                               f"{binding.settings.get('mesh')}); an asset can only be given for a binding of one")
@@ -90,6 +114,7 @@ def write_animation(path, binding, poses, fps: float | None = None, with_cage: b
     --------
     >>> write_animation("walk.usd", binding, load_poses("walk/", binding.cage_faces))  # doctest: +SKIP
     """
+    check_options(fps, up_axis, meters_per_unit, with_cage=with_cage, with_weights=with_weights)
     if not isinstance(poses, Poses):
         poses = load_poses(poses, binding.cage_faces, binding.n_handles, binding.cage_source_index)
     ext, positions, frames = check_animation(path, binding, poses, fps, asset=asset)
