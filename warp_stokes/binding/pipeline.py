@@ -13,6 +13,7 @@ import warnings
 
 import numpy as np
 
+from ..arguments import integer, number
 from ..device import resolve_device
 from ..errors import CageError, ConvergenceError, MeshError, ResolutionError, WarpStokesError
 from ..geometry.boundary import mean_value_coordinates
@@ -136,7 +137,7 @@ def bind(mesh, cage=None, resolution="auto", device=None, tol: float = 1e-6, max
     >>> b.weights.shape  # doctest: +SKIP
     (2089, 58)
     """
-    _check_arguments(tol, memory_budget, solver, boundary, sampling, method)
+    _check_arguments(tol, memory_budget, solver, boundary, sampling, method, max_iterations)
     if threads is not None:
         cpu_threads(threads)  # a bad number is refused before any work
     resolution = check_resolution(resolution)  # arguments first: before the inputs are loaded and checked
@@ -192,7 +193,7 @@ def bind(mesh, cage=None, resolution="auto", device=None, tol: float = 1e-6, max
         return Binding(weights, checked.vertices, checked.faces, points, surface.faces, settings, stats,
                        device=device, mesh_normals=surface.normals, cage_source_index=checked.source_index,
                        mesh_polygons=surface.polygons(), mesh_uvs=surface.uvs, parts=parts_record(scene),
-                       asset=asset_record(scene))
+                       asset=asset_record(scene), sources=_sources(mesh, cage_argument))
     equation = METHODS[method]
 
     options = dict(solver=solver, tol=tol, max_iterations=max_iterations, boundary=boundary, sampling=sampling,
@@ -256,7 +257,7 @@ def bind(mesh, cage=None, resolution="auto", device=None, tol: float = 1e-6, max
     }
     return Binding(weights, checked.vertices, checked.faces, points, surface.faces, settings, stats, device=device,
                    mesh_normals=surface.normals, cage_source_index=checked.source_index,
-                   mesh_polygons=surface.polygons(), mesh_uvs=surface.uvs, parts=parts_record(scene), asset=asset_record(scene))
+                   mesh_polygons=surface.polygons(), mesh_uvs=surface.uvs, parts=parts_record(scene), asset=asset_record(scene), sources=_sources(mesh, cage_argument))
 
 
 def _columns_for(columns, resolution: int, choice: dict, floor: int = 0):
@@ -336,18 +337,26 @@ def _mean_value_weights(checked: Cage, points: np.ndarray, device, seconds: dict
     return weights
 
 
-def _check_arguments(tol, memory_budget, solver, boundary, sampling, method) -> None:
+def _check_arguments(tol, memory_budget, solver, boundary, sampling, method, max_iterations=None) -> None:
     if method not in METHODS:
         raise WarpStokesError(f"method must be 'stokes', 'harmonic' or 'mvc', got {method!r}")
-    if not (isinstance(tol, (int, float)) and 0 < tol < 1):
-        raise WarpStokesError(f"tol must be a number between 0 and 1, got {tol!r}")
-    if memory_budget is not None and not (isinstance(memory_budget, (int, float)) and memory_budget > 0):
-        raise WarpStokesError(f"memory_budget must be a positive number of bytes, got {memory_budget!r}")
+    number(tol, "tol", 0, 0.1, low_open=True)
+    if memory_budget is not None:
+        number(memory_budget, "memory_budget (bytes)", 0, low_open=True)
+    if max_iterations is not None:
+        integer(max_iterations, "max_iterations", 1)
     if solver not in ("multigrid", "jacobi"):
         raise WarpStokesError(f"solver must be 'multigrid' or 'jacobi', got {solver!r}")
     boundary_settings(boundary)
     if sampling not in SAMPLINGS:
         raise WarpStokesError(f"sampling must be 'hermite' or 'trilinear', got {sampling!r}")
+
+
+def _sources(mesh, cage) -> list[str]:
+    """The files a bind read its mesh and cage from (each USD file's whole layer stack), for the binding to record."""
+    from ..io.inputs import inputs_of
+
+    return sorted(inputs_of(mesh, cage if isinstance(cage, (str, os.PathLike)) else None).files)
 
 
 def _refuse_inexact(checked: Cage, surface, pu_error: float, lp_error: float, reports) -> None:

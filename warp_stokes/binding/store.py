@@ -13,10 +13,12 @@ import warp as wp
 from .. import __version__
 from ..device import resolve_device
 from ..errors import BindingError, WarpStokesError
-from ..io.files import atomic_output
+from ..io.door import read_numpy
+from ..io.outputs import atomic_output
 from ..io.load import Surface, load_surface
 from ..io.poses import pose_vertices
 from .deform import deform_on_host, deform_vertices
+from .record import check_metadata
 
 __all__ = ["Binding", "load_binding", "fingerprint", "FORMAT"]
 
@@ -51,12 +53,16 @@ class Binding:
         ``meters_per_unit``, ``default_prim``, ``time_codes_per_second`` and ``rest_time``
     settings : dict of the grid and solver settings used
     stats : dict of what binding measured (grid shape, node counts, iterations, residual, errors, timings)
+    sources : list of str, the files it was bound from (real paths: the mesh's and the cage's, each USD file's
+        whole layer stack): a command's output never replaces one of them
+    batch_inputs : str or None, for a binding a batch wrote: the digest of the asset's inputs and entry, which a
+        later run compares to know the asset is up to date
     device : the Warp device ``deform`` runs on
     """
 
     def __init__(self, weights, cage_vertices, cage_faces, mesh_vertices, mesh_faces, settings, stats,
                  device=None, mesh_normals=None, cage_source_index=None, mesh_polygons=None, mesh_uvs=None,
-                 parts=None, asset=None):
+                 parts=None, asset=None, sources=None, batch_inputs=None):
         self.weights = np.ascontiguousarray(weights, dtype=np.float32)
         self.cage_vertices = np.asarray(cage_vertices, dtype=np.float64)
         self.cage_faces = np.asarray(cage_faces, dtype=np.int64)
@@ -76,6 +82,8 @@ class Binding:
         self.asset = None if asset is None else dict(asset)
         self.settings = dict(settings)
         self.stats = dict(stats)
+        self.sources = list(sources or [])
+        self.batch_inputs = batch_inputs
         self.device = resolve_device(device)
         self._weights_t = None
 
@@ -153,6 +161,8 @@ class Binding:
             "mesh_fingerprint": fingerprint(self.mesh_vertices, self.mesh_faces),
             "parts": self.parts,
             "asset": self.asset,
+            "sources": self.sources,
+            "batch_inputs": self.batch_inputs,
         }
         optional = {"mesh_face_counts": self.mesh_face_counts, "mesh_face_indices": self.mesh_face_indices}
         if self.mesh_normals is not None:
@@ -161,6 +171,7 @@ class Binding:
             optional["cage_source_index"] = self.cage_source_index
         if self.mesh_uvs is not None:
             optional["mesh_st"], optional["mesh_st_indices"] = self.mesh_uvs
+        check_metadata(json.loads(json.dumps(meta)), path, *self.weights.shape)  # as a reader will find it
         try:
             with atomic_output(path, ".npz") as tmp, open(tmp, "wb") as fh:
                 np.savez(
@@ -199,25 +210,24 @@ def load_binding(path, device=None) -> Binding:
     >>> b = load_binding("arm.npz")   # doctest: +SKIP
     """
     path = os.fspath(path)
-    if not os.path.exists(path):
-        raise BindingError(f"{path}: no such file")
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            arrays = {k: data[k] for k in data.files}
-    except Exception as exc:
-        raise BindingError(f"{path}: not a readable binding file ({type(exc).__name__}: {exc})") from None
+    arrays = read_numpy(path, BindingError, "binding")
+    if not isinstance(arrays, dict):
+        raise BindingError(f"{path}: not a warp-stokes binding (a single array, not an archive)")
     needed = {"weights", "cage_vertices", "cage_faces", "mesh_vertices", "mesh_faces", "meta"}
     if not needed <= set(arrays):
         raise BindingError(f"{path}: not a warp-stokes binding (missing {sorted(needed - set(arrays))})")
     try:
+        if arrays["meta"].dtype.kind != "U" or arrays["meta"].shape != ():
+            raise ValueError
         meta = json.loads(str(arrays["meta"]))
-    except json.JSONDecodeError:
+    except ValueError:
         raise BindingError(f"{path}: the binding's metadata is corrupt") from None
     if not isinstance(meta, dict):
         raise BindingError(f"{path}: the binding's metadata is not a record (a {type(meta).__name__})")
     if meta.get("format") != FORMAT:
         raise BindingError(f"{path}: unsupported binding format {meta.get('format')!r} (this version reads {FORMAT})")
     _check_contents(path, arrays, meta)
+    check_metadata(meta, path, *arrays["weights"].shape)
     w = arrays["weights"]
     if fingerprint(arrays["cage_vertices"], arrays["cage_faces"]) != meta.get("cage_fingerprint") or fingerprint(
         arrays["mesh_vertices"], arrays["mesh_faces"]
@@ -233,7 +243,7 @@ def load_binding(path, device=None) -> Binding:
         w, arrays["cage_vertices"], arrays["cage_faces"], arrays["mesh_vertices"], arrays["mesh_faces"],
         meta["settings"], meta["stats"], device=device, mesh_normals=arrays.get("mesh_normals"),
         cage_source_index=arrays.get("cage_source_index"), mesh_polygons=polygons, mesh_uvs=uvs, parts=parts,
-        asset=meta.get("asset"),
+        asset=meta.get("asset"), sources=meta.get("sources"), batch_inputs=meta.get("batch_inputs"),
     )
 
 
@@ -258,9 +268,6 @@ def _check_contents(path: str, arrays: dict, meta: dict) -> None:
     """Every array and record a binding holds, checked before any of it is used: a file written by hand or by
     another tool gets one error naming what is wrong, never a traceback or an output with out-of-range faces or NaN
     points."""
-    for key, kind in (("settings", dict), ("stats", dict)):
-        if not isinstance(meta.get(key), kind):
-            raise BindingError(f"{path}: the binding's metadata has no {key} record")
     n_cage = len(arrays["cage_vertices"])
     _array(path, arrays, "cage_vertices", "f", 3)
     _array(path, arrays, "cage_faces", "i", 3, below=n_cage)
@@ -284,15 +291,3 @@ def _check_contents(path: str, arrays: dict, meta: dict) -> None:
         if len(arrays["mesh_st_indices"]) != corners:
             raise BindingError(f"{path}: the binding's mesh_st_indices name {len(arrays['mesh_st_indices'])} face "
                                f"corners; the mesh has {corners}")
-    parts = meta.get("parts")
-    if parts is not None:
-        if not isinstance(parts, list) or not all(
-                isinstance(p, dict) and isinstance(p.get("path"), str) and isinstance(p.get("vertices"), int)
-                and not isinstance(p.get("vertices"), bool) and p["vertices"] >= 0 for p in parts):
-            raise BindingError(f"{path}: the binding's parts must be records of a path and a vertex count")
-        if sum(p["vertices"] for p in parts) != n_mesh:
-            raise BindingError(f"{path}: the stored parts' vertex counts do not add up to the mesh's")
-    asset = meta.get("asset")
-    if asset is not None and not (isinstance(asset, dict) and isinstance(asset.get("path"), str)):
-        raise BindingError(f"{path}: the binding's asset must be a record with the asset's path")
-
