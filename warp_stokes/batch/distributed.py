@@ -17,13 +17,13 @@ Ray is an optional extra: ``pip install "warp-stokes[ray]"``.
 from __future__ import annotations
 
 import contextlib
-import glob
 import logging
 import os
 import signal
 import time
 
-from ..device import cpu_threads, require_ray
+from ..device import cpu_threads, require_ray, start_ray
+from ..io.outputs import remove_temporaries_of
 from .run import Result, bind_one, earlier_records, skipped, warn_for
 
 __all__ = ["run_on_ray", "require_ray", "TASK_RETRIES", "KILL_ONCE_VARIABLE"]
@@ -35,7 +35,8 @@ TASK_RETRIES = 2
 KILL_ONCE_VARIABLE = "WARP_STOKES_KILL_WORKER_ONCE"
 
 
-def _bind_task(asset, outdir: str, device, started=None, k: int = 0, threads: int | None = None) -> Result:
+def _bind_task(asset, outdir: str, device, started=None, k: int = 0, threads: int | None = None, inputs=None,
+               unreadable: str | None = None) -> Result:
     """One asset, in a Ray worker process; it says it started on ``started`` (a Ray queue, or None). ``threads``: a
     CPU bind's threads."""
     if started is not None:
@@ -51,7 +52,7 @@ def _bind_task(asset, outdir: str, device, started=None, k: int = 0, threads: in
             pass
         else:
             os.kill(os.getpid(), signal.SIGKILL)
-    return bind_one(asset, outdir, device, threads=threads)
+    return bind_one(asset, outdir, device, threads=threads, inputs=inputs, unreadable=unreadable)
 
 
 def _start(ray, workers: int | None, address: str | None, device) -> bool:
@@ -62,14 +63,14 @@ def _start(ray, workers: int | None, address: str | None, device) -> bool:
     options = {"include_dashboard": False, "log_to_driver": False, "logging_level": logging.ERROR,
                "runtime_env": {"env_vars": env} if env else None}
     if address is not None:
-        ray.init(address=address, **options)
+        start_ray(ray, address=address, **options)
         return True
     on_cpu = device is not None and str(device).startswith("cpu")
     if workers is None:
         from ..device import cuda_device_count
 
         workers = (0 if on_cpu else cuda_device_count()) or os.cpu_count() or 1
-    ray.init(num_cpus=int(workers), num_gpus=None if not on_cpu else 0, **options)
+    start_ray(ray, num_cpus=int(workers), num_gpus=None if not on_cpu else 0, **options)
     return True
 
 
@@ -132,7 +133,7 @@ def _drain(queue) -> list:
 
 
 def run_on_ray(assets, outdir: str, manifest, force: bool, device, progress, workers: int | None,
-               address: str | None) -> list[Result]:
+               address: str | None, inputs: dict | None = None, unreadable: dict | None = None) -> list[Result]:
     """Bind the assets as Ray tasks; the results in manifest order (see the module docstring)."""
     ray = require_ray()
     ray_started = _start(ray, workers, address, device)
@@ -145,10 +146,13 @@ def run_on_ray(assets, outdir: str, manifest, force: bool, device, progress, wor
         earlier = earlier_records(outdir)
         started = _started_queue(ray, progress)
         running: set[int] = set()
+        inputs, unreadable = inputs or {}, unreadable or {}
         for k, asset in enumerate(assets):
-            results[k] = skipped(asset, outdir, manifest, force, earlier)
+            results[k] = skipped(asset, outdir, force, inputs.get(asset.name), earlier)
             if results[k] is None:
-                pending[task.remote(asset, outdir, task_device, started, k, threads)] = k
+                pending[task.remote(asset, outdir, task_device, started, k, threads, inputs.get(asset.name),
+                                    unreadable.get(asset.name))] = k
+        workers_seen = set()  # (host, pid) of every process that ran a task: their temporaries, once all are done
         total, failed = len(assets), 0
         done = sum(r is not None for r in results)
         began: dict[int, float] = {}  # asset -> when its task last started (the worker's clock)
@@ -162,9 +166,12 @@ def run_on_ray(assets, outdir: str, manifest, force: bool, device, progress, wor
             for k, host, pid, when in _drain(started):
                 events.append((when, 0, k, (host, pid)))
                 began[k] = when
+                workers_seen.add((host, pid))
             for ref in finished:
                 k = pending.pop(ref)
                 result = _result(ray, ref, assets[k])
+                if result.host and result.pid:
+                    workers_seen.add((result.host, result.pid))
                 # it ended its bind's seconds after it started (the same clock), else now
                 events.append((began[k] + result.seconds if k in began else time.time(), 1, k, result))
             for _, _, k, what in sorted(events, key=lambda e: e[:3]):
@@ -184,10 +191,9 @@ def run_on_ray(assets, outdir: str, manifest, force: bool, device, progress, wor
                 warn_for(what)
                 if progress:
                     _line(progress, done, total, len(running), failed, what)
-        # no task runs any more and the folder is locked: what dead workers left is removed
-        for stale in glob.glob(os.path.join(outdir, ".tmp-*")):
-            with contextlib.suppress(OSError):
-                os.unlink(stale)
+        # no task runs any more and the folder is locked: what this batch's workers left (a worker killed
+        # mid-write, on any host) is removed; nothing of anyone else's
+        remove_temporaries_of(outdir, workers_seen)
         return results
     finally:
         if started is not None:  # the queue's actor, also when the batch fails in a cluster that stays up

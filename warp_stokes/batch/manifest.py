@@ -8,6 +8,7 @@ import os
 from dataclasses import dataclass
 
 from ..errors import WarpStokesError
+from ..io.door import read_input, reason
 
 __all__ = ["Asset", "ManifestError", "read_manifest", "ASSET_KEYS", "MADE_CAGE"]
 
@@ -17,6 +18,8 @@ ASSET_KEYS = {"name", "mesh", "cage", "poses", "resolution", "fps", "tol", "with
 #: ``cage`` value for a cage made for the mesh (``warp-stokes cage``), written as ``<name>.cage.obj`` beside the
 #: binding
 MADE_CAGE = "auto"
+#: the longest asset name, in bytes: its outputs' names (``<name>.cage.obj``) stay within the file systems' 255
+NAME_BYTES = 240
 #: ``skin`` values: the animation as a UsdSkel rig (``<name>.usd``) or a glTF skin (``<name>.glb`` / ``.gltf``)
 SKINS = ("usd", "glb", "gltf")
 
@@ -52,21 +55,19 @@ class Asset:
 
 def _read_data(path: str) -> dict:
     """The manifest's contents, a JSON object or a TOML document."""
-    if not os.path.isfile(path):
-        raise ManifestError(f"{path}: no such file")
+    raw = read_input(path, ManifestError, "manifest")
     try:
+        text = raw.decode("utf-8-sig")
         if path.lower().endswith(".json"):
-            with open(path, encoding="utf-8") as fh:
-                data = json.load(fh)
+            data = json.loads(text)
         else:
             try:
                 import tomllib
             except ModuleNotFoundError:  # Python 3.10
                 import tomli as tomllib
-            with open(path, "rb") as fh:
-                data = tomllib.load(fh)
-    except (ValueError, OSError) as exc:
-        raise ManifestError(f"{path}: cannot read the manifest ({exc})") from None
+            data = tomllib.loads(text)
+    except (ValueError, RecursionError) as exc:  # UnicodeDecodeError and TOML's and JSON's errors are ValueErrors
+        raise ManifestError(f"{path}: cannot read the manifest ({reason(exc)})") from None
     if not isinstance(data, dict):
         raise ManifestError(f"{path}: the manifest must be a table/object with a list of assets")
     return data
@@ -175,11 +176,15 @@ def read_manifest(path) -> list[Asset]:
         _checked_entry(merged, where)
         for key in ("mesh", "cage", "poses"):
             if merged.get(key) is not None and not (key == "cage" and merged[key] == MADE_CAGE):
+                if "\0" in merged[key] or not merged[key]:
+                    raise ManifestError(f"{where}: '{key}' {merged[key]!r} is not a path")
                 merged[key] = os.path.join(base, merged[key])
         merged.setdefault("name", os.path.splitext(os.path.basename(merged["mesh"]))[0])
-        name = str(merged["name"])
-        if not name or any(c in name for c in '/\\:') or name.startswith("."):
-            raise ManifestError(f"{where}: '{name}' cannot be a file name")
+        name = merged["name"]
+        if not isinstance(name, str) or not name or any(c in name for c in '/\\:') or name.startswith(".") or \
+                not name.isprintable() or len(os.fsencode(name)) > NAME_BYTES:
+            raise ManifestError(f"{where}: {name!r} cannot be a file name (printable, at most {NAME_BYTES} bytes, no "
+                                "slash, backslash or colon, not starting with a dot)")
         if name in names:
             raise ManifestError(f"{where}: the name '{name}' is used twice")
         names.add(name)

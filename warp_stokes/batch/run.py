@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import contextlib
-import glob
 import json
 import os
 import sys
@@ -15,12 +13,15 @@ from dataclasses import dataclass, field
 from .. import __version__
 from ..device import BIND_MODULES, KERNEL_MODULES, announce_compilation
 from ..errors import WarpStokesError
-from ..io.files import atomic_output
+from ..io.door import reading
+from ..io.inputs import InputSet, inputs_of
+from ..io.outputs import (atomic_output, check_output_target, output_folder, remove_stale_temporaries,
+                          writing)
 from .lock import folder_lock
 from .manifest import MADE_CAGE, Asset, read_manifest
 
 __all__ = ["Result", "run_batch", "bind_one", "skipped", "earlier_records", "outputs_of", "format_summary",
-           "warn_for", "refuse_outputs_over_inputs"]
+           "warn_for", "refuse_outputs_over_inputs", "asset_inputs", "inputs_digest"]
 
 
 @dataclass
@@ -40,42 +41,45 @@ class Result:
     skin_error: dict | None = None  # a skin's distance from the deformation: max, rms (over the diagonal), influences
 
 
-def _mtime(path: str) -> float:
-    if os.path.isdir(path):
-        times = [os.path.getmtime(os.path.join(path, f)) for f in os.listdir(path)]
-        return max(times + [os.path.getmtime(path)])
-    return os.path.getmtime(path)
+def asset_inputs(asset: Asset) -> InputSet:
+    """Every file an asset makes the batch read: its mesh, cage and poses, each USD file's whole layer stack, a
+    folder of frames and its frames (:func:`warp_stokes.io.inputs.inputs_of`)."""
+    read = InputSet()
+    for role, source in (("mesh", asset.mesh), ("cage", _cage_file(asset)), ("poses", asset.poses)):
+        read = read.union(inputs_of(source, error=WarpStokesError, role=f"{role} of asset {asset.name!r}"))
+    return read
 
 
-def _up_to_date(asset: Asset, outputs: list[str], manifest: str) -> bool:
-    if not all(os.path.exists(o) for o in outputs):
+def inputs_digest(asset: Asset, inputs: InputSet) -> str:
+    """What an asset's outputs depend on, as one SHA-256: the contents of every file in ``inputs``, the asset's entry
+    in the manifest (its settings) and this version of warp-stokes. A binding written by the batch records it; a
+    later run redoes the asset when it differs (a sublayer edited, a resolution changed)."""
+    import dataclasses
+    import hashlib
+
+    entry = json.dumps(dataclasses.asdict(asset), sort_keys=True, default=str)
+    return hashlib.sha256(f"{__version__}\0{entry}\0{inputs.digest()}".encode()).hexdigest()
+
+
+def _up_to_date(outputs: list[str], digest: str) -> bool:
+    """Whether every output exists and the binding records ``digest`` and a solve that converged (one that did not
+    is redone, and said so again, rather than skipped)."""
+    if not all(os.path.isfile(o) for o in outputs):
         return False
-    # the manifest counts as an input: a changed resolution or fps must redo the asset
-    inputs = [p for p in (asset.mesh, _cage_file(asset), asset.poses, manifest) if p]
-    try:
-        newest_input = max(_mtime(p) for p in inputs)
-    except OSError:
+    import numpy as np
+
+    try:  # the batch's own output, not an input: read directly
+        with np.load(outputs[0], allow_pickle=False) as data:
+            meta = json.loads(str(data["meta"]))
+        recorded, converged = meta.get("batch_inputs"), meta["stats"].get("converged")
+    except Exception:  # unreadable or not a binding: redo it
         return False
-    return min(os.path.getmtime(o) for o in outputs) > newest_input and _made_by_this_version(outputs[0])
+    return recorded == digest and converged is True
 
 
 def _cage_file(asset: Asset) -> str | None:
     """The cage file the asset reads (None for a made cage or a cage prim of the mesh's asset)."""
     return None if asset.cage == MADE_CAGE else asset.cage
-
-
-def _made_by_this_version(npz: str) -> bool:
-    """Whether the binding ``npz`` was made by this version of warp-stokes (another version may give other weights:
-    its outputs are redone) and converged (one that did not is redone, and said so again, rather than skipped)."""
-    import numpy as np
-
-    try:
-        with np.load(npz, allow_pickle=False) as data:
-            meta = json.loads(str(data["meta"]))
-        version, converged = meta["settings"].get("warp_stokes_version"), meta["stats"].get("converged")
-    except Exception:  # unreadable or not a binding: redo it
-        return False
-    return version == __version__ and converged is True
 
 
 def _progress(stream, k: int, total: int, name: str, stage: str) -> None:
@@ -117,53 +121,54 @@ def run_batch(manifest, outdir, force: bool = False, device=None, progress=True,
         from .distributed import require_ray
 
         require_ray()  # before any work or file
-    refuse_outputs_over_inputs(assets, outdir, manifest)
-    os.makedirs(outdir, exist_ok=True)
-    with folder_lock(outdir):
-        # temporary files of a batch killed in this folder (it held the lock, so none is being written now)
-        for stale in glob.glob(os.path.join(outdir, ".tmp-*")):
-            with contextlib.suppress(OSError):
-                os.unlink(stale)
+    else:
+        from ..binding.spread import spread_devices
+        from ..device import resolve_device
+
+        if spread_devices(device) is None:
+            device = resolve_device(device)  # a device this machine lacks: refused before the folder is made
+    inputs, unreadable = {}, {}
+    for asset in assets:  # an asset whose inputs cannot be read fails alone, below
+        try:
+            inputs[asset.name] = asset_inputs(asset)
+        except WarpStokesError as exc:
+            unreadable[asset.name] = str(exc)
+    refuse_outputs_over_inputs(assets, outdir, manifest, inputs)
+    with output_folder(outdir), folder_lock(outdir):
+        remove_stale_temporaries(outdir)  # this package's, of processes gone: a killed batch's
         if distributed:
             from .distributed import run_on_ray
 
-            results = run_on_ray(assets, outdir, manifest, force, device, progress, workers, ray_address)
+            results = run_on_ray(assets, outdir, manifest, force, device, progress, workers, ray_address,
+                                 inputs, unreadable)
         else:
-            results = _run_assets(assets, outdir, manifest, force, device, progress)
+            results = _run_assets(assets, outdir, force, device, progress, inputs, unreadable)
         _write_json(os.path.join(outdir, "summary.json"), {"warp_stokes_version": __version__,
                                                            "assets": [r.__dict__ for r in results]})
     return results
 
 
-def refuse_outputs_over_inputs(assets: list[Asset], outdir: str, manifest) -> None:
+def refuse_outputs_over_inputs(assets: list[Asset], outdir: str, manifest, inputs: dict) -> None:
     """Before any work: no file the batch writes (each asset's outputs, ``summary.json``) is one it reads (the
-    manifest, each asset's mesh, cage and poses, and every layer those USD files are made of), nor exists as
-    anything but a regular file. An asset named like its input, written into the input's folder, would replace it.
+    manifest, and every file of every asset's inputs: ``inputs``, asset name -> InputSet), nor exists as anything
+    but a regular file. An asset named like its input, written into the input's folder, would replace it.
 
     Raises
     ------
     WarpStokesError, one line naming the output, what it would replace and whose it is
     """
-    from ..io.files import check_output_target, same_file
-    from ..io.scene import is_usd
-    from ..io.usd.asset import layer_files
-
-    manifest = os.fspath(manifest)
-    inputs = [(manifest, "the manifest")]
+    read = inputs_of(os.fspath(manifest), error=WarpStokesError)
+    read = InputSet({path: "the manifest" for path in read.files})
     for asset in assets:
-        for role, source in (("mesh", asset.mesh), ("cage", _cage_file(asset)), ("poses", asset.poses)):
-            if not source:
-                continue
-            inputs.append((source, f"the {role} of asset {asset.name!r}"))
-            if is_usd(source) and os.path.isfile(source):
-                inputs += [(layer, f"a layer of the {role} of asset {asset.name!r}") for layer in layer_files(source)]
+        if asset.name in inputs:
+            read = read.union(inputs[asset.name])
     outputs = [(os.path.join(outdir, "summary.json"), "the batch's summary")]
     outputs += [(path, f"asset {asset.name!r}'s output") for asset in assets for path in outputs_of(asset, outdir)]
     for path, what in outputs:
-        for source, whose in inputs:
-            if same_file(path, source):
-                raise WarpStokesError(f"{path}: {what} would replace {whose} ({source}); write the batch to another "
-                                      "folder or rename the asset")
+        whose = read.meets(path)
+        if whose is not None:
+            raise WarpStokesError(f"{path}: {what} would replace {whose}; write the batch to another folder or "
+                                  "rename the asset")
         try:
             check_output_target(path)
         except WarpStokesError as exc:
@@ -189,12 +194,20 @@ def earlier_records(outdir: str) -> dict:
         return {}
 
 
-def skipped(asset: Asset, outdir: str, manifest, force: bool, earlier: dict | None = None) -> Result | None:
-    """The asset's result when its outputs are newer than its inputs (and not ``force``), else None: status
-    "skipped", with the record of the run that wrote its outputs (resolution, vertices, handles, seconds, warnings,
-    where it was bound) from ``earlier`` (:func:`earlier_records`) where it has one."""
+def skipped(asset: Asset, outdir: str, force: bool, inputs: InputSet | None, earlier: dict | None = None
+            ) -> Result | None:
+    """The asset's result when its outputs are up to date (and not ``force``): they exist and the binding records
+    the digest of the asset's inputs as they are now (:func:`inputs_digest`); else None. Status "skipped", with the
+    record of the run that wrote its outputs (resolution, vertices, handles, seconds, warnings, where it was bound)
+    from ``earlier`` (:func:`earlier_records`) where it has one."""
     outputs = outputs_of(asset, outdir)
-    if force or not _up_to_date(asset, outputs, os.fspath(manifest)):
+    if force or inputs is None:
+        return None
+    try:
+        digest = inputs_digest(asset, inputs)
+    except WarpStokesError:  # an input gone or unreadable meanwhile: the bind says what
+        return None
+    if not _up_to_date(outputs, digest):
         return None
     result = Result(asset.name, "skipped", resolution=_grid_resolution(asset), outputs=outputs)
     record = (earlier or {}).get(asset.name, {})
@@ -210,46 +223,46 @@ def _grid_resolution(asset: Asset) -> int | None:
 
 
 def bind_one(asset: Asset, outdir: str, device, progress=None, k: int = 0, total: int = 1,
-             threads: int | None = None) -> Result:
-    """Check, bind and (with poses) animate one asset; its outputs go to temporary names and are renamed together
-    when complete, so it is written whole or not at all. A failure is its Result, not an exception; what the bind
-    warned of is in ``Result.warnings``. ``threads``: a CPU bind's threads (default: every core)."""
+             threads: int | None = None, inputs: InputSet | None = None, unreadable: str | None = None) -> Result:
+    """Check, bind and (with poses) animate one asset; its outputs are written together (one group of
+    :func:`warp_stokes.io.outputs.writing`: the cage, the animation, the binding last), whole or not at all, and
+    never over one of its inputs. A failure of any kind is its Result, not an exception; what the bind warned of is
+    in ``Result.warnings``. ``threads``: a CPU bind's threads (default: every core). ``inputs``: the asset's input
+    set (read here when not given); ``unreadable``: why its inputs could not be read (the asset then fails)."""
     import socket
 
     outputs = outputs_of(asset, outdir)
     result = Result(asset.name, "ok", resolution=_grid_resolution(asset), outputs=outputs, host=socket.gethostname(),
                     pid=os.getpid())
     start = time.perf_counter()
-    pending = {path: os.path.join(outdir, f".tmp-{os.path.basename(path)}") for path in outputs}
     caught = []
     try:
+        if unreadable is not None:
+            raise WarpStokesError(unreadable)
         if progress:
             _progress(progress, k, total, asset.name, "checking the cage")
-        with warnings.catch_warnings(record=True) as caught:
+        inputs = asset_inputs(asset) if inputs is None else inputs
+        digest = inputs_digest(asset, inputs)
+        order = outputs[2:] + outputs[1:2] + outputs[:1]  # the binding renamed last: never one without its cage
+        with warnings.catch_warnings(record=True) as caught, reading(), writing(order, inputs):
             warnings.simplefilter("always")
-            _bind_asset(asset, pending, device, progress, k, total, result, threads)
-        for path, tmp in reversed(pending.items()):  # the binding last: never one without the cage it was bound to
-            os.replace(tmp, path)
+            _bind_asset(asset, outputs, device, progress, k, total, result, threads, digest)
     except Exception as exc:  # keep going: one asset's failure is reported, not raised
         result.status = "failed"
-        result.outputs = []  # none was written (or left: the temporary files go below)
+        result.outputs = []  # none was written
         known = isinstance(exc, (ValueError, OSError))
         result.error = str(exc) if known else f"{type(exc).__name__}: {exc}"
         if not known and progress:
             traceback.print_exc(file=progress)
-    finally:
-        for tmp in pending.values():
-            with contextlib.suppress(OSError):
-                os.unlink(tmp)
     result.warnings = list(dict.fromkeys(str(w.message) for w in caught))
     result.seconds = time.perf_counter() - start
     return result
 
 
-def _run_assets(assets, outdir, manifest, force, device, progress) -> list[Result]:
+def _run_assets(assets, outdir, force, device, progress, inputs: dict, unreadable: dict) -> list[Result]:
     results = []
     earlier = earlier_records(outdir)
-    up_to_date = [skipped(asset, outdir, manifest, force, earlier) for asset in assets]
+    up_to_date = [skipped(asset, outdir, force, inputs.get(asset.name), earlier) for asset in assets]
     todo = [asset for asset, done in zip(assets, up_to_date) if done is None]
     if progress and todo:  # once the folder is ours (Ray workers compile in their own processes)
         announce_compilation(device, harmonic=any(a.method == "harmonic" for a in todo), stream=progress,
@@ -257,7 +270,8 @@ def _run_assets(assets, outdir, manifest, force, device, progress) -> list[Resul
     for k, asset in enumerate(assets):
         result = up_to_date[k]
         if result is None:
-            result = bind_one(asset, outdir, device, progress, k, len(assets))
+            result = bind_one(asset, outdir, device, progress, k, len(assets), inputs=inputs.get(asset.name),
+                              unreadable=unreadable.get(asset.name))
             warn_for(result)
         if progress:
             _progress(progress, k + 1, len(assets), asset.name,
@@ -273,19 +287,19 @@ def warn_for(result: Result) -> None:
         warnings.warn(f"{result.name}: {message}", stacklevel=3)
 
 
-def _bind_asset(asset, pending: dict, device, progress, k: int, total: int, result: Result,
-                threads: int | None = None) -> None:
-    """Check, bind and (with poses) animate one asset, writing its outputs to their temporary names
-    (``pending``: final path -> temporary path, the binding first)."""
+def _bind_asset(asset, outputs: list, device, progress, k: int, total: int, result: Result,
+                threads: int | None = None, digest: str | None = None) -> None:
+    """Check, bind and (with poses) animate one asset, writing ``outputs`` (:func:`outputs_of`: the binding first)
+    within the asset's group of outputs; the binding records ``digest``."""
     from ..binding import bind
     from ..geometry.cage import check_cage
     from ..io.poses import load_poses
-    from ..io.files import write_cage_file
+    from ..io.mesh_out import write_cage_file
     from ..io.scene import is_usd
     from ..io.usd import write_animation
     from ..io.usd.asset import read_cage_prim
 
-    npz, *usd = pending
+    npz, *usd = outputs
     if asset.cage == MADE_CAGE:
         from ..binding.spread import driver_device, spread_devices
         from ..geometry.make_cage import make_cage
@@ -324,21 +338,22 @@ def _bind_asset(asset, pending: dict, device, progress, k: int, total: int, resu
                         f"partition of unity within {stats['partition_of_unity_error']:.2g}, linear precision within "
                         f"{stats['linear_precision_error']:.2g} of the diagonal")
     if asset.cage == MADE_CAGE:
-        write_cage_file(pending[made], binding.cage_vertices, binding.cage_faces)
-    binding.save(pending[npz])
+        write_cage_file(made, binding.cage_vertices, binding.cage_faces)
+    binding.batch_inputs = digest
+    binding.save(npz)
     if poses is not None and asset.skin:
         from ..binding.skin import write_skin
 
         if progress:
             _progress(progress, k, total, asset.name, f"writing a skin of {len(poses.frames)} frames")
-        report = write_skin(pending[usd[0]], binding, poses, influences=asset.influences,
+        report = write_skin(usd[0], binding, poses, influences=asset.influences,
                             non_negative=asset.non_negative, max_error=asset.max_error, fps=asset.fps,
                             with_cage=asset.with_cage)
         result.skin_error = {"max": report.error.max, "rms": report.error.rms, "influences": report.influences}
     elif poses is not None:
         if progress:
             _progress(progress, k, total, asset.name, f"writing {len(poses.frames)} frames of USD")
-        write_animation(pending[usd[0]], binding, poses, fps=asset.fps, with_cage=asset.with_cage,
+        write_animation(usd[0], binding, poses, fps=asset.fps, with_cage=asset.with_cage,
                         with_weights=asset.with_weights)
 
 
