@@ -145,18 +145,24 @@ def test_rerun_skips_up_to_date_assets_unless_forced(manifest, tmp_path, device,
         k: record[k] for k in ("vertices", "handles", "seconds", "warnings", "pid", "device")}
     assert kept["vertices"] == 2089 and kept["warnings"]
     assert first["arm_a"] == "ok"
-    os.utime(tmp_path / "in" / "grow.npy")  # a newer input: its assets are redone
+    # a touched input is not a changed one (what an asset read is compared by contents): still up to date
     future = os.path.getmtime(out / "arm_a.npz") + 10
     os.utime(tmp_path / "in" / "grow.npy", (future, future))
+    os.utime(manifest, (future, future))
+    touched = {r.name: r.status for r in ws.run_batch(manifest, out, device=device, progress=None)}
+    assert touched["arm_a"] == "skipped" and touched["arm_b"] == "skipped"
+    # new contents redo every asset that reads them
+    poses = np.load(tmp_path / "in" / "grow.npy")
+    np.save(tmp_path / "in" / "grow.npy", poses * 1.001)
     redone = {r.name: r.status for r in ws.run_batch(manifest, out, device=device, progress=None)}
     assert redone["arm_a"] == "ok" and redone["arm_c"] == "ok"
     forced = {r.name: r.status for r in ws.run_batch(manifest, out, force=True, device=device, progress=None)}
     assert forced["arm_b"] == "ok"
-    # the manifest is an input too: a changed setting redoes every asset
-    future = os.path.getmtime(out / "arm_b.npz") + 20
-    os.utime(manifest, (future, future))
+    # a changed setting in the manifest redoes its asset, not the others
+    manifest.write_text(manifest.read_text().replace("resolution = 20", "resolution = 18"))
     changed = {r.name: r.status for r in ws.run_batch(manifest, out, device=device, progress=None)}
-    assert changed["arm_b"] == "ok"
+    assert changed["arm_b"] == "ok" and changed["arm_a"] == "skipped"
+    assert ws.load_binding(out / "arm_b.npz").settings["resolution"] == 18
     # outputs of another version of warp-stokes (other weights, possibly) are redone too
     assert ws.load_binding(out / "arm_b.npz").settings["warp_stokes_version"] == ws.__version__
     from warp_stokes.batch import run as batch_run
@@ -216,12 +222,15 @@ def test_a_second_batch_refuses_a_folder_in_use_and_stale_files_are_cleaned(mani
         holder.kill()
         holder.wait()
     # the holder is gone (a killed batch): its lock and half-written temporary files are cleared, the run completes
-    (out / ".tmp-arm_a.usd").write_text("half")
+    from warp_stokes.io.outputs import host_name
+
+    (out / f".wst~{holder.pid}~{host_name()}~0a1b2c3d~arm_a.usd").write_text("half")
+    (out / ".tmp-arm_a.usd").write_text("a file of the user's, in no pattern of warp-stokes")
     (out / "arm_a.npz").write_text("a binding without its USD, from a killed run")
     results = {r.name: r.status for r in ws.run_batch(manifest, out, device="cpu", progress=None)}
     assert results["arm_a"] == "ok" and results["arm_c"] == "ok"
-    assert sorted(os.listdir(out)) == ["arm_a.npz", "arm_a.usd", "arm_b.npz", "arm_b.usd", "arm_c.npz", "arm_c.usd",
-                                       "summary.json"]
+    assert sorted(os.listdir(out)) == [".tmp-arm_a.usd", "arm_a.npz", "arm_a.usd", "arm_b.npz", "arm_b.usd",
+                                       "arm_c.npz", "arm_c.usd", "summary.json"]
     assert ws.load_binding(out / "arm_a.npz", device="cpu").n_handles == 58
 
 

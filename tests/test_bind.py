@@ -185,7 +185,7 @@ def test_load_refuses_bad_files(bindings, tmp_path):
         ws.load_binding(tmp_path / "missing.npz")
     junk = tmp_path / "junk.npz"
     junk.write_bytes(b"not a zip")
-    with pytest.raises(ws.BindingError, match="junk.npz: not a readable binding"):
+    with pytest.raises(ws.BindingError, match="junk.npz: cannot read it as a numpy"):
         ws.load_binding(junk)
     other = tmp_path / "other.npz"
     np.savez(other, weights=np.zeros((2, 2)))

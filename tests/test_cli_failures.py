@@ -15,6 +15,7 @@ import pytest
 
 import warp_stokes as ws
 from conftest import EXAMPLE, cuda_available, float32_rounding, one_error_line, warp_stokes, write_obj
+from warp_stokes.io.outputs import is_temporary
 
 MESH, CAGE = str(EXAMPLE / "arm.obj"), str(EXAMPLE / "arm_cage.obj")
 
@@ -25,7 +26,7 @@ def test_version():
 
 
 @pytest.mark.parametrize("args, message", [
-    (["--max-iterations", "-1"], "argument --max-iterations: must be >= 1, got -1"),
+    (["--max-iterations", "-1"], "argument --max-iterations: must be an integer >= 1, got -1"),
     (["--tol", "0"], "argument --tol: must be > 0 and <= 0.1, got 0"),
     (["--tol", "nan"], "argument --tol: must be > 0 and <= 0.1, got nan"),
     (["--resolution", "abc"], "argument --resolution: 'abc' is neither auto nor an integer"),
@@ -47,16 +48,21 @@ def test_outputs_are_checked_before_the_solve(tmp_path):
     mesh = tmp_path / "arm.obj"
     shutil.copy(MESH, mesh)
     before = hashlib.sha256(mesh.read_bytes()).hexdigest()
-    proc = warp_stokes("bind", str(mesh), CAGE, "-o", str(mesh), "--device", "cpu")
-    assert proc.returncode == 2 and "the output is the input" in one_error_line(proc)
+    binding = tmp_path / "arm.npz"
+    shutil.copy(mesh, binding)  # a mesh saved under a binding's name
+    proc = warp_stokes("bind", str(binding), CAGE, "-o", str(binding), "--device", "cpu")
+    assert proc.returncode == 2 and "the output would replace the input" in one_error_line(proc)
+    binding.unlink()
     assert hashlib.sha256(mesh.read_bytes()).hexdigest() == before
     # a folder that takes no files (for root too, who passes every permission check)
     proc = warp_stokes("bind", MESH, CAGE, "-o", "/proc/b.npz", "--device", "cpu")
     assert proc.returncode == 2 and proc.stdout == ""
     assert one_error_line(proc).startswith("warp-stokes: error: /proc/b.npz: the output folder /proc takes no new files")
     # nor a folder
-    proc = warp_stokes("bind", MESH, CAGE, "-o", str(tmp_path), "--device", "cpu")
+    (tmp_path / "folder.npz").mkdir()
+    proc = warp_stokes("bind", MESH, CAGE, "-o", str(tmp_path / "folder.npz"), "--device", "cpu")
     assert proc.returncode == 2 and "the output is a folder" in one_error_line(proc)
+    (tmp_path / "folder.npz").rmdir()
     assert sorted(os.listdir(tmp_path)) == ["arm.obj"]
 
 
@@ -190,7 +196,7 @@ def test_a_full_disk_is_one_line_and_leaves_no_file(tmp_path, arm_npz, monkeypat
     real_open = open
 
     def full_disk_open(path, mode="r", *args, **kwargs):
-        if "w" in mode and os.path.basename(str(path)).startswith(".tmp-"):
+        if "w" in mode and is_temporary(str(path)):
             raise OSError(errno.ENOSPC, "No space left on device", str(path))
         return real_open(path, mode, *args, **kwargs)
 

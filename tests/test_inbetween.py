@@ -212,7 +212,7 @@ def test_animate_with_inbetween_steps(arm, tmp_path, capsys):
     (["--key-frames", "0,10,5"], "argument --key-frames: '0,10,5': the frame numbers must be strictly increasing"),
     (["--key-frames", "0,ten,30"], "argument --key-frames: '0,ten,30' is not a comma-separated list of numbers"),
     (["--key-frames", "0,nan,30"], "finite frame numbers"),
-    (["--inbetween", "-1"], "argument --inbetween: must be >= 0, got -1"),
+    (["--inbetween", "-1"], "argument --inbetween: must be an integer >= 0, got -1"),
     (["--inbetween", "1.5"], "argument --inbetween: '1.5' is not an integer"),
     (["--interpolation", "spline"], "--interpolation needs --key-frames or --inbetween"),
     (["--inbetween", "1", "--interpolation", "cubic"], "argument --interpolation: invalid choice"),

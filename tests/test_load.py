@@ -81,7 +81,7 @@ def test_unreadable_and_empty_files_name_the_file(tmp_path):
     empty.write_text("# nothing here\n")
     with pytest.raises(ws.MeshError, match="empty.obj: the file has no vertices"):
         ws.load_surface(empty)
-    with pytest.raises(ws.MeshError, match="is a folder"):
+    with pytest.raises(ws.MeshError, match="a folder, not a mesh file"):
         ws.load_surface(tmp_path)
     broken = tmp_path / "broken.obj"
     broken.write_text("v 0 0 0\nv 1 zero 0\n")

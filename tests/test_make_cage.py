@@ -349,7 +349,7 @@ def test_cli_usd_asset_cage_as_a_prim_of_a_new_layer(tmp_path):
 
 
 @pytest.mark.parametrize("args, message", [
-    (["--handles", "5"], "must be >= 8"),
+    (["--handles", "5"], "must be an integer >= 8"),
     (["--offset", "0"], "must be > 0"),
     (["-o", "{tmp}/cage.stl"], "unsupported cage format 'stl'"),
     (["mesh={tmp}/points.obj"], "has no faces"),

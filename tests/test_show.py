@@ -244,7 +244,7 @@ def test_bad_input_is_one_line_and_no_picture(arm, tmp_path):
     out = tmp_path / "out.png"
     cases = [
         (["--handle", binding.n_handles], "the binding has handles 0 to 57"),
-        (["--handle", -1], "must be >= 0"),
+        (["--handle", -1], "must be an integer >= 0"),
         (["--handle", 1, "--slice", "w=0.5"], "is not AXIS=FRACTION"),
         (["--handle", 1, "--slice", "z=1.5"], "is not AXIS=FRACTION"),
         (["--handle", 1, "--slice", "z"], "is not AXIS=FRACTION"),

@@ -87,7 +87,7 @@ def test_skin_weights_keep_the_largest_and_sum_to_one(arm):
     assert (positive.weights >= 0).all() and positive.non_negative
     np.testing.assert_allclose(positive.weights.sum(axis=1), 1.0, atol=1e-6)
     for k in (0, binding.n_handles + 1):
-        with pytest.raises(ws.WarpStokesError, match="influences must be between 1 and"):
+        with pytest.raises(ws.WarpStokesError, match="influences must be an integer between 1 and"):
             ws.skin_weights(binding, k)
 
 

@@ -222,13 +222,13 @@ def test_bad_pose_inputs_are_named(arm, tmp_path):
     with pytest.raises(ws.BindingError, match="empty.npy: there are no poses"):
         ws.load_poses(tmp_path / "empty.npy", arm.cage_faces)
     np.savez(tmp_path / "dup.npz", poses=cage_poses(arm, 2), frames=[1, 1])
-    with pytest.raises(ws.BindingError, match="dup.npz: frame numbers must be finite and distinct"):
+    with pytest.raises(ws.BindingError, match="dup.npz: frame numbers must be finite, distinct"):
         ws.load_poses(tmp_path / "dup.npz", arm.cage_faces)
     np.savez(tmp_path / "short.npz", poses=cage_poses(arm, 3), frames=[1, 2])
     with pytest.raises(ws.BindingError, match=r"short.npz: 'frames' has shape \(2,\)"):
         ws.load_poses(tmp_path / "short.npz", arm.cage_faces)
     (tmp_path / "broken.usda").write_text("#usda 1.0\n( this is not usd\n")
-    with pytest.raises(ws.BindingError, match="broken.usda: cannot open it as a USD stage"):
+    with pytest.raises(ws.BindingError, match="broken.usda: cannot read it as USD"):
         ws.load_poses(tmp_path / "broken.usda", arm.cage_faces)
 
 

@@ -8,7 +8,6 @@ import json
 import os
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -16,6 +15,7 @@ import time
 import pytest
 
 from conftest import EXAMPLE, one_error_line, warp_stokes
+from warp_stokes.io.outputs import host_name, is_temporary
 
 MESH, CAGE = str(EXAMPLE / "arm.obj"), str(EXAMPLE / "arm_cage.obj")
 
@@ -36,7 +36,7 @@ def test_a_batch_never_writes_over_its_inputs(tmp_path):
     proc = warp_stokes("batch", str(assets / "hero.toml"), "-o", str(assets), "--device", "cpu")
     assert proc.returncode == 2
     assert one_error_line(proc) == (f"warp-stokes: error: {assets / 'hero.usd'}: asset 'hero''s output would replace "
-                                    f"the mesh of asset 'hero' ({assets / 'hero.usd'}); write the batch to another "
+                                    f"the mesh of asset 'hero' {assets / 'hero.usd'}; write the batch to another "
                                     "folder or rename the asset")
     assert digest(assets / "hero.usd") == before and not (assets / "hero.npz").exists()
 
@@ -70,9 +70,24 @@ def test_animate_never_writes_over_a_layer_of_its_asset(tmp_path):
     proc = warp_stokes("animate", str(binding), str(tmp_path / "root.usda"), "--cage-prim", "/Arm/Rig/Cage", "-o",
                        str(tmp_path / "arm.usda"), "--device", "cpu")
     assert proc.returncode == 2
-    assert one_error_line(proc) == (f"warp-stokes: error: {tmp_path / 'arm.usda'}: the output is a layer of the asset "
-                                    f"{tmp_path / 'root.usda'} ({tmp_path / 'arm.usda'}); write the animation layer "
-                                    "to another file (it sublayers the asset)")
+    # (the binding records the layers it was bound from: it names one of its sources)
+    assert one_error_line(proc) == (f"warp-stokes: error: {tmp_path / 'arm.usda'}: the output would replace a source "
+                                    f"of the input {binding} ({tmp_path / 'arm.usda'}); choose another output")
+    # a binding that records no sources (written before it did): the layer stack of the poses' USD file says it
+    import numpy as np
+
+    with np.load(binding) as data:
+        arrays = dict(data)
+    meta = json.loads(str(arrays["meta"]))
+    del meta["sources"]
+    arrays["meta"] = np.array(json.dumps(meta))
+    np.savez(tmp_path / "old.npz", **arrays)
+    proc = warp_stokes("animate", str(tmp_path / "old.npz"), str(tmp_path / "root.usda"), "--cage-prim",
+                       "/Arm/Rig/Cage", "-o", str(tmp_path / "arm.usda"), "--device", "cpu")
+    assert proc.returncode == 2
+    assert one_error_line(proc) == (f"warp-stokes: error: {tmp_path / 'arm.usda'}: the output would replace a layer "
+                                    f"of the input {tmp_path / 'root.usda'} ({tmp_path / 'arm.usda'}); choose another "
+                                    "output")
     assert digest(tmp_path / "arm.usda") == before
 
 
@@ -103,15 +118,18 @@ def test_the_temporary_file_of_a_killed_save_is_removed_by_the_next(tmp_path):
     out = tmp_path / "arm.npz"
     dead = subprocess.Popen([sys.executable, "-c", "pass"])
     dead.wait()
-    host = socket.gethostname()
-    stale = tmp_path / f".tmp-{host}-{dead.pid}-arm.npz-abc123.npz"
-    live = tmp_path / f".tmp-{host}-{os.getpid()}-arm.npz-def456.npz"
-    other = tmp_path / f".tmp-{host}-{dead.pid}-other.npz-abc123.npz"
-    for path in (stale, live, other):
+    host = host_name()
+    stale = tmp_path / f".wst~{dead.pid}~{host}~0a1b2c3d~arm.npz"
+    live = tmp_path / f".wst~{os.getpid()}~{host}~4e5f6a7b~arm.npz"
+    other = tmp_path / f".wst~{dead.pid}~{host}~8c9d0e1f~other.npz"
+    elsewhere = tmp_path / f".wst~{dead.pid}~another-host~8c9d0e1f~arm.npz"
+    notes = tmp_path / ".tmp-notes.txt"  # the user's, in no pattern of the package's
+    for path in (stale, live, other, elsewhere, notes):
         path.write_bytes(b"half a binding")
     proc = warp_stokes("bind", MESH, CAGE, "-o", str(out), "--resolution", "16", "--device", "cpu")
     assert proc.returncode == 0, proc.stderr
-    assert not stale.exists() and live.exists() and other.exists() and out.exists()
+    assert not stale.exists() and not other.exists() and out.exists()
+    assert live.exists() and elsewhere.exists() and notes.exists()
     # and a real kill: SIGKILL in the middle of a save, then a bind of the same output cleans up
     script = ("import os, signal, sys, numpy as np, warp_stokes as ws\n"
               "b = ws.bind(sys.argv[1], sys.argv[2], resolution=16, device='cpu')\n"
@@ -123,11 +141,11 @@ def test_the_temporary_file_of_a_killed_save_is_removed_by_the_next(tmp_path):
               "b.save(sys.argv[3])\n")
     victim = subprocess.run([sys.executable, "-c", script, MESH, CAGE, str(tmp_path / "k.npz")], capture_output=True)
     assert victim.returncode == -signal.SIGKILL
-    left = [p for p in os.listdir(tmp_path) if p.startswith(".tmp-") and "-k.npz-" in p]
+    left = [p for p in os.listdir(tmp_path) if is_temporary(p) and p.endswith("~k.npz")]
     assert len(left) == 1 and not (tmp_path / "k.npz").exists()
     time.sleep(0.1)
     proc = warp_stokes("bind", MESH, CAGE, "-o", str(tmp_path / "k.npz"), "--resolution", "16", "--device", "cpu")
-    assert proc.returncode == 0 and not [p for p in os.listdir(tmp_path) if "-k.npz-" in p]
+    assert proc.returncode == 0 and not [p for p in os.listdir(tmp_path) if p.endswith("~k.npz")]
 
 
 def test_a_binding_carries_its_format_s_extension(tmp_path):
