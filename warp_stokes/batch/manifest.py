@@ -7,6 +7,7 @@ import math
 import os
 from dataclasses import dataclass
 
+from ..arguments import FLOAT32_MAX, FLOAT32_TINY
 from ..errors import WarpStokesError
 from ..io.door import read_input, reason
 
@@ -142,6 +143,11 @@ def _checked_entry(merged: dict, where: str) -> None:
                                "a fraction of the diagonal in (0, 0.5]")):
         if key in merged and not ok(merged[key]):
             raise ManifestError(f"{where}: '{key}' must be {expected}, got {merged[key]!r}")
+    for key in ("fps", "tol", "rest_time", "max_error", "offset"):  # as every number the package takes as a float
+        value = merged.get(key)
+        if isinstance(value, float) and value != 0 and not FLOAT32_TINY <= abs(value) <= FLOAT32_MAX:
+            raise ManifestError(f"{where}: '{key}' must be within float32's range ({FLOAT32_TINY:.3g} to "
+                                f"{FLOAT32_MAX:.3g}), got {value!r}")
 
 
 def read_manifest(path) -> list[Asset]:

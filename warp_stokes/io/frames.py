@@ -9,6 +9,7 @@ import numpy as np
 from ..errors import BindingError
 from .door import checked_input
 from .poses import Poses, checked_poses, numeric, obj_sequence, read_positions, same_triangles
+from .usd.layers import reads_usd
 
 __all__ = ["load_mesh_frames"]
 
@@ -24,6 +25,7 @@ def _from_folder(path: str, faces: np.ndarray, n_vertices: int) -> Poses:
     return obj_sequence(path, positions_of)
 
 
+@reads_usd(BindingError)
 def _from_usd(path: str, n_vertices: int, prims) -> Poses:
     from pxr import UsdGeom
 

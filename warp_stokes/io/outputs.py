@@ -34,7 +34,7 @@ __all__ = ["atomic_output", "OutputGroup", "writing", "output_folder", "check_ou
 
 _GROUP: contextvars.ContextVar = contextvars.ContextVar("warp_stokes_output_group", default=None)
 _TEMPORARY = re.compile(r"^\.wst~(?P<pid>\d+)~(?P<host>[A-Za-z0-9.-]*)~[0-9a-f]{8}~")
-_NAME_MAX = 255
+_TEMPORARY_MAX = 160  # bytes of a temporary file's name: the file system's 255, less room for a writer's own suffix
 _CLEANED: set = set()  # folders whose stale temporaries this process has removed
 
 
@@ -87,7 +87,7 @@ def temporary_path(path) -> str:
     # UTF-8 names only and reads brackets as package paths) can open it, whatever bytes the output's name holds
     stem, ext = os.path.splitext(name)
     stem, ext = re.sub(r"[^A-Za-z0-9._-]", "_", stem), re.sub(r"[^A-Za-z0-9.]", "_", ext)
-    room = _NAME_MAX - len(prefix)
+    room = _TEMPORARY_MAX - len(prefix)  # writers add their own suffixes (USD's safe output file does)
     ext = ext[: room // 2]
     return os.path.join(folder, prefix + stem[: room - len(ext)] + ext)
 

@@ -12,6 +12,7 @@ from ..arguments import FLOAT32_MAX, number
 from ..errors import BindingError
 from .door import checked_input, read_numpy
 from .load import finite_coordinates, load_surface
+from .usd.layers import reads_usd
 
 __all__ = ["Poses", "load_poses", "checked_poses", "natural_key", "numeric", "obj_sequence", "pose_vertices",
            "read_positions", "same_triangles"]
@@ -190,6 +191,7 @@ def read_positions(path: str, n_points: int, keys=("poses",), numbers_key: str =
     return Poses(array, numbers, path)
 
 
+@reads_usd(BindingError)
 def _from_usd(path: str, cage_faces: np.ndarray, n_handles: int, source_index=None,
               cage_prim: str | None = None) -> Poses:
     from pxr import UsdGeom

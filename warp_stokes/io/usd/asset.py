@@ -10,7 +10,7 @@ import numpy as np
 from ...errors import BindingError, CageError, MeshError, WarpStokesError
 from ..load import Surface, fan_triangles, first_missing_vertex, load_surface
 from ..scene import MeshPart, Scene
-from .layers import layer_stack, usd_reason
+from .layers import layer_stack, reads_usd, usd_reason
 
 __all__ = ["open_stage", "read_asset", "read_cage_prim", "rest_time_code", "mesh_prim",
            "world_matrix", "stage_metadata"]
@@ -133,6 +133,7 @@ def stage_metadata(stage) -> dict:
     }
 
 
+@reads_usd(MeshError)
 def read_asset(path: str, mesh_prims=None, exclude=(), rest_time=None, cage_prim: str | None = None) -> Scene:
     """The mesh prims of a USD asset, in world space at the rest time.
 
@@ -191,6 +192,7 @@ def read_asset(path: str, mesh_prims=None, exclude=(), rest_time=None, cage_prim
     return Scene(tuple(parts), path, os.path.abspath(path), metadata)
 
 
+@reads_usd(CageError)
 def read_cage_prim(path: str, prim_path: str, rest_time=None) -> Surface:
     """A cage prim's surface in world space at the rest time (its earliest time sample by default).
 
@@ -205,6 +207,7 @@ def read_cage_prim(path: str, prim_path: str, rest_time=None) -> Surface:
     return surface
 
 
+@reads_usd(BindingError)
 def cage_animation(path: str, prim_path: str, n_handles: int):
     """A cage prim's world-space points at each of its points' time samples: (positions (F, P, 3), time codes
     (F,), time codes per second, the polygons' triangles (T, 3)).

@@ -12,6 +12,7 @@ from ..inputs import inputs_of
 from ..outputs import atomic_output
 from ..normals import NormalsPlan
 from .common import animation_rate, deformed_frames, extent, new_stage, save_layer, set_timing, vec3f
+from .layers import reads_usd
 
 __all__ = ["write_layer", "asset_context"]
 
@@ -70,6 +71,7 @@ class _Override:
             self.normals_attr.Set(vec3f(self.plan(local)), time)
 
 
+@reads_usd(WarpStokesError, path_argument=1)
 def _part_override(stage, asset_path: str, part: dict, rows: slice, rest_time) -> _Override:
     """The override of one bound prim, checked against the binding (the asset may have changed since), with the
     normals recomputed where the asset authors them (``primvars:normals`` wins over ``normals``, as in USD)."""

@@ -4,6 +4,7 @@ bind or animate a stage that is not the user's; here that is one error naming th
 
 from __future__ import annotations
 
+import functools
 import glob
 import os
 import re
@@ -12,7 +13,7 @@ from dataclasses import dataclass
 from ...errors import MeshError
 from ..door import checked_input, reason, record_read
 
-__all__ = ["LayerStack", "layer_stack", "usd_reason"]
+__all__ = ["LayerStack", "layer_stack", "usd_reason", "reads_usd"]
 
 
 @dataclass
@@ -98,6 +99,26 @@ def usd_reason(exc) -> str:
     text = quoted.group(1) if quoted else text
     text = re.sub(r"pxrInternal_\w*?__pxrReserved__(::|_+)?", "", text)
     return reason(text or type(exc).__name__)
+
+
+def reads_usd(error=MeshError, path_argument: int = 0):
+    """A function that reads values of a USD file named by its positional argument ``path_argument``: an error USD
+    raises while it reads (a value it cannot decode in a damaged crate file, found only when read) becomes one
+    ``error`` naming the file. The layer stack was checked when the stage opened; values are read on demand."""
+
+    def wrap(function):
+        @functools.wraps(function)
+        def reading(*args, **kwargs):
+            try:
+                return function(*args, **kwargs)
+            except RuntimeError as exc:
+                if type(exc).__name__ != "ErrorException":  # not pxr's Tf.ErrorException
+                    raise
+                raise error(f"{args[path_argument]}: cannot read it as USD ({usd_reason(exc)})") from None
+
+        return reading
+
+    return wrap
 
 
 def layer_stack(path, error=MeshError) -> LayerStack:

@@ -29,6 +29,7 @@ import numpy as np
 from ...errors import WarpStokesError
 from ..outputs import atomic_output
 from .common import deformed_frames, define_mesh, extent, new_stage, save_layer, set_timing, vec3f
+from .layers import reads_usd
 
 __all__ = ["write_standalone_skeleton", "write_layer_skeleton"]
 
@@ -217,6 +218,7 @@ def write_layer_skeleton(path, ext, binding, skin, joints, positions, frames, ra
     return path
 
 
+@reads_usd(WarpStokesError, path_argument=1)
 def _bound_mesh(stage, asset_path: str, prim_path: str, n_points: int, rest_time):
     """The asset's mesh at ``prim_path``, checked against the binding (the asset may have changed since)."""
     from pxr import Usd, UsdGeom
