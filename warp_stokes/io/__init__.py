@@ -6,7 +6,7 @@ Nothing here solves anything: these modules read what users have and write what 
 imported when first used (PEP 562): the command line's start-up and its signal handling need none of numpy.
 """
 
-import importlib
+from ..lazy import lazy_names
 
 _HOME = {"atomic_output": ".outputs", "Surface": ".load", "load_surface": ".load", "Poses": ".poses",
          "load_poses": ".poses", "pose_vertices": ".poses", "same_triangles": ".poses", "write_animation": ".usd"}
@@ -14,10 +14,4 @@ _HOME = {"atomic_output": ".outputs", "Surface": ".load", "load_surface": ".load
 __all__ = ["atomic_output", "Surface", "load_surface", "Poses", "load_poses", "pose_vertices", "same_triangles",
            "write_animation"]
 
-
-def __getattr__(name: str):
-    if name in _HOME:
-        value = getattr(importlib.import_module(_HOME[name], __name__), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__ = lazy_names(__name__, _HOME)

@@ -6,16 +6,10 @@ pxr (usd-core) is imported by the functions that use it, and the writers when fi
 layer stack does not load them, and loading the package stays fast.
 """
 
-import importlib
+from ...lazy import lazy_names
 
 _HOME = {"FRAMES_PER_CHUNK": ".common", "write_cage_poses": ".standalone", "write_animation": ".write"}
 
 __all__ = ["write_animation", "write_cage_poses", "FRAMES_PER_CHUNK"]
 
-
-def __getattr__(name: str):
-    if name in _HOME:
-        value = getattr(importlib.import_module(_HOME[name], __name__), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__ = lazy_names(__name__, _HOME)
