@@ -26,7 +26,6 @@ import resource
 import shutil
 import signal
 import stat
-import sys
 
 import numpy as np
 import pytest
@@ -346,8 +345,6 @@ BESIDE = [b".tmp-notes.txt", b".tmp-a.npz-x", b".wst~1~other-host~0a1b2c3d~a.npz
        command=st.sampled_from(["batch", "deform", "bind", "animate"]))
 def test_files_beside_the_outputs_are_left_alone(scratch, name, live, command):
     # a file of the user's, or another command's live temporary file, in the folder the command writes to
-    from warp_stokes.cli import main as _main  # noqa: F401 (the package under test)
-
     folder = scratch()
     (folder / "out").mkdir()
     if live:  # the pattern of a temporary file of this (live) process: another command's, being written

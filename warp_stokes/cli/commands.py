@@ -5,9 +5,8 @@ from __future__ import annotations
 
 import os
 import sys
-import tempfile
 
-__all__ = ["format_stats", "output_folder", "announce_compilation", "cage_command", "bind_command",
+__all__ = ["format_stats", "announce_compilation", "cage_command", "bind_command",
            "deform_command", "animate_command", "encode_command", "sweep_command", "show_command", "batch_command"]
 
 
@@ -61,14 +60,6 @@ def format_stats(stats: dict) -> str:
     ]
     width = max(len(k) for k, _ in rows)
     return "\n".join(f"{k:<{width}}  {v}" for k, v in rows)
-
-
-def output_folder(path: str):
-    """The output folder of ``sweep`` and ``batch``, checked before any work (its parent exists, it is not a file)
-    and made when missing; see :func:`warp_stokes.io.outputs.output_folder`."""
-    from warp_stokes.io.outputs import output_folder as folder
-
-    return folder(path)
 
 
 def announce_compilation(device, harmonic: bool = False) -> None:
@@ -341,7 +332,7 @@ def sweep_command(args) -> int:
     from warp_stokes.errors import WarpStokesError
     from warp_stokes.geometry.cage import check_cage
     from warp_stokes.io.inputs import inputs_of
-    from warp_stokes.io.outputs import writing
+    from warp_stokes.io.outputs import output_folder, writing
     from warp_stokes.sweep import format_sweep, plot_sweep, sweep, write_sweep
 
     device = resolve_device(args.device)

@@ -24,9 +24,13 @@ import shutil
 import signal
 import socket
 import stat
+from typing import TYPE_CHECKING
 
 from ..errors import WarpStokesError
 from .door import file_kind, files_read
+
+if TYPE_CHECKING:  # (the inputs' module imports the USD readers; the door out needs none of them)
+    from .inputs import InputSet
 
 __all__ = ["atomic_output", "OutputGroup", "writing", "output_folder", "check_output_target", "temporary_path",
            "is_temporary", "remove_stale_temporaries", "remove_temporaries_of", "process_alive", "host_name",
@@ -136,7 +140,7 @@ def remove_temporaries_of(folder, processes) -> list[str]:
     return removed
 
 
-def check_output_target(path, inputs: "InputSet | None" = None) -> None:
+def check_output_target(path, inputs: InputSet | None = None) -> None:
     """Refuse, before any work, an output that would replace what the user owns: one of ``inputs`` (or a file read
     so far in this command), or an existing path that is not a regular file (a device, a pipe, a socket, a folder,
     or a link to one: renaming the finished file over it would replace it, ``/dev/null`` included when run as root).
@@ -218,7 +222,7 @@ class OutputGroup:
     inputs : :class:`~.inputs.InputSet`, optional, the command's inputs, none of which an output may replace
     """
 
-    def __init__(self, paths, inputs: "InputSet | None" = None):
+    def __init__(self, paths, inputs: InputSet | None = None):
         self.paths = [os.fspath(p) for p in paths]
         self.inputs = inputs
         self.written: dict[str, str] = {}  # output -> its finished temporary file
@@ -323,7 +327,7 @@ def _remove(path: str) -> None:
 
 
 @contextlib.contextmanager
-def writing(paths, inputs: "InputSet | None" = None):
+def writing(paths, inputs: InputSet | None = None):
     """Write the outputs ``paths`` of one command together: each checked now (before any work: see
     :class:`OutputGroup`), every :func:`atomic_output` of one of them inside the block written to a temporary file,
     and all renamed into place when the block completes; nothing of them is left when it raises.
