@@ -20,11 +20,13 @@ Manifest (TOML; JSON with the same keys works too, with ``"assets": [...]``)::
     poses = "hero/hero.usd"       # the cage prim's time samples; the output is a layer over the asset
 
 For each asset the batch writes ``OUTDIR/<name>.npz`` and, with poses, ``OUTDIR/<name>.usd``. A failing asset
-is reported and the batch goes on; an asset whose outputs are newer than its inputs is skipped unless forced.
-An asset's outputs are written under temporary names and renamed together at its end, so a killed batch leaves
-an asset whole or missing (re-run, it completes what is missing and removes the killed run's temporary files).
-One batch at a time writes to a folder: a lock file ``OUTDIR/.warp-stokes.lock`` holds the owner's pid, and a
-second batch refuses the folder while that process lives (a lock left by a dead one is taken over).
+(one whose inputs cannot even be read included) is reported and the batch goes on; an asset whose binding records
+the digest of everything it read and of its entry, as they are now, is skipped unless forced. An asset's outputs
+are written under temporary names and renamed together at its end, so a killed batch leaves an asset whole or
+missing (re-run, it completes what is missing and removes the temporary files the killed run left, and no other
+file). One batch at a time writes to a folder: a lock file ``OUTDIR/.warp-stokes.lock`` names the owner's host and
+pid, and a second batch refuses the folder while that process lives (a lock left by a dead one of this host is
+taken over; another host's is refused, naming it).
 ``OUTDIR/summary.json`` holds the software version and, per asset, its status, error, warnings, and where it was
 bound (host, pid, device). With ``workers`` or ``ray_address`` the assets are bound in parallel by Ray worker
 processes (:mod:`.distributed`; the optional extra ``warp-stokes[ray]``).

@@ -96,7 +96,7 @@ def run_batch(manifest, outdir, force: bool = False, device=None, progress=True,
     ----------
     manifest : path of a TOML or JSON manifest (see the module docstring)
     outdir : output folder (created if missing)
-    force : bool, redo assets whose outputs are newer than their inputs
+    force : bool, redo assets whose outputs are up to date with their inputs
     device : None | str
     progress : True for progress lines on stderr, a text stream for them, or None/False for silence
     workers : int, optional, bind in this many Ray worker processes on a local Ray cluster started here (on a GPU
