@@ -165,9 +165,9 @@ def test_rerun_skips_up_to_date_assets_unless_forced(manifest, tmp_path, device,
     assert ws.load_binding(out / "arm_b.npz").settings["resolution"] == 18
     # outputs of another version of warp-stokes (other weights, possibly) are redone too
     assert ws.load_binding(out / "arm_b.npz").settings["warp_stokes_version"] == ws.__version__
-    from warp_stokes.batch import run as batch_run
+    from warp_stokes.batch import asset as batch_asset
 
-    monkeypatch.setattr(batch_run, "__version__", "0.0.1")
+    monkeypatch.setattr(batch_asset, "__version__", "0.0.1")
     older = {r.name: r.status for r in ws.run_batch(manifest, out, device=device, progress=None)}
     assert older["arm_b"] == "ok" and older["arm_a"] == "ok"
 

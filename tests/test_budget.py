@@ -22,7 +22,7 @@ MEASURE = textwrap.dedent(
     ws.bind(mesh, cage, resolution=n, device="cpu")  # compile and load every kernel this bind uses first
     gc.collect()
     ctypes.CDLL("libc.so.6").malloc_trim(0)  # hand freed heap back, so that the bind's growth is all its own
-    ws.geometry.local_boundary._KEPT_DERIVATIVES.clear()  # computed again by the bind, as a first bind does
+    ws.geometry.local_data._KEPT_DERIVATIVES.clear()  # computed again by the bind, as a first bind does
     gc.collect()
     def status(key):  # kB -> bytes; VmHWM is this process's peak resident memory (ru_maxrss would also count
         for line in open("/proc/self/status"):  # the pages of the parent it was forked from)
@@ -75,7 +75,7 @@ def test_chunked_and_unchunked_solves_give_the_same_weights(arm_cage, device):
         whole = ws.bind(EXAMPLE / "arm.obj", arm_cage, resolution=24, device=device, threads=1)
         grid = ws.voxelize(arm_cage, 24, device=device)
         estimate = ws.estimate_memory(grid, whole.n_vertices, levels=ws.coarsen(grid, device), device=device,
-                                      n_handles=58, boundary_bytes=ws.geometry.local_boundary.local_data_bytes(arm_cage))
+                                      n_handles=58, boundary_bytes=ws.geometry.local_data.local_data_bytes(arm_cage))
         # room for 24 columns: 20 of the 58 handles at a time and the 4 columns of the rest of the cage
         budget = estimate.total(24)
         chunked = ws.bind(EXAMPLE / "arm.obj", arm_cage, resolution=24, device=device, memory_budget=budget,
@@ -104,7 +104,7 @@ def test_threads_solve_chunks_at_once_with_the_weights_of_one_thread(arm_cage):
     assert three.stats["partition_of_unity_error"] <= 1e-5 and three.stats["converged"]
     grid = ws.voxelize(arm_cage, 24, device="cpu")
     estimate = ws.estimate_memory(grid, one.n_vertices, levels=ws.coarsen(grid, "cpu"), device="cpu", n_handles=58,
-                                  boundary_bytes=ws.geometry.local_boundary.local_data_bytes(arm_cage))
+                                  boundary_bytes=ws.geometry.local_data.local_data_bytes(arm_cage))
     # the lanes' chunks with their complement columns, and the table of every handle's starting values they share
     # (with, while it is formed, the values at the nodes of even coordinates it is interpolated from)
     from warp_stokes.geometry.boundary import start_lattice_nodes
@@ -156,7 +156,7 @@ def test_a_budget_below_what_no_resolution_saves_says_so(arm_cage):
     """The local data of a cage of thousands of handles (faces x handles float64) does not shrink with the
     resolution: the error says so instead of naming a resolution that would not fit either."""
     grid = ws.voxelize(arm_cage, 16, device="cpu")
-    kept, work, device_work = ws.geometry.local_boundary.local_data_bytes(arm_cage)
+    kept, work, device_work = ws.geometry.local_data.local_data_bytes(arm_cage)
     plain = ws.estimate_memory(grid, 2089, device="cpu", n_handles=58)
     local = ws.estimate_memory(grid, 2089, device="cpu", n_handles=58, boundary_bytes=(kept, work, device_work))
     assert local.fixed - plain.fixed == 2 * kept  # the host's copy and the device's, in one memory on a CPU

@@ -77,3 +77,64 @@ def test_help_and_version_start_without_warp():
         result = subprocess.run([sys.executable, "-c", script, flag], capture_output=True, text=True)
         assert result.returncode == 0, result.stderr
         assert "HEAVY []" in result.stdout, (flag, result.stdout[-200:])
+
+
+def module_graph() -> dict:
+    """Each module of the package (a dotted path inside it; a package by its ``__init__``) -> the modules of the
+    package it imports anywhere in its file, at its top or inside a function: an import put inside a function still
+    ties the two modules."""
+    modules = {p.relative_to(PACKAGE).with_suffix("").parts: p for p in PACKAGE.rglob("*.py")}
+    names = {(parts[:-1] if parts[-1] == "__init__" else parts): path for parts, path in modules.items()}
+    graph = {}
+    for name, path in names.items():
+        targets = set()
+        for _, target in imported_modules(path) if path.name != "__init__.py" else _init_imports(path, name):
+            while target and target not in names:  # a name of a module: the module
+                target = target[:-1]
+            if target and target != name:
+                targets.add(target)
+        graph[name] = targets
+    return graph
+
+
+def _init_imports(path: Path, package: tuple):
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom) and node.level:
+            base = package[: len(package) - (node.level - 1)]
+            yield node.lineno, base + (tuple(node.module.split(".")) if node.module else ())
+
+
+def cycles(graph: dict) -> list:
+    """The strongly connected components of more than one module (Tarjan)."""
+    index, low, stack, on, found = {}, {}, [], set(), []
+
+    def visit(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in graph.get(v, ()):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                found.append(sorted(".".join(c) for c in component))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return found
+
+
+def test_no_modules_import_each_other_in_a_circle():
+    # imports inside functions count: one put there to break an import-time circle still ties the modules
+    assert cycles(module_graph()) == []

@@ -13,7 +13,7 @@ import warp as wp
 import warp_stokes as ws
 from conftest import EXAMPLE, box_cage, u_cage
 from warp_stokes.geometry.cage import Cage, folded_edges, unit_normals
-from warp_stokes.geometry.local_boundary import cage_graph_distances, normal_derivatives
+from warp_stokes.geometry.local_data import cage_graph_distances, normal_derivatives
 from warp_stokes.kernels import local_boundary as local_boundary_kernels
 
 SETTINGS = [ws.LocalData(), ws.LocalData(fold_radius=0.0), ws.LocalData(model="least-norm"),
@@ -38,7 +38,7 @@ def test_graph_distances_match_scipys_dijkstra_in_groups(name, device, monkeypat
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import shortest_path
 
-    from warp_stokes.geometry import local_boundary, shapes
+    from warp_stokes.geometry import local_data, shapes
     from warp_stokes.geometry.cage import face_edges
 
     if name == "two_boxes":
@@ -50,7 +50,7 @@ def test_graph_distances_match_scipys_dijkstra_in_groups(name, device, monkeypat
                 "star": lambda: shapes.star_pair(seed=3), "torus": lambda: shapes.torus_pair(seed=1)}[name]()
         vertices, faces = pair.cage
     cage = Cage(vertices, faces, name)
-    monkeypatch.setattr(local_boundary, "GRAPH_SCRATCH_BYTES", 16 * 7 * cage.n_handles)
+    monkeypatch.setattr(local_data, "GRAPH_SCRATCH_BYTES", 16 * 7 * cage.n_handles)
     d = cage_graph_distances(cage, device=device)
     e = face_edges(cage.faces)
     length = np.linalg.norm(cage.vertices[e[:, 0]] - cage.vertices[e[:, 1]], axis=1)
@@ -71,12 +71,12 @@ def test_normal_derivatives_reproduce_zero_and_the_normal(arm_cage, settings, de
 
 
 def test_normal_derivatives_are_computed_once_per_cage_and_settings(arm_cage, device, monkeypatch):
-    from warp_stokes.geometry import local_boundary
+    from warp_stokes.geometry import local_data
 
     calls = []
-    compute = local_boundary._normal_derivatives
-    monkeypatch.setattr(local_boundary, "_normal_derivatives", lambda *a: calls.append(a) or compute(*a))
-    monkeypatch.setattr(local_boundary, "_KEPT_DERIVATIVES", type(local_boundary._KEPT_DERIVATIVES)())
+    compute = local_data._normal_derivatives
+    monkeypatch.setattr(local_data, "_normal_derivatives", lambda *a: calls.append(a) or compute(*a))
+    monkeypatch.setattr(local_data, "_KEPT_DERIVATIVES", type(local_data._KEPT_DERIVATIVES)())
     first = normal_derivatives(arm_cage, ws.LocalData(), device=device)
     with pytest.raises(ValueError):  # read-only: a caller cannot change the kept array
         first[:] = 0.0
@@ -90,30 +90,30 @@ def test_normal_derivatives_are_computed_once_per_cage_and_settings(arm_cage, de
     assert np.array_equal(normal_derivatives(as_float32, device=device), normal_derivatives(single, device=device))
     assert len(calls) == 3
     # the last KEPT_CAGES cages are kept: later ones evict the oldest (the arm's two)
-    for shift in range(1, local_boundary.KEPT_CAGES):
+    for shift in range(1, local_data.KEPT_CAGES):
         normal_derivatives(ws.geometry.cage.Cage(arm_cage.vertices + shift, arm_cage.faces, "moved"), device=device)
     normal_derivatives(arm_cage, ws.LocalData(), device=device)
-    assert len(calls) == 3 + (local_boundary.KEPT_CAGES - 1) + 1
+    assert len(calls) == 3 + (local_data.KEPT_CAGES - 1) + 1
     # and no more than KEPT_BYTES past the newest (a cage of thousands of handles holds hundreds of MB)
-    monkeypatch.setattr(local_boundary, "KEPT_BYTES", 0)
+    monkeypatch.setattr(local_data, "KEPT_BYTES", 0)
     normal_derivatives(ws.geometry.cage.Cage(arm_cage.vertices - 1.0, arm_cage.faces, "moved"), device=device)
-    assert len(local_boundary._KEPT_DERIVATIVES) == 1
+    assert len(local_data._KEPT_DERIVATIVES) == 1
 
 
 @pytest.mark.parametrize("settings", SETTINGS[:2], ids=str)
 def test_normal_derivatives_and_slopes_are_the_same_in_groups_of_faces(arm_cage, settings, device, monkeypatch):
     """Thousands of handles are formed a group of faces at a time: the same numbers as all faces at once."""
-    from warp_stokes.geometry import local_boundary
+    from warp_stokes.geometry import local_data
 
-    monkeypatch.setattr(local_boundary, "_KEPT_DERIVATIVES", type(local_boundary._KEPT_DERIVATIVES)())
-    whole = local_boundary._normal_derivatives(arm_cage, settings, ws.device.resolve_device(device))
-    slopes = local_boundary.data_slopes(arm_cage, settings, device)
-    monkeypatch.setattr(local_boundary, "_KEPT_DERIVATIVES", type(local_boundary._KEPT_DERIVATIVES)())
-    monkeypatch.setattr(local_boundary, "_KEPT_SLOPES", {})
-    monkeypatch.setattr(local_boundary, "FACE_GROUP_HANDLES", 7 * arm_cage.n_handles)  # groups of 7 faces
-    grouped = local_boundary._normal_derivatives(arm_cage, settings, ws.device.resolve_device(device))
+    monkeypatch.setattr(local_data, "_KEPT_DERIVATIVES", type(local_data._KEPT_DERIVATIVES)())
+    whole = local_data._normal_derivatives(arm_cage, settings, ws.device.resolve_device(device))
+    slopes = local_data.data_slopes(arm_cage, settings, device)
+    monkeypatch.setattr(local_data, "_KEPT_DERIVATIVES", type(local_data._KEPT_DERIVATIVES)())
+    monkeypatch.setattr(local_data, "_KEPT_SLOPES", {})
+    monkeypatch.setattr(local_data, "FACE_GROUP_HANDLES", 7 * arm_cage.n_handles)  # groups of 7 faces
+    grouped = local_data._normal_derivatives(arm_cage, settings, ws.device.resolve_device(device))
     assert np.allclose(grouped, whole, rtol=0, atol=1e-13 * np.abs(whole).max())
-    assert np.allclose(local_boundary.data_slopes(arm_cage, settings, device), slopes, rtol=1e-13, atol=0)
+    assert np.allclose(local_data.data_slopes(arm_cage, settings, device), slopes, rtol=1e-13, atol=0)
 
 
 def test_normal_derivatives_stay_on_handles_near_the_face_along_the_cage(device):

@@ -12,7 +12,7 @@ import trimesh
 import warp_stokes as ws
 from conftest import EXAMPLE, REPO, pair, u_cage
 from warp_stokes import quality
-from warp_stokes.geometry.local_boundary import cage_graph_distances
+from warp_stokes.geometry.local_data import cage_graph_distances
 
 
 def grid_mesh(n=4):

@@ -135,7 +135,7 @@ def test_auto_goes_finer_for_a_cage_too_thin_and_for_the_meshs_thin_parts(monkey
 def _one_handle_bytes(cage, n_vertices, resolution):
     """What the memory plan asks for to solve one handle (with the columns that check it) at ``resolution``."""
     from warp_stokes.geometry.boundary import COMPLEMENT_COLUMNS
-    from warp_stokes.geometry.local_boundary import local_data_bytes
+    from warp_stokes.geometry.local_data import local_data_bytes
     from warp_stokes.solver.budget import estimate_memory
     from warp_stokes.solver.hierarchy import coarsen
 

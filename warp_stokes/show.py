@@ -217,7 +217,7 @@ def symmetric_scale(image: np.ndarray) -> tuple[float, float]:
 def _boundary_data(settings: dict):
     """The boundary data a binding was made with: "mvc", or its LocalData (bindings that did not record the local
     data's parameters made before they were recorded: the default, with a warning if it said otherwise)."""
-    from .geometry.local_boundary import LocalData
+    from .geometry.local_data import LocalData
 
     described = str(settings.get("boundary", ""))
     if described.startswith("mvc"):

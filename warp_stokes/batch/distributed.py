@@ -3,7 +3,7 @@
 ``run_batch(..., workers=N)`` starts a local Ray cluster with N worker slots (on a GPU host, default one per GPU:
 each task asks for ``num_gpus=1``, Ray sets ``CUDA_VISIBLE_DEVICES``, and the worker's Warp sees only its GPU);
 ``ray_address=...`` joins a running cluster instead. The driver reads the manifest, skips up-to-date assets and
-holds the folder's lock; each task binds one asset with :func:`warp_stokes.batch.run.bind_one`, which writes the
+holds the folder's lock; each task binds one asset with :func:`warp_stokes.batch.asset.bind_one`, which writes the
 asset's outputs under temporary names in the output folder and renames them together (outputs go to a filesystem
 that the workers share with the driver), and returns its :class:`Result` with the host, process and device.
 
@@ -24,7 +24,7 @@ import time
 
 from ..device import cpu_threads, require_ray, start_ray
 from ..io.outputs import remove_temporaries_of
-from .run import Result, bind_one, earlier_records, skipped, warn_for
+from .asset import Result, bind_one, earlier_records, skipped, warn_for
 
 __all__ = ["run_on_ray", "require_ray", "TASK_RETRIES", "KILL_ONCE_VARIABLE"]
 

@@ -19,7 +19,8 @@ import warp as wp
 
 from ..geometry.boundary import (COMPLEMENT_COLUMNS, boundary_field, start_lattice_nodes, start_rows,
                                  start_values)
-from ..geometry.local_boundary import blend_table, boundary_settings, local_data_bytes
+from ..geometry.local_boundary import blend_table
+from ..geometry.local_data import boundary_settings, local_data_bytes
 from ..geometry.cage import Cage
 from ..geometry.grid import voxelize
 from ..device import BIND_MODULES, compile_kernels, cpu_threads

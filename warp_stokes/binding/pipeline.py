@@ -21,7 +21,8 @@ from ..geometry.cage import Cage, check_cage
 from ..geometry import grid as grid_module
 from ..geometry.grid import AUTO_RESOLUTION, auto_resolution, check_resolution, wedge_resolution
 from ..geometry.inside import classify_points
-from ..geometry.local_boundary import boundary_settings, local_values
+from ..geometry.local_boundary import local_values
+from ..geometry.local_data import boundary_settings
 from ..geometry.make_cage import MadeCage, made_cage_record, make_cage
 from ..io.load import load_surface
 from ..io.scene import is_usd, load_scene
@@ -257,7 +258,8 @@ def bind(mesh, cage=None, resolution="auto", device=None, tol: float = 1e-6, max
     }
     return Binding(weights, checked.vertices, checked.faces, points, surface.faces, settings, stats, device=device,
                    mesh_normals=surface.normals, cage_source_index=checked.source_index,
-                   mesh_polygons=surface.polygons(), mesh_uvs=surface.uvs, parts=parts_record(scene), asset=asset_record(scene), sources=_sources(mesh, cage_argument))
+                   mesh_polygons=surface.polygons(), mesh_uvs=surface.uvs, parts=parts_record(scene),
+                   asset=asset_record(scene), sources=_sources(mesh, cage_argument))
 
 
 def _columns_for(columns, resolution: int, choice: dict, floor: int = 0):

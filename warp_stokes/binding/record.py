@@ -185,7 +185,7 @@ def check_metadata(meta, path: str, n_vertices: int, n_handles: int) -> None:
                            f"{settings['method']!r}, got null")
     if settings.get("boundary_settings") is not None:
         _record(settings["boundary_settings"], BOUNDARY_SETTINGS, "settings.boundary_settings.", path)
-        from ..geometry.local_boundary import LocalData
+        from ..geometry.local_data import LocalData
 
         unknown = set(settings["boundary_settings"]) - set(LocalData.__dataclass_fields__)
         if unknown:

@@ -12,7 +12,7 @@ from .. import __version__
 from ..device import device_name
 from ..geometry.cage import Cage
 from ..geometry.topology import bounding_diagonal
-from ..geometry.local_boundary import LocalData
+from ..geometry.local_data import LocalData
 from ..io.scene import Scene
 
 __all__ = ["identity_errors", "grid_stats", "solver_stats", "mvc_stats", "settings_record", "parts_record",

@@ -307,7 +307,7 @@ def _bind_first_frame(args, cage_path: str, binding_path: str):
     binding written (in the command's group of outputs) beside the poses."""
     import warp_stokes as ws
     from warp_stokes.io.mesh_out import write_cage_file
-    from warp_stokes.io.poses import natural_key
+    from warp_stokes.io.naming import natural_key
     from warp_stokes.io.scene import is_usd
 
     frames = args.frames

@@ -14,74 +14,21 @@ import warnings
 import numpy as np
 import warp as wp
 
-from .cage import Cage
 from ..device import in_threads, resolve_device
-from .grid import Grid
 from ..kernels import mvc, stencil
-from .local_boundary import boundary_settings, local_field
+from .cage import Cage
+from .grid import Grid
+from .local_boundary import local_field
+from .local_data import boundary_settings
+from .mean_value import mean_value_coordinates, mvc_on_device
 
 __all__ = ["mean_value_coordinates", "boundary_field", "COMPLEMENT_COLUMNS"]
 
-#: a point whose unit vectors to a triangle's corners span a volume below this lies in the triangle's plane (outside
-#: it, once the on-cage test has failed): the triangle contributes nothing
-EPS_PLANE = 1e-10
-#: a point within this fraction of the cage's diagonal from a cage triangle is on the cage: its coordinates are the
-#: hat functions at its projection (exact for points on faces, edges and vertices; an error of at most about this
-#: much, relative, in linear precision for points that near)
-ON_CAGE = 1e-9
 #: columns that stand for the rest of the cage in a chunk's field (``boundary_field(..., complement=True)``): one,
 #: the sum of the other handles' weights, so that each chunk's solve checks partition of unity. (Four, with the
 #: moments that check linear precision too, cost 4 of every 7 columns on a bulky cage at n = 512, where 3 handles
 #: fit per chunk.)
 COMPLEMENT_COLUMNS = 1
-
-
-def _mvc_on_device(cage: Cage, centre: np.ndarray, pts: wp.array, handles: slice, device,
-                   out: wp.array | None = None) -> wp.array:
-    """MVC of the handles in `handles` at the points `pts` (vec3d on `device`, relative to `centre`), into
-    `out` (points, handles) or a new float64 array."""
-    cage_rel = cage.vertices - centre
-    first, stop, _ = handles.indices(cage.n_handles)
-    with wp.ScopedDevice(device):
-        verts = wp.array(cage_rel, dtype=wp.vec3d)
-        tris = wp.array(cage.faces.astype(np.int32), dtype=wp.vec3i)
-        if out is None:
-            out = wp.empty((pts.shape[0], stop - first), dtype=wp.float64)
-        wp.launch(
-            mvc.mean_value_coordinates,
-            dim=pts.shape[0],
-            inputs=[pts, verts, tris, wp.float64(ON_CAGE * cage.diagonal), wp.float64(EPS_PLANE), first],
-            outputs=[out],
-        )
-    return out
-
-
-def mean_value_coordinates(cage: Cage, points: np.ndarray, device=None) -> np.ndarray:
-    """Mean value coordinates (Ju, Schaefer, Warren 2005) of a triangle cage at arbitrary points.
-
-    Parameters
-    ----------
-    cage : Cage
-    points : (N, 3) array, anywhere off the cage (on it, the coordinates are the hat functions)
-    device : None | str
-
-    Returns
-    -------
-    (N, L) float64, rows sum to one and reproduce the points: ``W @ cage.vertices == points``
-
-    Examples
-    --------
-    >>> w = mean_value_coordinates(cage, cage.vertices.mean(axis=0)[None])  # doctest: +SKIP
-    >>> np.allclose(w @ cage.vertices, cage.vertices.mean(axis=0))  # doctest: +SKIP
-    True
-    """
-    device = resolve_device(device)
-    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    if len(points) == 0:
-        return np.zeros((0, len(cage.vertices)))
-    centre = 0.5 * (cage.vertices.min(axis=0) + cage.vertices.max(axis=0))
-    pts = wp.array(points - centre, dtype=wp.vec3d, device=device)
-    return _mvc_on_device(cage, centre, pts, slice(None), device).numpy()
 
 
 def _node_positions(grid: Grid, rows: int, device) -> wp.array:
@@ -144,7 +91,7 @@ def _start_on_lattice(grid: Grid, cage: Cage, rows: int, handles: slice, device,
     positions, index = _start_lattice(grid, rows, device)
     first, stop, _ = handles.indices(cage.n_handles)
     lattice_values = wp.empty((positions.shape[0], stop - first), dtype=wp.float64, device=device)
-    in_threads(positions.shape[0], lambda a, b: _mvc_on_device(cage, grid.centre, positions[a:b], handles, device,
+    in_threads(positions.shape[0], lambda a, b: mvc_on_device(cage, grid.centre, positions[a:b], handles, device,
                                                                  out=lattice_values[a:b]),
                device, threads, modules=("mvc",))
     ijk = grid.device_arrays(device)["active_ijk"]
@@ -183,7 +130,7 @@ def _start_into(grid: Grid, cage: Cage, rows: int, handles: slice, device, out: 
         _start_on_lattice(grid, cage, rows, handles, device, out, threads)
         return
     positions = _node_positions(grid, rows, device)
-    in_threads(rows, lambda a, b: _mvc_on_device(cage, grid.centre, positions[a:b], handles, device, out=out[a:b]),
+    in_threads(rows, lambda a, b: mvc_on_device(cage, grid.centre, positions[a:b], handles, device, out=out[a:b]),
                device, threads, modules=("mvc",))
 
 

@@ -9,6 +9,7 @@ import warp as wp
 
 from .cage import Cage
 from .inside import WINDING_ACCURACY, cage_mesh
+from .local_data import boundary_settings, data_slopes
 from ..device import available_memory, in_threads, memory_size, resolve_device
 from ..errors import ResolutionError
 from ..kernels import labels as node_labels
@@ -284,8 +285,6 @@ def voxelize(cage: Cage, resolution: int = 64, device=None, max_rows: int = MAX_
     >>> grid.n_interior > 0  # doctest: +SKIP
     True
     """
-    from .local_boundary import boundary_settings  # the local data's module builds on this one
-
     resolution = check_resolution(resolution)
     boundary = boundary_settings(boundary)
     device = resolve_device(device)
@@ -416,8 +415,6 @@ def wedge_resolution(cage: Cage, boundary="local", device=None) -> int | None:
     True
     """
     from .cage_faults import folded_edges
-    from .local_boundary import boundary_settings, data_slopes  # the local data's module builds on this one
-
     boundary = boundary_settings(boundary)
     folds = folded_edges(cage)
     if boundary == "mvc" or not len(folds):
@@ -432,8 +429,6 @@ def wedge_resolution(cage: Cage, boundary="local", device=None) -> int | None:
 def _wedge_cut_off(cage: Cage, mesh: wp.Mesh, inside: wp.array, origin, spacing: float, boundary):
     """The launch that moves interior nodes cut off by thin wedges to the ring (see :func:`voxelize`), as a function
     of the labels array; run after the ring and band are marked (the numbering counts the nodes it moved)."""
-    from .local_boundary import boundary_settings, data_slopes  # the local data's module builds on this one
-
     settings = boundary_settings(boundary)
     adjacent = np.eye(cage.n_handles, dtype=np.int8)
     edges = cage.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)

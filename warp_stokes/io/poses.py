@@ -12,10 +12,11 @@ from ..arguments import FLOAT32_MAX, number
 from ..errors import BindingError
 from .door import checked_input, read_numpy
 from .load import finite_coordinates, load_surface
+from .naming import natural_key
 from .usd.layers import reads_usd
 
-__all__ = ["Poses", "load_poses", "checked_poses", "natural_key", "numeric", "obj_sequence", "pose_vertices",
-           "read_positions", "same_triangles"]
+__all__ = ["Poses", "load_poses", "checked_poses", "numeric", "obj_sequence", "pose_vertices", "read_positions",
+           "same_triangles"]
 
 
 @dataclass
@@ -98,11 +99,6 @@ def same_triangles(faces: np.ndarray, other: np.ndarray) -> bool:
 
     target = canonical(other)
     return bool(np.array_equal(canonical(faces), target) or np.array_equal(canonical(faces[:, ::-1]), target))
-
-
-def natural_key(name: str):
-    """Sort key that orders embedded numbers by value: ``frame_2`` before ``frame_10``."""
-    return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", name)]
 
 
 def _frame_number(name: str, default: int) -> float:

@@ -57,7 +57,7 @@ def distant_handles(cage: Cage, fraction: float = DISTANT_FRACTION) -> tuple[np.
     >>> distant.astype(int).tolist(), round(threshold, 4)       # 1 or sqrt(2) from the face's nearest corner
     ([[0, 0, 0, 1], [0, 0, 1, 0], [0, 1, 0, 0], [1, 0, 0, 0]], 0.7071)
     """
-    from ..geometry.local_boundary import cage_graph_distances
+    from ..geometry.local_data import cage_graph_distances
 
     graph = cage_graph_distances(cage)
     threshold = float(fraction * graph.max())

@@ -19,7 +19,7 @@ items (on a GPU 16 per patch, on a CPU 72 N_i: each interior node's neighbour ro
 (24 N_a) or the sampling's per-vertex arrays (80 V); on the CPU, the multigrid's setup, which forms the coarsest
 level's inverse on the host (4 float64 copies of its dense operator: 5 MB for the CPU's 100 nodes at most). The
 local boundary data's normal derivatives (8 bytes per cage face and handle:
-:func:`warp_stokes.geometry.local_boundary.local_data_bytes`, 384 MB for a cage of 4,898 handles) are on the device
+:func:`warp_stokes.geometry.local_data.local_data_bytes`, 384 MB for a cage of 4,898 handles) are on the device
 while the boundary data is formed. Threads that solve chunks at once on the CPU (``lanes``) each hold their own stage
 arrays and columns (:meth:`MemoryEstimate.total`). On the CPU the host arrays live in the same memory and are
 counted too: the grid's (labels and index, 5 per lattice node, and 12 N_a), the weights of all handles (4 V per
@@ -112,7 +112,7 @@ def estimate_memory(grid: Grid, n_vertices: int = 0, preconditioner: str = "mult
     n_handles : int, all the cage's handles: on the CPU the bind's weights (4 bytes per vertex and handle) live in
         the same memory throughout
     boundary_bytes : (kept, work, device_work), the boundary data's arrays of the whole cage
-        (:func:`warp_stokes.geometry.local_boundary.local_data_bytes`; zeros for MVC): ``kept`` on the device while
+        (:func:`warp_stokes.geometry.local_data.local_data_bytes`; zeros for MVC): ``kept`` on the device while
         the boundary data is formed, and on the CPU also held by the host throughout, ``work`` on the host and
         ``device_work`` on a GPU while they are computed. They do not shrink with the resolution.
 

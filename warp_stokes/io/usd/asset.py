@@ -9,7 +9,7 @@ import numpy as np
 
 from ...errors import BindingError, CageError, MeshError, WarpStokesError
 from ..load import Surface, fan_triangles, first_missing_vertex, load_surface
-from ..scene import MeshPart, Scene
+from ..parts import MeshPart, Scene
 from .layers import layer_stack, reads_usd, usd_reason
 
 __all__ = ["open_stage", "read_asset", "read_cage_prim", "rest_time_code", "mesh_prim",
