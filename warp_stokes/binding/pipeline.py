@@ -10,13 +10,14 @@ import math
 import os
 import time
 import warnings
+from dataclasses import dataclass
 
 import numpy as np
 
 from ..arguments import integer, number
 from ..device import resolve_device
 from ..errors import CageError, ConvergenceError, MeshError, ResolutionError, WarpStokesError
-from ..geometry.boundary import mean_value_coordinates
+from ..geometry.mean_value import mean_value_coordinates
 from ..geometry.cage import Cage, check_cage
 from ..geometry import grid as grid_module
 from ..geometry.grid import AUTO_RESOLUTION, auto_resolution, check_resolution, wedge_resolution
@@ -24,7 +25,8 @@ from ..geometry.inside import classify_points
 from ..geometry.local_boundary import local_values
 from ..geometry.local_data import boundary_settings
 from ..geometry.make_cage import MadeCage, made_cage_record, make_cage
-from ..io.load import load_surface
+from ..io.load import Surface, load_surface
+from ..io.parts import Scene
 from ..io.scene import is_usd, load_scene
 from ..solver.solve import ACCEPTABLE
 from ..device import available_memory, cpu_threads, memory_size
@@ -147,6 +149,55 @@ def bind(mesh, cage=None, resolution="auto", device=None, tol: float = 1e-6, max
         device = device[0]  # a list of one device
     device = resolve_device(device if devices is None else driver_device(devices))
     seconds = {}
+    inputs = _load_inputs(mesh, cage, cage_prim, mesh_prims, rest_time, device, threads, seconds)
+    choice = {"requested": resolution}
+    if resolution == "auto":
+        if progress is not None and method != "mvc":
+            progress("choosing the resolution")  # the local data, formed here first: seconds for thousands of handles
+        kind = None if devices is None else "cpu" if devices[0] == "cpu" else "cuda"
+        resolution, needed, cap = ((AUTO_RESOLUTION,) * 2 + (None,) if method == "mvc"
+                                   else auto_resolution(inputs.cage, boundary, device, kind))
+        choice.update(chosen=resolution, needed=needed, cap=cap)
+    settings = settings_record(resolution, tol, max_iterations, solver, boundary, sampling, inputs.surface,
+                               inputs.cage, inputs.scene, cage_prim, method)
+    if method == "mvc":
+        return _bind_by_mean_value(inputs, settings, device, seconds)
+    options = dict(solver=solver, tol=tol, max_iterations=max_iterations, boundary=boundary, sampling=sampling,
+                   memory_budget=memory_budget, equation=METHODS[method], threads=threads)
+    part, resolution = _solve_grid(inputs, resolution, choice, device, devices, options, progress, seconds)
+    settings["resolution"] = resolution
+    return _finish_grid(inputs, part, resolution, choice, settings, method, solver, boundary, memory_budget, devices,
+                        device, seconds)
+
+
+@dataclass
+class _Inputs:
+    """What a bind binds, loaded and checked: the mesh's scene and its surface, the checked cage (and the cage made
+    for it, when one was), which vertices lie inside the cage and how far from it, and the files read."""
+
+    scene: Scene
+    surface: Surface
+    cage: Cage
+    made: MadeCage | None
+    inside: np.ndarray
+    distance: np.ndarray
+    sources: list
+
+    def binding(self, weights: np.ndarray, settings: dict, stats: dict, device) -> Binding:
+        """The Binding of ``weights`` at the vertices, with what it records of its inputs."""
+        if self.made is not None:
+            stats["made_cage"] = made_cage_record(self.made)
+        surface, cage = self.surface, self.cage
+        return Binding(weights, cage.vertices, cage.faces, surface.vertices, surface.faces, settings, stats,
+                       device=device, mesh_normals=surface.normals, cage_source_index=cage.source_index,
+                       mesh_polygons=surface.polygons(), mesh_uvs=surface.uvs, parts=parts_record(self.scene),
+                       asset=asset_record(self.scene), sources=self.sources)
+
+
+def _load_inputs(mesh, cage, cage_prim, mesh_prims, rest_time, device, threads, seconds: dict) -> _Inputs:
+    """The first stage of a bind: a cage made for the mesh where asked ("auto" or a MadeCage), the mesh's scene
+    (the cage's prim left out when it is one of the mesh's stage), the cage checked, and the vertices classified;
+    a mesh mostly outside its cage refused. ``seconds`` gets "cage" and "load"."""
     t = time.perf_counter()
     cage_argument = cage
     made = None
@@ -170,35 +221,30 @@ def bind(mesh, cage=None, resolution="auto", device=None, tol: float = 1e-6, max
         checked: Cage = check_cage(cage)
     except CageError as error:
         raise _swapped_hint(error, cage, surface) from None
-    points = surface.vertices
-    inside, distance = classify_points(checked, points, device=device, threads=threads)
+    inside, distance = classify_points(checked, surface.vertices, device=device, threads=threads)
     _refuse_mesh_outside(surface, checked, inside, distance)
     seconds["load"] = time.perf_counter() - t
-    choice = {"requested": resolution}
-    if resolution == "auto":
-        if progress is not None and method != "mvc":
-            progress("choosing the resolution")  # the local data, formed here first: seconds for thousands of handles
-        kind = None if devices is None else "cpu" if devices[0] == "cpu" else "cuda"
-        resolution, needed, cap = ((AUTO_RESOLUTION,) * 2 + (None,) if method == "mvc"
-                                   else auto_resolution(checked, boundary, device, kind))
-        choice.update(chosen=resolution, needed=needed, cap=cap)
-    settings = settings_record(resolution, tol, max_iterations, solver, boundary, sampling, surface, checked, scene,
-                               cage_prim, method)
-    if method == "mvc":
-        weights = _mean_value_weights(checked, points, device, seconds)
-        seconds["total"] = sum(seconds.values())
-        pu_error, lp_error = identity_errors(weights, checked.vertices, points)
-        stats = mvc_stats(checked, surface, inside, device, pu_error, lp_error, seconds)
-        if made is not None:
-            stats["made_cage"] = made_cage_record(made)
-        return Binding(weights, checked.vertices, checked.faces, points, surface.faces, settings, stats,
-                       device=device, mesh_normals=surface.normals, cage_source_index=checked.source_index,
-                       mesh_polygons=surface.polygons(), mesh_uvs=surface.uvs, parts=parts_record(scene),
-                       asset=asset_record(scene), sources=_sources(mesh, cage_argument))
-    equation = METHODS[method]
+    return _Inputs(scene, surface, checked, made, inside, distance, _sources(mesh, cage_argument))
 
-    options = dict(solver=solver, tol=tol, max_iterations=max_iterations, boundary=boundary, sampling=sampling,
-                   memory_budget=memory_budget, equation=equation, threads=threads)
+
+def _bind_by_mean_value(inputs: _Inputs, settings: dict, device, seconds: dict) -> Binding:
+    """Mean value coordinates at the vertices: no grid, no solve."""
+    points = inputs.surface.vertices
+    weights = _mean_value_weights(inputs.cage, points, device, seconds)
+    seconds["total"] = sum(seconds.values())
+    pu_error, lp_error = identity_errors(weights, inputs.cage.vertices, points)
+    stats = mvc_stats(inputs.cage, inputs.surface, inputs.inside, device, pu_error, lp_error, seconds)
+    return inputs.binding(weights, settings, stats, device)
+
+
+def _solve_grid(inputs: _Inputs, resolution: int, choice: dict, device, devices, options: dict, progress,
+                seconds: dict):
+    """The grid part of a bind, on one device or spread over ``devices``: the columns at ``resolution`` and the
+    resolution they were solved at. Resolution "auto" (``choice`` has "chosen") tries finer where the cage is too
+    thin for the grid or the mesh has parts the grid does not resolve, and coarser where the memory asks for it,
+    and ``choice`` records what it chose."""
+    checked, points = inputs.cage, inputs.surface.vertices
+
     def columns(resolution):
         if devices is None:
             return grid_columns(checked, points, resolution, device, progress=progress, **options)
@@ -209,10 +255,10 @@ def bind(mesh, cage=None, resolution="auto", device=None, tol: float = 1e-6, max
         return spread_columns(checked, points, resolution, devices, **options)
 
     part, resolution = _columns_for(columns, resolution, choice)
-    thin = _thin_vertices(part.corners, part.grid, inside)
+    thin = _thin_vertices(part.corners, part.grid, inputs.inside)
     if "chosen" in choice and thin.any():
         # "auto" resolves the mesh's thin parts too, within the cap and the memory: one more bind at what resolves them
-        suggestion = _suggest_resolution(resolution, part.grid.spacing, distance[thin])
+        suggestion = _suggest_resolution(resolution, part.grid.spacing, inputs.distance[thin])
         choice["needed"] = max(choice["needed"], suggestion)
         finer = min(suggestion, choice["cap"], choice.get("memory_fits") or suggestion)
         if finer > resolution:
@@ -225,21 +271,27 @@ def bind(mesh, cage=None, resolution="auto", device=None, tol: float = 1e-6, max
             else:
                 seconds["first_resolution"] = first
             choice["chosen"] = resolution
+    return part, resolution
+
+
+def _finish_grid(inputs: _Inputs, part, resolution: int, choice: dict, settings: dict, method: str, solver: str,
+                 boundary, memory_budget, devices, device, seconds: dict) -> Binding:
+    """The last stage of a grid bind: vertices beyond the grid's band given the boundary data, the warnings, the
+    exactness of the weights checked (an inexact result is refused) and the stats."""
     if "chosen" in choice and choice.get("memory_fits") is not None and resolution < choice["needed"]:
         choice["memory_budget_bytes"] = int(memory_budget if memory_budget is not None else available_memory(device))
-    settings["resolution"] = resolution
     seconds.update(part.seconds)
+    checked, surface = inputs.cage, inputs.surface
     grid, weights, corners = part.grid, part.weights, part.corners
     t = time.perf_counter()
-    notes, beyond, thin = _vertices_off_the_grid(surface, checked, grid, resolution, weights, corners, inside,
-                                                 distance, device, boundary, choice)
+    notes, beyond, thin = _vertices_off_the_grid(surface, checked, grid, resolution, weights, corners, inputs.inside,
+                                                 inputs.distance, device, boundary, choice)
     seconds["sample"] += time.perf_counter() - t
     seconds["total"] = sum(seconds.values())
-
-    pu_error, lp_error = identity_errors(weights, checked.vertices, points)
+    pu_error, lp_error = identity_errors(weights, checked.vertices, surface.vertices)
     _refuse_inexact(checked, surface, pu_error, lp_error, part.reports)
     stats = {
-        **grid_stats(grid, checked, surface, inside, beyond, thin, device),
+        **grid_stats(grid, checked, surface, inputs.inside, beyond, thin, device),
         "method": method,
         "solver": solver,
         "levels": part.levels,
@@ -254,12 +306,8 @@ def bind(mesh, cage=None, resolution="auto", device=None, tol: float = 1e-6, max
         "linear_precision_error": lp_error,
         "seconds": seconds,
         "warnings": notes,
-        **({} if made is None else {"made_cage": made_cage_record(made)}),
     }
-    return Binding(weights, checked.vertices, checked.faces, points, surface.faces, settings, stats, device=device,
-                   mesh_normals=surface.normals, cage_source_index=checked.source_index,
-                   mesh_polygons=surface.polygons(), mesh_uvs=surface.uvs, parts=parts_record(scene),
-                   asset=asset_record(scene), sources=_sources(mesh, cage_argument))
+    return inputs.binding(weights, settings, stats, device)
 
 
 def _columns_for(columns, resolution: int, choice: dict, floor: int = 0):
@@ -414,7 +462,7 @@ def _vertices_off_the_grid(surface, checked: Cage, grid, resolution: int, weight
             f"{surface.name}: {int(beyond.sum())} vertices lie outside {checked.name} beyond the grid's band "
             f"(up to {distance[beyond].max():.3g} from the cage, {distance[beyond].max() / checked.diagonal:.3g} of its "
             "diagonal); they get the boundary data at their position")
-        warnings.warn(notes[-1], stacklevel=3)
+        warnings.warn(notes[-1], stacklevel=4)
     thin = _thin_vertices(corners, grid, inside)
     below = wedge_resolution(checked, boundary, device)
     folded = below is not None and resolution < below
@@ -427,7 +475,7 @@ def _vertices_off_the_grid(surface, checked: Cage, grid, resolution: int, weight
             f"({memory_size(choice['memory_budget_bytes'])}); the cage asks for {choice['needed']}"
             + (f" ({'; '.join(reasons)})" if reasons else "")
             + ": give more memory (--memory-gb, memory_budget=) or bind on a device with more")
-        warnings.warn(notes[-1], stacklevel=3)
+        warnings.warn(notes[-1], stacklevel=4)
         return notes, beyond, thin
     if thin.any():
         capped = (choice or {}).get("cap")
@@ -437,7 +485,7 @@ def _vertices_off_the_grid(surface, checked: Cage, grid, resolution: int, weight
             f"cells at resolution {resolution}; their weights come from the boundary data alone. "
             f"resolution={suggestion} would resolve them"
             + (f" (resolution 'auto' stops at {capped} on this device)" if capped and suggestion > capped else ""))
-        warnings.warn(notes[-1], stacklevel=3)
+        warnings.warn(notes[-1], stacklevel=4)
     if folded:
         capped = (choice or {}).get("cap")
         caps = grid_module.AUTO_RESOLUTION_CAP
@@ -451,7 +499,7 @@ def _vertices_off_the_grid(surface, checked: Cage, grid, resolution: int, weight
             f"space at the cage's folded edges (it does from resolution {below} on"
             f"{', beyond the largest grid' if below > 2048 else ''}); weights within a few cells of those edges "
             f"converge slowly below it: {advice}")
-        warnings.warn(notes[-1], stacklevel=3)
+        warnings.warn(notes[-1], stacklevel=4)
     return notes, beyond, thin
 
 
