@@ -138,3 +138,14 @@ def cycles(graph: dict) -> list:
 def test_no_modules_import_each_other_in_a_circle():
     # imports inside functions count: one put there to break an import-time circle still ties the modules
     assert cycles(module_graph()) == []
+
+
+def test_every_import_of_the_package_names_one_of_its_modules():
+    # an import inside a function is checked only when it runs: here, every one is, at once
+    modules = {p.relative_to(PACKAGE).with_suffix("").parts for p in PACKAGE.rglob("*.py")}
+    names = {m[:-1] if m[-1] == "__init__" else m for m in modules} | {("kernels",), ("__version__",), ()}
+    kernels = {("kernels", p.stem) for p in (ROOT / "kernels").glob("*.py")}
+    for path in MODULES:
+        for line, target in imported_modules(path):
+            assert target in names | kernels or target[:-1] in names | kernels, \
+                f"{path.relative_to(ROOT)}:{line} imports {'.'.join(target)}, which is no module of the package"

@@ -8,21 +8,22 @@ import pytest
 import warp_stokes as ws
 from conftest import EXAMPLE, one_error_line, warp_stokes
 from warp_stokes.geometry import grid as grid_module
+from warp_stokes.geometry import resolution as resolution_module
 
 
 def test_auto_resolution_resolves_the_arms_folded_edges_within_the_cap():
     cage = ws.check_cage(EXAMPLE / "arm_cage.obj")
-    needed = grid_module.wedge_resolution(cage, device="cpu")
-    assert needed is not None and needed > grid_module.AUTO_RESOLUTION  # the arm's cage folds back at 4 edges
-    assert grid_module.auto_resolution(cage, device="cpu") == (needed, needed, grid_module.AUTO_RESOLUTION_CAP["cpu"])
+    needed = resolution_module.wedge_resolution(cage, device="cpu")
+    assert needed is not None and needed > resolution_module.AUTO_RESOLUTION  # the arm's cage folds back at 4 edges
+    assert resolution_module.auto_resolution(cage, device="cpu") == (needed, needed, resolution_module.AUTO_RESOLUTION_CAP["cpu"])
     import trimesh
 
     box = trimesh.creation.box(extents=[1.0, 2.0, 3.0])  # no folded edge: the least resolution
-    assert grid_module.auto_resolution(ws.check_cage((box.vertices, box.faces)), device="cpu")[0] == 64
-    assert grid_module.auto_resolution(cage, boundary="mvc", device="cpu")[0] == 64  # MVC cuts nothing off
+    assert resolution_module.auto_resolution(ws.check_cage((box.vertices, box.faces)), device="cpu")[0] == 64
+    assert resolution_module.auto_resolution(cage, boundary="mvc", device="cpu")[0] == 64  # MVC cuts nothing off
     for bad in ("fine", 4, 4096, 64.0, True):
         with pytest.raises(ws.ResolutionError, match="resolution must be"):
-            grid_module.check_resolution(bad)
+            resolution_module.check_resolution(bad)
 
 
 def test_the_bundled_example_binds_by_default_without_a_warning(tmp_path):
@@ -31,20 +32,20 @@ def test_the_bundled_example_binds_by_default_without_a_warning(tmp_path):
                        "--device", "cpu")
     assert proc.returncode == 0, proc.stderr
     assert "warning" not in proc.stderr.lower(), proc.stderr
-    needed = grid_module.wedge_resolution(ws.check_cage(EXAMPLE / "arm_cage.obj"), device="cpu")
+    needed = resolution_module.wedge_resolution(ws.check_cage(EXAMPLE / "arm_cage.obj"), device="cpu")
     assert f"resolution {needed}, auto: the cage's folded edges need {needed}" in proc.stdout
     b = ws.load_binding(tmp_path / "arm.npz", device="cpu")
     assert b.settings["resolution"] == needed
     assert b.stats["resolution"] == {"requested": "auto", "chosen": needed, "needed": needed,
-                                     "cap": grid_module.AUTO_RESOLUTION_CAP["cpu"]}
+                                     "cap": resolution_module.AUTO_RESOLUTION_CAP["cpu"]}
     # the fold is recorded as a note, not warned of
     assert any("folds back on itself" in note for note in b.stats["warnings"])
 
 
 def test_a_capped_auto_resolution_warns_once_saying_what_to_give(monkeypatch):
-    monkeypatch.setattr(grid_module, "AUTO_RESOLUTION", 16)
-    monkeypatch.setattr(grid_module, "AUTO_RESOLUTION_CAP", {"cpu": 24, "cuda": 24})
-    needed = grid_module.wedge_resolution(ws.check_cage(EXAMPLE / "arm_cage.obj"), device="cpu")
+    monkeypatch.setattr(resolution_module, "AUTO_RESOLUTION", 16)
+    monkeypatch.setattr(resolution_module, "AUTO_RESOLUTION_CAP", {"cpu": 24, "cuda": 24})
+    needed = resolution_module.wedge_resolution(ws.check_cage(EXAMPLE / "arm_cage.obj"), device="cpu")
     with pytest.warns(UserWarning) as caught:
         b = ws.bind(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", device="cpu")
     folded = [str(w.message) for w in caught if "folded edges" in str(w.message)]
@@ -55,11 +56,11 @@ def test_a_capped_auto_resolution_warns_once_saying_what_to_give(monkeypatch):
 
 def test_the_cap_is_the_solving_devices_and_advice_names_what_auto_cannot_reach(monkeypatch):
     cage = ws.check_cage(EXAMPLE / "arm_cage.obj")
-    monkeypatch.setattr(grid_module, "AUTO_RESOLUTION_CAP", {"cpu": 24, "cuda": 256})
-    needed = grid_module.wedge_resolution(cage, device="cpu")
+    monkeypatch.setattr(resolution_module, "AUTO_RESOLUTION_CAP", {"cpu": 24, "cuda": 256})
+    needed = resolution_module.wedge_resolution(cage, device="cpu")
     # a bind spread over GPUs from a host without one: the GPUs' cap
-    assert grid_module.auto_resolution(cage, device="cpu", kind="cuda") == (needed, needed, 256)
-    assert grid_module.auto_resolution(cage, device="cpu")[0] == 24
+    assert resolution_module.auto_resolution(cage, device="cpu", kind="cuda") == (needed, needed, 256)
+    assert resolution_module.auto_resolution(cage, device="cpu")[0] == 24
     # a number below what the folds need, on a device whose auto cannot reach it either: the number to give
     with pytest.warns(UserWarning) as caught:
         ws.bind(EXAMPLE / "arm.obj", cage, resolution=16, device="cpu")
@@ -70,8 +71,8 @@ def test_the_cap_is_the_solving_devices_and_advice_names_what_auto_cannot_reach(
 def test_a_skipped_asset_keeps_the_resolution_auto_chose(tmp_path, monkeypatch):
     from warp_stokes.cli import main
 
-    monkeypatch.setattr(grid_module, "AUTO_RESOLUTION", 16)
-    monkeypatch.setattr(grid_module, "AUTO_RESOLUTION_CAP", {"cpu": 16, "cuda": 16})
+    monkeypatch.setattr(resolution_module, "AUTO_RESOLUTION", 16)
+    monkeypatch.setattr(resolution_module, "AUTO_RESOLUTION_CAP", {"cpu": 16, "cuda": 16})
     manifest = tmp_path / "m.toml"
     manifest.write_text(f'[[assets]]\nname = "arm"\nmesh = "{EXAMPLE / "arm.obj"}"\ncage = "{EXAMPLE / "arm_cage.obj"}"\n')
     for status in ("ok", "skipped"):
@@ -109,8 +110,8 @@ def test_auto_goes_finer_for_a_cage_too_thin_and_for_the_meshs_thin_parts(monkey
     fall in cells without an inside node, are bound at a resolution that resolves them, without a warning."""
     from warp_stokes.geometry import shapes
 
-    monkeypatch.setattr(grid_module, "AUTO_RESOLUTION", 16)
-    monkeypatch.setattr(grid_module, "AUTO_RESOLUTION_CAP", {"cpu": 64, "cuda": 64})
+    monkeypatch.setattr(resolution_module, "AUTO_RESOLUTION", 16)
+    monkeypatch.setattr(resolution_module, "AUTO_RESOLUTION_CAP", {"cpu": 64, "cuda": 64})
     slab = shapes.slab_pair(0.05, rotation=None)
     with pytest.raises(ws.ResolutionError, match="no grid node lies inside the cage at resolution 16"):
         ws.bind(slab.mesh, slab.cage, resolution=16, device="cpu")
@@ -149,7 +150,7 @@ def test_auto_binds_at_the_finest_grid_the_memory_budget_holds_and_says_so_once(
     """A budget too small for the resolution auto wants: a coarser grid that fits (never a refusal while one at 16 or
     more does), one warning naming the budget, what the cage asks for and why, recorded in the stats."""
     mesh = ws.load_surface(EXAMPLE / "arm.obj")
-    needed = grid_module.wedge_resolution(arm_cage, device="cpu")
+    needed = resolution_module.wedge_resolution(arm_cage, device="cpu")
     one_handle = {n: _one_handle_bytes(arm_cage, len(mesh.vertices), n) for n in (24, 32)}
     assert one_handle[24] < one_handle[32]
     budget = (one_handle[24] + one_handle[32]) // 2

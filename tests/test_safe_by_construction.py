@@ -117,7 +117,7 @@ def test_encode_auto_writes_nothing_into_its_frames_folder(here, capsys):
 def test_encode_auto_that_fails_late_leaves_the_earlier_run_s_files(here, capsys, monkeypatch):
     # a frame of another vertex count is found after the cage was made and bound: the earlier run's cage, binding
     # and poses stay as they were (they were replaced before the fix, and the new cage left beside old poses)
-    monkeypatch.setattr("warp_stokes.geometry.grid.AUTO_RESOLUTION", 16)  # a smaller grid, as fast as the point
+    monkeypatch.setattr("warp_stokes.geometry.resolution.AUTO_RESOLUTION", 16)  # a smaller grid, as fast as the point
     rc, _ = run(capsys, "encode", "auto", "fr", "-o", "poses.npy")
     assert rc == 0
     before = contents(here)

@@ -332,7 +332,7 @@ def test_the_colour_scale_is_symmetric_and_the_slice_shows_the_mesh_and_the_hand
     assert np.allclose(s.mesh_outline.reshape(-1, 2).min(axis=0) >= s.outline.reshape(-1, 2).min(axis=0), True)
     corner = binding.cage_vertices[19]
     assert np.allclose(s.handle, [corner[0], corner[1], corner[2] - s.position])
-    from warp_stokes import show as show_module
+    from warp_stokes.show import weights as show_module
 
     scales = []
     spy = lambda image: scales.append(symmetric_scale(image)) or scales[-1]  # noqa: E731

@@ -7,34 +7,26 @@ et al. 2007, what Blender's Mesh Deform computes) and mean value coordinates eva
 from __future__ import annotations
 
 import math
-import os
 import time
 import warnings
-from dataclasses import dataclass
 
 import numpy as np
 
 from ..arguments import integer, number
-from ..device import resolve_device
-from ..errors import CageError, ConvergenceError, MeshError, ResolutionError, WarpStokesError
-from ..geometry.mean_value import mean_value_coordinates
-from ..geometry.cage import Cage, check_cage
-from ..geometry import grid as grid_module
-from ..geometry.grid import AUTO_RESOLUTION, auto_resolution, check_resolution, wedge_resolution
-from ..geometry.inside import classify_points
+from ..device import available_memory, cpu_threads, memory_size, resolve_device
+from ..errors import ConvergenceError, ResolutionError, WarpStokesError
+from ..geometry import resolution as resolution_policy
+from ..geometry.cage import Cage
 from ..geometry.local_boundary import local_values
 from ..geometry.local_data import boundary_settings
-from ..geometry.make_cage import MadeCage, made_cage_record, make_cage
-from ..io.load import Surface, load_surface
-from ..io.parts import Scene
-from ..io.scene import is_usd, load_scene
+from ..geometry.mean_value import mean_value_coordinates
+from ..geometry.resolution import AUTO_RESOLUTION, auto_resolution, check_resolution, wedge_resolution
 from ..solver.solve import ACCEPTABLE
-from ..device import available_memory, cpu_threads, memory_size
+from .bind_inputs import Inputs, load_inputs
 from .columns import grid_columns
 from .sample import SAMPLINGS
 from .spread import driver_device, spread_devices
-from .stats import (asset_record, grid_stats, identity_errors, mvc_stats, parts_record, settings_record,
-                    solver_stats)
+from .stats import grid_stats, identity_errors, mvc_stats, settings_record, solver_stats
 from .store import Binding
 
 __all__ = ["bind", "identity_errors", "METHODS"]
@@ -45,11 +37,6 @@ METHODS = {"stokes": "biharmonic", "harmonic": "laplace", "mvc": None}
 MVC_ROWS = 1 << 16
 #: resolution "auto" goes no coarser than this to fit the memory budget (the budget's error is raised instead)
 AUTO_MEMORY_FLOOR = 16
-#: a vertex this close to the cage (a fraction of its diagonal: float32 rounding of the distance, many times over) is
-#: on it
-ON_THE_CAGE = 1e-5
-
-
 def _suggest_resolution(resolution: int, spacing: float, distances: np.ndarray) -> int:
     """Resolution at which a feature whose points lie within `distances` of the surface spans ~3 cells."""
     thickness = max(2.0 * float(np.max(distances)), 1e-12)
@@ -81,7 +68,7 @@ def bind(mesh, cage=None, resolution="auto", device=None, tol: float = 1e-6, max
         (``make_cage(mesh, handles=200)``, say) is bound and recorded the same way.
     resolution : "auto" | int
         Grid cells along the cage's longest axis. "auto": 64, or more where the cage's folded edges need a finer
-        grid to cut off the thin wedges of outside space there (:func:`warp_stokes.geometry.grid.auto_resolution`),
+        grid to cut off the thin wedges of outside space there (:func:`warp_stokes.geometry.resolution.auto_resolution`),
         and more again where the cage is too thin for its grid or the mesh has parts thinner than two cells (bound
         once more), at most 96 on a CPU and 256 on a GPU; the choice is in ``stats["resolution"]``.
     device : None | str | list of str
@@ -149,7 +136,7 @@ def bind(mesh, cage=None, resolution="auto", device=None, tol: float = 1e-6, max
         device = device[0]  # a list of one device
     device = resolve_device(device if devices is None else driver_device(devices))
     seconds = {}
-    inputs = _load_inputs(mesh, cage, cage_prim, mesh_prims, rest_time, device, threads, seconds)
+    inputs = load_inputs(mesh, cage, cage_prim, mesh_prims, rest_time, device, threads, seconds)
     choice = {"requested": resolution}
     if resolution == "auto":
         if progress is not None and method != "mvc":
@@ -170,64 +157,7 @@ def bind(mesh, cage=None, resolution="auto", device=None, tol: float = 1e-6, max
                         device, seconds)
 
 
-@dataclass
-class _Inputs:
-    """What a bind binds, loaded and checked: the mesh's scene and its surface, the checked cage (and the cage made
-    for it, when one was), which vertices lie inside the cage and how far from it, and the files read."""
-
-    scene: Scene
-    surface: Surface
-    cage: Cage
-    made: MadeCage | None
-    inside: np.ndarray
-    distance: np.ndarray
-    sources: list
-
-    def binding(self, weights: np.ndarray, settings: dict, stats: dict, device) -> Binding:
-        """The Binding of ``weights`` at the vertices, with what it records of its inputs."""
-        if self.made is not None:
-            stats["made_cage"] = made_cage_record(self.made)
-        surface, cage = self.surface, self.cage
-        return Binding(weights, cage.vertices, cage.faces, surface.vertices, surface.faces, settings, stats,
-                       device=device, mesh_normals=surface.normals, cage_source_index=cage.source_index,
-                       mesh_polygons=surface.polygons(), mesh_uvs=surface.uvs, parts=parts_record(self.scene),
-                       asset=asset_record(self.scene), sources=self.sources)
-
-
-def _load_inputs(mesh, cage, cage_prim, mesh_prims, rest_time, device, threads, seconds: dict) -> _Inputs:
-    """The first stage of a bind: a cage made for the mesh where asked ("auto" or a MadeCage), the mesh's scene
-    (the cage's prim left out when it is one of the mesh's stage), the cage checked, and the vertices classified;
-    a mesh mostly outside its cage refused. ``seconds`` gets "cage" and "load"."""
-    t = time.perf_counter()
-    cage_argument = cage
-    made = None
-    if isinstance(cage, MadeCage) or (isinstance(cage, str) and cage == "auto"):
-        if cage_prim is not None:
-            raise CageError(f"cage 'auto' and a cage prim ({cage_prim}): give one of them")
-        if isinstance(cage, str):
-            cage = make_cage(load_scene(mesh, mesh_prims=mesh_prims, rest_time=rest_time).surface(), device=device)
-        made = cage
-        cage = made.cage
-        seconds["cage"] = sum(made.seconds.values())
-        t = time.perf_counter()
-    cage = _cage_source(mesh, cage, cage_prim, rest_time)
-    # the cage's prim is left out of the meshes (and sets the rest time) when it is a prim of the mesh's stage
-    in_stage = bool(cage_prim) and is_usd(mesh) and (
-        cage_argument is None or not isinstance(cage_argument, (str, os.PathLike))
-        or os.path.abspath(os.fspath(cage_argument)) == os.path.abspath(os.fspath(mesh)))
-    scene = load_scene(mesh, mesh_prims=mesh_prims, cage_prim=cage_prim if in_stage else None, rest_time=rest_time)
-    surface = scene.surface()
-    try:
-        checked: Cage = check_cage(cage)
-    except CageError as error:
-        raise _swapped_hint(error, cage, surface) from None
-    inside, distance = classify_points(checked, surface.vertices, device=device, threads=threads)
-    _refuse_mesh_outside(surface, checked, inside, distance)
-    seconds["load"] = time.perf_counter() - t
-    return _Inputs(scene, surface, checked, made, inside, distance, _sources(mesh, cage_argument))
-
-
-def _bind_by_mean_value(inputs: _Inputs, settings: dict, device, seconds: dict) -> Binding:
+def _bind_by_mean_value(inputs: Inputs, settings: dict, device, seconds: dict) -> Binding:
     """Mean value coordinates at the vertices: no grid, no solve."""
     points = inputs.surface.vertices
     weights = _mean_value_weights(inputs.cage, points, device, seconds)
@@ -237,7 +167,7 @@ def _bind_by_mean_value(inputs: _Inputs, settings: dict, device, seconds: dict) 
     return inputs.binding(weights, settings, stats, device)
 
 
-def _solve_grid(inputs: _Inputs, resolution: int, choice: dict, device, devices, options: dict, progress,
+def _solve_grid(inputs: Inputs, resolution: int, choice: dict, device, devices, options: dict, progress,
                 seconds: dict):
     """The grid part of a bind, on one device or spread over ``devices``: the columns at ``resolution`` and the
     resolution they were solved at. Resolution "auto" (``choice`` has "chosen") tries finer where the cage is too
@@ -274,7 +204,7 @@ def _solve_grid(inputs: _Inputs, resolution: int, choice: dict, device, devices,
     return part, resolution
 
 
-def _finish_grid(inputs: _Inputs, part, resolution: int, choice: dict, settings: dict, method: str, solver: str,
+def _finish_grid(inputs: Inputs, part, resolution: int, choice: dict, settings: dict, method: str, solver: str,
                  boundary, memory_budget, devices, device, seconds: dict) -> Binding:
     """The last stage of a grid bind: vertices beyond the grid's band given the boundary data, the warnings, the
     exactness of the weights checked (an inexact result is refused) and the stats."""
@@ -342,40 +272,6 @@ def _thin_vertices(corners: np.ndarray, grid, inside: np.ndarray) -> np.ndarray:
     return inside & sampled & ~((corners >= 0) & (corners < grid.n_inside)).any(axis=1)
 
 
-def _swapped_hint(error: CageError, cage, surface) -> CageError:
-    """``error`` with a hint where the cage has more vertices than the mesh: the arguments may be the wrong way
-    round (the mesh, open or dense, is refused as a cage first)."""
-    try:
-        n_cage = len(load_surface(cage).vertices) if not hasattr(cage, "vertices") else len(cage.vertices)
-    except Exception:  # the error says what is wrong with the cage; the hint is only a guess
-        return error
-    if n_cage <= len(surface.vertices):
-        return error
-    return CageError(f"{error}; the cage has more vertices ({n_cage}) than the mesh ({len(surface.vertices)}): are "
-                     "the mesh and the cage the other way round? (bind MESH CAGE)")
-
-
-def _cage_source(mesh, cage, cage_prim, rest_time):
-    """What :func:`check_cage` reads: ``cage`` itself (a file or arrays; or a checked Cage, when ``cage_prim`` only
-    keeps that prim out of the meshes), or the surface of the prim ``cage_prim`` in ``cage`` when that is a USD file,
-    or in the mesh's stage when no cage is given."""
-    if cage_prim is not None and (cage is None or is_usd(cage)):
-        from ..io.usd.asset import read_cage_prim
-
-        stage_file = mesh if cage is None else cage
-        if not is_usd(stage_file):
-            raise CageError(f"{stage_file}: a cage prim ({cage_prim}) is named, but it is not a USD file")
-        return read_cage_prim(str(stage_file), cage_prim, rest_time)
-    if cage is None:
-        raise CageError(f"{getattr(mesh, 'name', mesh)}: no cage: give a cage file, or the cage's prim in the USD "
-                        "asset (cage_prim, --cage-prim)")
-    if cage_prim is not None and isinstance(cage, (str, os.PathLike)):
-        raise CageError(f"{cage}: a cage prim ({cage_prim}) is named, but the cage is not a USD file")
-    if is_usd(cage):
-        raise CageError(f"{cage}: a USD cage needs its prim path (cage_prim, --cage-prim)")
-    return cage
-
-
 def _mean_value_weights(checked: Cage, points: np.ndarray, device, seconds: dict) -> np.ndarray:
     """Mean value coordinates at the vertices, in blocks of rows (float64 on the device, stored as float32)."""
     t = time.perf_counter()
@@ -402,13 +298,6 @@ def _check_arguments(tol, memory_budget, solver, boundary, sampling, method, max
         raise WarpStokesError(f"sampling must be 'hermite' or 'trilinear', got {sampling!r}")
 
 
-def _sources(mesh, cage) -> list[str]:
-    """The files a bind read its mesh and cage from (each USD file's whole layer stack), for the binding to record."""
-    from ..io.inputs import inputs_of
-
-    return sorted(inputs_of(mesh, cage if isinstance(cage, (str, os.PathLike)) else None).files)
-
-
 def _refuse_inexact(checked: Cage, surface, pu_error: float, lp_error: float, reports) -> None:
     """Weights that break partition of unity or linear precision at the vertices are an error, not a result. Each
     solve checked its own nodes (:data:`warp_stokes.solver.solve.ACCEPTABLE` times its tolerance), but a chunk's
@@ -421,23 +310,6 @@ def _refuse_inexact(checked: Cage, surface, pu_error: float, lp_error: float, re
             f"precision ({lp_error:.2g} of the diagonal) beyond {limit:.1g} although every solve converged "
             f"({len(reports)} chunk(s)); no weights were returned: a fault of the solver; please report it with the "
             "cage")
-
-
-def _refuse_mesh_outside(surface, checked: Cage, inside: np.ndarray, distance: np.ndarray) -> None:
-    """A mesh mostly outside its cage is in other units or another place (a transform not applied): refused
-    before the solve, instead of weights that extrapolate far beyond [0, 1]."""
-    outside = int((~inside).sum())
-    on = int((~inside & (distance <= ON_THE_CAGE * checked.diagonal)).sum())
-    if outside > 0.5 * len(inside) and on > 0.5 * outside:  # not elsewhere: on the cage (the mesh as its own cage)
-        raise MeshError(
-            f"{surface.name}: {on} of {len(inside)} vertices ({100 * on / len(inside):.0f}%) lie on {checked.name} "
-            "itself; a cage must enclose the mesh with room around it (is the cage the mesh itself? `warp-stokes "
-            "cage MESH -o CAGE.obj` makes one)")
-    if outside > 0.5 * len(inside):
-        raise MeshError(
-            f"{surface.name}: {outside} of {len(inside)} vertices ({100 * outside / len(inside):.0f}%) lie outside "
-            f"{checked.name}, up to {distance[~inside].max() / checked.diagonal:.3g} cage diagonals away; is the mesh "
-            "in the cage's units and place?")
 
 
 def _vertices_off_the_grid(surface, checked: Cage, grid, resolution: int, weights: np.ndarray, corners: np.ndarray,
@@ -488,7 +360,7 @@ def _vertices_off_the_grid(surface, checked: Cage, grid, resolution: int, weight
         warnings.warn(notes[-1], stacklevel=4)
     if folded:
         capped = (choice or {}).get("cap")
-        caps = grid_module.AUTO_RESOLUTION_CAP
+        caps = resolution_policy.AUTO_RESOLUTION_CAP
         reachable = below <= caps["cpu" if resolve_device(device).is_cpu else "cuda"]
         advice = (f"resolution 'auto' stops at {capped} on this device; give --resolution {min(below, 2048)} "
                   "(resolution= in Python) for weights that converge there" if capped else

@@ -3,7 +3,8 @@
 
 from .boundary import COMPLEMENT_COLUMNS, boundary_field, mean_value_coordinates
 from .cage import Cage, check_cage, crossing_faces, folded_edges, signed_volume
-from .grid import Grid, grid_from_mask, voxelize, wedge_resolution
+from .grid import Grid, grid_from_mask, voxelize
+from .resolution import wedge_resolution
 from .inside import classify_points
 from .local_data import LocalData
 from .make_cage import MadeCage, make_cage

@@ -10,15 +10,15 @@ import warp as wp
 from .cage import Cage
 from .inside import WINDING_ACCURACY, cage_mesh
 from .local_data import boundary_settings, data_slopes
+from .resolution import CUT_OFF_MAX_CHANGE, check_resolution
 from ..device import available_memory, in_threads, memory_size, resolve_device
 from ..errors import ResolutionError
 from ..kernels import labels as node_labels
 from ..kernels import stencil, stencil_cpu
 from ..kernels import voxel
 
-__all__ = ["Grid", "voxelize", "wedge_resolution", "check_resolution", "grid_from_mask", "MARGIN", "BAND_WIDTH",
-           "PATCH_LENGTH", "WEDGE_FACING", "CUT_OFF_MAX_CHANGE", "MAX_ROWS", "VOXELIZE_NODE_BYTES", "DEVICE_NODE_BYTES",
-           "HOST_NODE_BYTES", "AUTO_RESOLUTION", "AUTO_RESOLUTION_CAP", "auto_resolution"]
+__all__ = ["Grid", "voxelize", "grid_from_mask", "MARGIN", "BAND_WIDTH", "PATCH_LENGTH", "WEDGE_FACING", "MAX_ROWS",
+           "VOXELIZE_NODE_BYTES", "DEVICE_NODE_BYTES", "HOST_NODE_BYTES"]
 
 #: nodes of known data kept outside the interior (max-norm distance): the ring plus a sampling band, so that
 #: trilinear sampling of vertices slightly outside the cage reads only known corners
@@ -40,9 +40,6 @@ PATCH_LENGTH = 64
 #: two cage faces are the walls of one thin wedge of outside space when their normals' dot product is below this
 #: (more than 120 degrees apart) and they are near along the cage (kernels.voxel.near_along_the_cage)
 WEDGE_FACING = -0.5
-#: an interior node cut off by such a wedge takes the boundary data only where that data, extended to it over a
-#: diagonal link, changes by at most this much (in weight units); measured on the shared pairs: benchmarks/RESULTS.md
-CUT_OFF_MAX_CHANGE = 1.0
 
 
 @dataclass
@@ -176,62 +173,6 @@ class Grid:
             labels = wp.array(self.labels, dtype=wp.int8, device=d)
             arrays.update(_stencil_arrays(labels, arrays["index"], arrays["active_ijk"], self.n_interior))
         return arrays
-
-
-#: ``resolution="auto"`` picks at least this many cells, more where the cage's folded edges need them
-#: (:func:`wedge_resolution`), and at most the cap of the device's kind: a CPU bind stays within tens of seconds
-AUTO_RESOLUTION = 64
-AUTO_RESOLUTION_CAP = {"cpu": 96, "cuda": 256}
-
-
-def check_resolution(resolution) -> "int | str":
-    """The resolution as an int, or "auto"; a ResolutionError when it is neither "auto" nor an integer in [8, 2048].
-
-    Examples
-    --------
-    >>> check_resolution(64), check_resolution("auto")
-    (64, 'auto')
-    """
-    if isinstance(resolution, str) and resolution == "auto":
-        return resolution
-    if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)):
-        raise ResolutionError(f"resolution must be 'auto' or an integer number of cells, got {resolution!r}")
-    if not 8 <= int(resolution) <= 2048:
-        raise ResolutionError(f"resolution must be between 8 and 2048 cells, got {resolution}")
-    return int(resolution)
-
-
-def auto_resolution(cage: Cage, boundary="local", device=None, kind: str | None = None) -> tuple[int, int, int]:
-    """The resolution ``"auto"`` stands for: :data:`AUTO_RESOLUTION`, or the resolution from which the grid cuts off
-    the thin wedges at the cage's folded edges where that is more, capped per device kind
-    (:data:`AUTO_RESOLUTION_CAP`).
-
-    Parameters
-    ----------
-    cage : Cage
-    boundary : "local" | LocalData | "mvc"
-    device : None | str, where the local data is evaluated
-    kind : "cpu" | "cuda", optional: the kind of the devices that solve, when it is not ``device``'s (a bind spread
-        over GPUs from a host without one)
-
-    Returns
-    -------
-    chosen : int
-    needed : int, what the cage asks for (more than ``chosen`` where the cap stopped it)
-    cap : int
-
-    Examples
-    --------
-    >>> import trimesh
-    >>> from warp_stokes.geometry.cage import check_cage
-    >>> box = trimesh.creation.box(extents=[2, 2, 2])
-    >>> auto_resolution(check_cage((box.vertices, box.faces)), device="cpu")
-    (64, 64, 96)
-    """
-    device = resolve_device(device)
-    cap = AUTO_RESOLUTION_CAP[kind or ("cpu" if device.is_cpu else "cuda")]
-    needed = max(AUTO_RESOLUTION, wedge_resolution(cage, boundary, device) or 0)
-    return min(needed, cap), needed, cap
 
 
 def voxelize(cage: Cage, resolution: int = 64, device=None, max_rows: int = MAX_ROWS, memory_budget: int | None = None,
@@ -389,41 +330,6 @@ def grid_from_mask(interior, spacing: float = 1.0, origin=(0.0, 0.0, 0.0), devic
     resolution = max(interior.shape) - 1 - 2 * MARGIN
     return _number_nodes(inside, np.zeros(3), np.asarray(origin, dtype=np.float64), float(spacing), resolution, device,
                          MAX_ROWS, "the interior mask")
-
-
-def wedge_resolution(cage: Cage, boundary="local", device=None) -> int | None:
-    """The resolution from which the grid cuts off the thin wedges of outside space at every folded cage edge (faces
-    whose normals are more than 150 degrees apart): below it, nodes next to some of them stay unknowns, coupled
-    across the wedge, and the weights within a few cells of the edge converge slowly.
-
-    Parameters
-    ----------
-    cage : Cage
-    boundary : "local" | LocalData | "mvc"
-    device : None | str, where the local data's MVC normal derivatives are evaluated
-
-    Returns
-    -------
-    int, or None when the cage has no folded edge or the data is MVC's (no node is cut off)
-
-    Examples
-    --------
-    >>> import trimesh
-    >>> from warp_stokes.geometry.cage import check_cage
-    >>> box = trimesh.creation.box(extents=[2, 2, 2])
-    >>> wedge_resolution(check_cage((box.vertices, box.faces))) is None
-    True
-    """
-    from .cage_faults import folded_edges
-    boundary = boundary_settings(boundary)
-    folds = folded_edges(cage)
-    if boundary == "mvc" or not len(folds):
-        return None
-    slopes = data_slopes(cage, boundary, device)
-    at_fold = cage.faces[np.isin(cage.faces, np.unique(folds)).any(axis=1)]  # the faces around folded edges
-    extent = float((cage.vertices.max(axis=0) - cage.vertices.min(axis=0)).max())
-    # the kernel's test, 1.5 h slope <= CUT_OFF_MAX_CHANGE, with h = extent / resolution
-    return int(np.ceil(1.5 * slopes[at_fold].max() * extent / CUT_OFF_MAX_CHANGE))
 
 
 def _wedge_cut_off(cage: Cage, mesh: wp.Mesh, inside: wp.array, origin, spacing: float, boundary):

@@ -41,7 +41,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import time
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future
 
 import numpy as np
 import warp as wp
@@ -51,6 +51,9 @@ from ..geometry.grid import Grid
 from ..kernels import cg
 from ..kernels import multigrid as mg_kernels
 from ..kernels import multigrid_cpu
+from .coarsest import COARSEST_CUTOFF, coarsest_inverse
+from .coarsest import HOST as _HOST
+from .coarsest import inverts_beside as _inverts_beside
 from .hierarchy import (COARSE_NODE_BYTES, COARSEST_NODES, COARSEST_NODES_CPU, Level, coarsen, coarsest_nodes_for,
                         hierarchy_bytes)
 from .operator import apply_operator, chebyshev_step, check_equation
@@ -76,95 +79,10 @@ POWER_ITERATIONS = 40
 #: the power iteration's estimate approaches lmax from below: the smoother's upper end is this much above it
 LMAX_SAFETY = 1.2
 
-#: eigenvalues of the coarsest operator (scaled to a unit diagonal) at most this fraction of its largest are left out
-#: of its inverse: the cycle's float32 right-hand sides carry relative errors near 6e-8, which 1 / lambda would
-#: amplify beyond the correction itself. The scaled coarsest levels of the sweeps' cages are far from it (the bound
-#: of lambda_min / lambda_max at least 6.6e-4 on the box at n = 16-96, 4.3e-4 on a star-shaped cage at 16-80, 1.8e-3
-#: on the arm at 16-128, CPU); a singular one (a fault) loses its null space instead of blowing up
-COARSEST_CUTOFF = 1e-7
 #: a guaranteed bound of the largest eigenvalue of D^-1 A on the fine level: its largest absolute row sum, the same
 #: on every row that has all its neighbours (the compact scheme: value rows (48 + 6 * 10 + 12 + 6 * 3) / 48, gradient
 #: rows (4 + 2 + 2 * 3) / 4; Laplace: (6 + 6) / 6)
 FINE_ROW_SUM_BOUND = {"biharmonic": 3.0, "laplace": 2.0}
-
-#: inverts the coarsest operators on the host (LAPACK releases the GIL), beside the device's work. One worker:
-#: hierarchies formed faster than they are inverted wait in turn (each holds its dense matrix, at most 20 MB, until
-#: then); a process forked from one that used it must not use it (CUDA forbids forking anyway)
-_HOST = ThreadPoolExecutor(max_workers=1, thread_name_prefix="warp-stokes-coarsest")
-
-
-def _inverts_beside(device) -> bool:
-    """Whether the coarsest inverse is computed on a host thread beside the device's work: for a GPU. On the CPU its
-    kernels run on the cores LAPACK would use, and the memory plan counts host memory: there it is computed in turn."""
-    return device.is_cuda
-
-
-def _infinity_norm(matrix: np.ndarray, rows: int = 256) -> float:
-    """The largest absolute row sum, a block of rows at a time (no full-size temporary)."""
-    return max((float(np.abs(matrix[k : k + rows]).sum(axis=1).max()) for k in range(0, len(matrix), rows)),
-               default=0.0)
-
-
-def coarsest_inverse(dense: np.ndarray, cutoff: float = COARSEST_CUTOFF) -> tuple[np.ndarray, float, dict]:
-    """The inverse of a symmetric coarsest operator, never unchecked. With S = diag(A)^-1/2 (the operator's rows are
-    scaled like h^-4 and h^-2 for values and gradients), a Cholesky factorisation proves S A S positive definite and
-    ||S A S||_inf ||(S A S)^-1||_inf bounds its condition number from above; where either fails (not positive
-    definite, or the bound above 1 / ``cutoff``), the pseudo-inverse from the eigendecomposition of S A S in float64,
-    eigenvalues at most ``cutoff`` times the largest left out (it cannot blow up on a singular operator). The inverse
-    is S (S A S)^-1 S. ``dense`` is overwritten (by S A S).
-
-    Parameters
-    ----------
-    dense : (m, m) float64, symmetric
-    cutoff : float
-
-    Returns
-    -------
-    inverse : (m, m) float32
-    seconds : float, the time it took
-    report : dict, of S A S: ``unknowns``, ``condition`` (largest over the smallest kept eigenvalue; on the Cholesky
-        path the upper bound), ``smallest_eigenvalue`` (relative to the largest; on the Cholesky path 1 / the bound,
-        a lower bound), ``dropped`` (eigenvalues left out) and ``method`` ("cholesky" or "eigen")
-
-    Examples
-    --------
-    >>> inverse, _, report = coarsest_inverse(np.array([[4.0, 1.0], [1.0, 1.0]]))
-    >>> np.round(inverse.astype(float), 5).tolist(), report["method"], round(report["condition"], 6)
-    ([[0.33333, -0.33333], [-0.33333, 1.33333]], 'cholesky', 3.0)
-    >>> inverse, _, report = coarsest_inverse(np.diag([4.0, 2.0, 0.0]))
-    >>> inverse.diagonal().tolist(), report["method"], report["dropped"], round(report["condition"], 6)
-    ([0.25, 0.5, 0.0], 'eigen', 1, 1.0)
-    """
-    start = time.perf_counter()
-    report = {"unknowns": int(len(dense)), "dropped": 0}
-    diagonal = dense.diagonal().copy()
-    # a row without a positive diagonal (no positive definite operator has one) keeps its scale: the eigen path
-    scale = 1.0 / np.sqrt(np.where(diagonal > 0, diagonal, 1.0))
-    dense *= scale[:, None]
-    dense *= scale[None, :]
-    try:
-        np.linalg.cholesky(dense)  # raises unless positive definite (the coarsening rule makes it so)
-        inverse = np.linalg.inv(dense)
-        condition = _infinity_norm(dense) * _infinity_norm(inverse)
-        if (diagonal > 0).all() and np.isfinite(condition) and condition * cutoff < 1.0:
-            report.update(smallest_eigenvalue=1.0 / condition, condition=condition, method="cholesky")
-            inverse *= scale[:, None]
-            inverse *= scale[None, :]
-            return inverse.astype(np.float32), time.perf_counter() - start, report
-        del inverse
-    except np.linalg.LinAlgError:
-        pass
-    values, vectors = np.linalg.eigh(dense)
-    largest = float(np.abs(values).max()) if values.size else 0.0
-    kept = values > cutoff * largest
-    inverse = (vectors[:, kept] / values[kept]) @ vectors[:, kept].T
-    inverse *= scale[:, None]
-    inverse *= scale[None, :]
-    report.update(smallest_eigenvalue=float(values.min() / largest) if largest > 0 else 0.0,
-                  condition=float(largest / values[kept].min()) if kept.any() else float("inf"),
-                  dropped=int((~kept).sum()), method="eigen")
-    return inverse.astype(np.float32), time.perf_counter() - start, report
-
 
 class Multigrid:
     """A V-cycle preconditioner for the interior block A_II of a grid, shared by all handles.
