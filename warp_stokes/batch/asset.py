@@ -18,8 +18,8 @@ from ..io.inputs import InputSet, inputs_of
 from ..io.outputs import writing
 from .manifest import MADE_CAGE, Asset
 
-__all__ = ["Result", "asset_inputs", "inputs_digest", "outputs_of", "earlier_records", "skipped", "bind_one",
-           "warn_for", "progress_line"]
+__all__ = ["Result", "asset_inputs", "inputs_digest", "digest_now", "outputs_of", "earlier_records", "skipped",
+           "bind_one", "warn_for", "progress_line"]
 
 
 @dataclass
@@ -105,20 +105,25 @@ def earlier_records(outdir: str) -> dict:
         return {}
 
 
-def skipped(asset: Asset, outdir: str, force: bool, inputs: InputSet | None, earlier: dict | None = None
-            ) -> Result | None:
-    """The asset's result when its outputs are up to date (and not ``force``): they exist and the binding records
-    the digest of the asset's inputs as they are now (:func:`inputs_digest`); else None. Status "skipped", with the
-    record of the run that wrote its outputs (resolution, vertices, handles, seconds, warnings, where it was bound)
-    from ``earlier`` (:func:`earlier_records`) where it has one."""
-    outputs = outputs_of(asset, outdir)
-    if force or inputs is None:
+def digest_now(asset: Asset, inputs: InputSet | None) -> str | None:
+    """:func:`inputs_digest` of the asset as its inputs are now; None where they could not be read (the bind then
+    says what is wrong)."""
+    if inputs is None:
         return None
     try:
-        digest = inputs_digest(asset, inputs)
-    except WarpStokesError:  # an input gone or unreadable meanwhile: the bind says what
+        return inputs_digest(asset, inputs)
+    except WarpStokesError:  # an input gone or unreadable meanwhile
         return None
-    if not _up_to_date(outputs, digest):
+
+
+def skipped(asset: Asset, outdir: str, force: bool, digest: str | None, earlier: dict | None = None
+            ) -> Result | None:
+    """The asset's result when its outputs are up to date (and not ``force``): they exist and the binding records
+    ``digest``, that of the asset's inputs as they are now (:func:`digest_now`); else None. Status "skipped", with
+    the record of the run that wrote its outputs (resolution, vertices, handles, seconds, warnings, where it was
+    bound) from ``earlier`` (:func:`earlier_records`) where it has one."""
+    outputs = outputs_of(asset, outdir)
+    if force or digest is None or not _up_to_date(outputs, digest):
         return None
     result = Result(asset.name, "skipped", resolution=_grid_resolution(asset), outputs=outputs)
     record = (earlier or {}).get(asset.name, {})
@@ -134,12 +139,14 @@ def _grid_resolution(asset: Asset) -> int | None:
 
 
 def bind_one(asset: Asset, outdir: str, device, progress=None, k: int = 0, total: int = 1,
-             threads: int | None = None, inputs: InputSet | None = None, unreadable: str | None = None) -> Result:
+             threads: int | None = None, inputs: InputSet | None = None, unreadable: str | None = None,
+             digest: str | None = None) -> Result:
     """Check, bind and (with poses) animate one asset; its outputs are written together (one group of
     :func:`warp_stokes.io.outputs.writing`: the cage, the animation, the binding last), whole or not at all, and
     never over one of its inputs. A failure of any kind is its Result, not an exception; what the bind warned of is
     in ``Result.warnings``. ``threads``: a CPU bind's threads (default: every core). ``inputs``: the asset's input
-    set (read here when not given); ``unreadable``: why its inputs could not be read (the asset then fails)."""
+    set (read here when not given); ``unreadable``: why its inputs could not be read (the asset then fails);
+    ``digest``: their :func:`inputs_digest` where the caller has it already (hashed here otherwise)."""
     import socket
 
     outputs = outputs_of(asset, outdir)
@@ -153,7 +160,7 @@ def bind_one(asset: Asset, outdir: str, device, progress=None, k: int = 0, total
         if progress:
             progress_line(progress, k, total, asset.name, "checking the cage")
         inputs = asset_inputs(asset) if inputs is None else inputs
-        digest = inputs_digest(asset, inputs)
+        digest = inputs_digest(asset, inputs) if digest is None else digest
         order = outputs[2:] + outputs[1:2] + outputs[:1]  # the binding renamed last: never one without its cage
         with warnings.catch_warnings(record=True) as caught, reading(), writing(order, inputs):
             warnings.simplefilter("always")

@@ -24,7 +24,7 @@ import time
 
 from ..device import cpu_threads, require_ray, start_ray
 from ..io.outputs import remove_temporaries_of
-from .asset import Result, bind_one, earlier_records, skipped, warn_for
+from .asset import Result, bind_one, digest_now, earlier_records, skipped, warn_for
 
 __all__ = ["run_on_ray", "require_ray", "TASK_RETRIES", "KILL_ONCE_VARIABLE"]
 
@@ -36,7 +36,7 @@ KILL_ONCE_VARIABLE = "WARP_STOKES_KILL_WORKER_ONCE"
 
 
 def _bind_task(asset, outdir: str, device, started=None, k: int = 0, threads: int | None = None, inputs=None,
-               unreadable: str | None = None) -> Result:
+               unreadable: str | None = None, digest: str | None = None) -> Result:
     """One asset, in a Ray worker process; it says it started on ``started`` (a Ray queue, or None). ``threads``: a
     CPU bind's threads."""
     if started is not None:
@@ -52,7 +52,7 @@ def _bind_task(asset, outdir: str, device, started=None, k: int = 0, threads: in
             pass
         else:
             os.kill(os.getpid(), signal.SIGKILL)
-    return bind_one(asset, outdir, device, threads=threads, inputs=inputs, unreadable=unreadable)
+    return bind_one(asset, outdir, device, threads=threads, inputs=inputs, unreadable=unreadable, digest=digest)
 
 
 def _start(ray, workers: int | None, address: str | None, device) -> bool:
@@ -148,10 +148,11 @@ def run_on_ray(assets, outdir: str, manifest, force: bool, device, progress, wor
         running: set[int] = set()
         inputs, unreadable = inputs or {}, unreadable or {}
         for k, asset in enumerate(assets):
-            results[k] = skipped(asset, outdir, force, inputs.get(asset.name), earlier)
+            digest = digest_now(asset, inputs.get(asset.name))  # hashed once: skip or record
+            results[k] = skipped(asset, outdir, force, digest, earlier)
             if results[k] is None:
                 pending[task.remote(asset, outdir, task_device, started, k, threads, inputs.get(asset.name),
-                                    unreadable.get(asset.name))] = k
+                                    unreadable.get(asset.name), digest)] = k
         workers_seen = set()  # (host, pid) of every process that ran a task: their temporaries, once all are done
         total, failed = len(assets), 0
         done = sum(r is not None for r in results)

@@ -12,7 +12,8 @@ from ..device import BIND_MODULES, KERNEL_MODULES, announce_compilation
 from ..errors import WarpStokesError
 from ..io.inputs import InputSet, inputs_of
 from ..io.outputs import atomic_output, check_output_target, output_folder, remove_stale_temporaries
-from .asset import Result, asset_inputs, bind_one, earlier_records, outputs_of, progress_line, skipped, warn_for
+from .asset import (Result, asset_inputs, bind_one, digest_now, earlier_records, outputs_of, progress_line, skipped,
+                    warn_for)
 from .distributed import require_ray, run_on_ray
 from .lock import folder_lock
 from .manifest import Asset, read_manifest
@@ -107,7 +108,8 @@ def refuse_outputs_over_inputs(assets: list[Asset], outdir: str, manifest, input
 def _run_assets(assets, outdir, force, device, progress, inputs: dict, unreadable: dict) -> list[Result]:
     results = []
     earlier = earlier_records(outdir)
-    up_to_date = [skipped(asset, outdir, force, inputs.get(asset.name), earlier) for asset in assets]
+    digests = [digest_now(asset, inputs.get(asset.name)) for asset in assets]  # hashed once: skip or record
+    up_to_date = [skipped(asset, outdir, force, digest, earlier) for asset, digest in zip(assets, digests)]
     todo = [asset for asset, done in zip(assets, up_to_date) if done is None]
     if progress and todo:  # once the folder is ours (Ray workers compile in their own processes)
         announce_compilation(device, harmonic=any(a.method == "harmonic" for a in todo), stream=progress,
@@ -116,7 +118,7 @@ def _run_assets(assets, outdir, force, device, progress, inputs: dict, unreadabl
         result = up_to_date[k]
         if result is None:
             result = bind_one(asset, outdir, device, progress, k, len(assets), inputs=inputs.get(asset.name),
-                              unreadable=unreadable.get(asset.name))
+                              unreadable=unreadable.get(asset.name), digest=digests[k])
             warn_for(result)
         if progress:
             progress_line(progress, k + 1, len(assets), asset.name,
