@@ -18,7 +18,7 @@ import stat
 
 from ..errors import WarpStokesError
 
-__all__ = ["file_kind", "checked_input", "read_input", "input_bytes", "read_numpy", "reading", "files_read",
+__all__ = ["file_kind", "checked_input", "open_input", "read_input", "input_bytes", "read_numpy", "reading", "files_read",
            "record_read", "path_text", "gltf_dependencies", "reason"]
 
 # the real paths of the files read in the current command (see ``reading``); None outside one
@@ -116,6 +116,40 @@ def checked_input(path, error=WarpStokesError, what: str = "file", folder: bool 
     return path
 
 
+@contextlib.contextmanager
+def open_input(path, error=WarpStokesError, what: str = "file"):
+    """A regular file opened for reading (binary), for readers that seek in it (zip archives, numpy's arrays): the
+    check of :func:`checked_input` made again on the open file, so that one swapped in meanwhile is refused too.
+
+    Raises
+    ------
+    ``error``, one line naming the file: missing, not a regular file, unreadable
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> with tempfile.NamedTemporaryFile(suffix=".txt") as tmp, open_input(tmp.name) as fh:
+    ...     fh.read()
+    b''
+    """
+    path = checked_input(path, error, what)
+    flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOCTTY", 0) | getattr(os, "O_CLOEXEC", 0)
+    try:
+        fd = os.open(path, flags)  # (O_NONBLOCK: a pipe swapped in after the check does not block the open)
+    except OSError as exc:
+        raise error(f"{path}: cannot read it ({exc.strerror or exc})") from None
+    mode = os.fstat(fd).st_mode
+    if not stat.S_ISREG(mode):
+        os.close(fd)
+        raise error(f"{path}: {file_kind(mode)}, not a {what} file")
+    with os.fdopen(fd, "rb") as fh:
+        try:
+            yield fh
+        except OSError as exc:
+            raise error(f"{path}: cannot read it ({exc.strerror or exc})") from None
+    record_read(path)
+
+
 def read_input(path, error=WarpStokesError, what: str = "file") -> bytes:
     """The bytes of a regular file, read within the size it had when opened (a file that grows is not followed).
 
@@ -131,39 +165,19 @@ def read_input(path, error=WarpStokesError, what: str = "file") -> bytes:
     ...     read_input(fh.name)
     b'v 0 0 0\\n'
     """
-    path = checked_input(path, error, what)
-    flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOCTTY", 0) | getattr(os, "O_CLOEXEC", 0)
-    try:
-        fd = os.open(path, flags)
-    except OSError as exc:
-        raise error(f"{path}: cannot read it ({exc.strerror or exc})") from None
-    try:
-        info = os.fstat(fd)
-        if not stat.S_ISREG(info.st_mode):  # replaced between the check and the open
-            raise error(f"{path}: {file_kind(info.st_mode)}, not a {what} file")
-        chunks, left = [], info.st_size
-        while left > 0:
-            chunk = os.read(fd, min(left, 1 << 24))
-            if not chunk:
-                break
-            chunks.append(chunk)
-            left -= len(chunk)
-    except OSError as exc:
-        raise error(f"{path}: cannot read it ({exc.strerror or exc})") from None
-    finally:
-        os.close(fd)
-    record_read(path)
-    return b"".join(chunks)
+    with open_input(path, error, what) as fh:
+        return fh.read(os.fstat(fh.fileno()).st_size)
 
 
 def input_bytes(path, error=WarpStokesError, what: str = "file"):
-    """:func:`read_input` as a binary file object (for readers that take one: numpy, trimesh)."""
+    """:func:`read_input` as a binary file object (for readers that take one: trimesh)."""
     return io.BytesIO(read_input(path, error, what))
 
 
 def read_numpy(path, error=WarpStokesError, what: str = "array"):
     """A ``.npy`` array, or a ``.npz`` archive as a dict of its arrays (all read now, so that a damaged member is
-    this error and not a later one), without unpickling; any failure is one ``error`` naming the file.
+    this error and not a later one), without unpickling; any failure is one ``error`` naming the file. Read from
+    the file itself: an archive's arrays take their own memory only.
 
     Examples
     --------
@@ -176,23 +190,25 @@ def read_numpy(path, error=WarpStokesError, what: str = "array"):
 
     import numpy as np
 
-    data = read_input(path, error, what)
-    archive = data[:4] == b"PK\x03\x04"
-    try:
-        if not archive:
-            return np.load(io.BytesIO(data), allow_pickle=False)
-        with zipfile.ZipFile(io.BytesIO(data)) as members:
-            declared = sum(info.file_size for info in members.infolist())
+    with open_input(path, error, what) as fh:
+        archive = fh.read(4) == b"PK\x03\x04"
+        fh.seek(0)
+        try:
+            if not archive:
+                return np.load(fh, allow_pickle=False)
+            with zipfile.ZipFile(fh) as members:
+                declared = sum(info.file_size for info in members.infolist())
             if declared > _memory_for_reading():  # a zip bomb, or more than this machine holds
                 raise error(f"{os.fspath(path)}: its arrays would take {declared / 2**30:.1f} GiB unpacked, more "
                             "than the memory free")
-        with np.load(io.BytesIO(data), allow_pickle=False) as loaded:
-            return {key: loaded[key] for key in loaded.files}
-    except WarpStokesError:
-        raise
-    except Exception as exc:  # numpy and zipfile raise many types for damaged files
-        kind = "archive (.npz)" if archive else "array (.npy)"
-        raise error(f"{os.fspath(path)}: cannot read it as a numpy {kind} ({reason(exc)})") from None
+            fh.seek(0)
+            with np.load(fh, allow_pickle=False) as loaded:
+                return {key: loaded[key] for key in loaded.files}
+        except WarpStokesError:
+            raise
+        except Exception as exc:  # numpy and zipfile raise many types for damaged files
+            kind = "archive (.npz)" if archive else "array (.npy)"
+            raise error(f"{os.fspath(path)}: cannot read it as a numpy {kind} ({reason(exc)})") from None
 
 
 def _memory_for_reading() -> int:

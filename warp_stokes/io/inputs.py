@@ -11,7 +11,7 @@ import os
 from dataclasses import dataclass, field
 
 from ..errors import WarpStokesError
-from .door import gltf_dependencies, input_bytes, path_text, read_input
+from .door import gltf_dependencies, open_input, path_text, read_input
 from .scene import is_usd
 from .usd.layers import layer_stack
 
@@ -144,8 +144,8 @@ def _binding_sources(path: str) -> list[str]:
     by whatever reads it, with its own message)."""
     import zipfile
 
-    try:
-        with zipfile.ZipFile(input_bytes(path)) as archive:
+    try:  # the metadata alone: a binding's weights may be gigabytes
+        with open_input(path) as fh, zipfile.ZipFile(fh) as archive:
             if "meta.npy" not in archive.namelist() or archive.getinfo("meta.npy").file_size > 1 << 24:
                 return []
             import numpy as np
