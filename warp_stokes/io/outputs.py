@@ -203,8 +203,8 @@ def _reworded(exc: BaseException, tmp: str, path: str) -> BaseException | None:
     """``exc`` as the error to raise for the output ``path``: the temporary name replaced by the output's in a
     WarpStokesError, an OSError or a USD error (a RuntimeError) turned into one line; None to re-raise as it is."""
     text = " ".join(str(exc).split()).replace(tmp, path).replace(os.path.basename(tmp), os.path.basename(path))
-    if isinstance(exc, WarpStokesError):
-        return None if text == str(exc) else type(exc)(text)
+    if isinstance(exc, WarpStokesError):  # rebuilt only where it names the temporary file
+        return type(exc)(text) if os.path.basename(tmp) in str(exc) else None
     if isinstance(exc, OSError):
         return WarpStokesError(f"{path}: could not write it: {exc.strerror or text}")
     if isinstance(exc, (RuntimeError, UnicodeError)):  # pxr's Tf.ErrorException; a name USD cannot hold

@@ -22,7 +22,7 @@ import numpy as np
 
 from ...arguments import choice, flag, number
 from ...errors import WarpStokesError
-from ..poses import Poses, load_poses
+from ..poses import Poses, checked_poses, load_poses
 from .layer import write_layer
 from .standalone import write_standalone
 
@@ -60,13 +60,11 @@ def check_animation(path, binding, poses: Poses, fps, extensions=(".usd", ".usdc
     if ext not in extensions:
         raise WarpStokesError(f"{path}: the output must end in {', '.join(extensions[:-1])} or {extensions[-1]}")
     check_options(fps)
-    positions = np.asarray(poses.positions, dtype=np.float64)
-    if positions.ndim != 3 or positions.shape[1:] != (binding.n_handles, 3):
+    poses = checked_poses(poses)  # the numbers of poses made in Python too: finite, within float32, distinct frames
+    positions, frames = poses.positions, poses.frames
+    if positions.shape[1:] != (binding.n_handles, 3):
         raise WarpStokesError(f"{poses.name}: poses of shape {positions.shape} do not fit a cage of "
                               f"{binding.n_handles} vertices")
-    frames = np.asarray(poses.frames, dtype=np.float64)
-    if len(positions) == 0 or frames.shape != (len(positions),) or len(np.unique(frames)) != len(frames):
-        raise WarpStokesError(f"{poses.name}: need at least one pose and one distinct frame number per pose")
     if len(binding.mesh_faces) == 0:
         raise WarpStokesError("the bound mesh has no faces: there is nothing to write as a USD mesh")
     order = np.argsort(frames, kind="stable")  # in time: glTF's samplers need it, USD does not mind
