@@ -15,7 +15,8 @@ def test_auto_resolution_resolves_the_arms_folded_edges_within_the_cap():
     cage = ws.check_cage(EXAMPLE / "arm_cage.obj")
     needed = resolution_module.wedge_resolution(cage, device="cpu")
     assert needed is not None and needed > resolution_module.AUTO_RESOLUTION  # the arm's cage folds back at 4 edges
-    assert resolution_module.auto_resolution(cage, device="cpu") == (needed, needed, resolution_module.AUTO_RESOLUTION_CAP["cpu"])
+    cap = resolution_module.AUTO_RESOLUTION_CAP["cpu"]
+    assert resolution_module.auto_resolution(cage, device="cpu") == (needed, needed, cap)
     import trimesh
 
     box = trimesh.creation.box(extents=[1.0, 2.0, 3.0])  # no folded edge: the least resolution

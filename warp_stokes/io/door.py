@@ -18,8 +18,8 @@ import stat
 
 from ..errors import WarpStokesError
 
-__all__ = ["file_kind", "checked_input", "open_input", "read_input", "input_bytes", "read_numpy", "reading", "files_read",
-           "record_read", "path_text", "gltf_dependencies", "reason"]
+__all__ = ["file_kind", "checked_input", "open_input", "read_input", "input_bytes", "read_numpy", "reading",
+           "files_read", "record_read", "path_text", "gltf_dependencies", "reason"]
 
 # the real paths of the files read in the current command (see ``reading``); None outside one
 _READ: contextvars.ContextVar = contextvars.ContextVar("warp_stokes_files_read", default=None)

@@ -141,10 +141,10 @@ def finite_coordinates(values: np.ndarray, name: str, what: str = "vertex", erro
 
     Examples
     --------
-    >>> finite_coordinates(np.array([[0.0, 1e300, 0.0]]), "p.npy", "pose point")
+    >>> finite_coordinates(np.array([[0.0, 1e300, 0.0]]), "p.npy", "point")
     Traceback (most recent call last):
     ...
-    warp_stokes.errors.MeshError: p.npy: pose point 0 has a coordinate beyond 1e+18 ([0.0, 1e+300, 0.0]); scale it (to metres, say)
+    warp_stokes.errors.MeshError: p.npy: point 0 has a coordinate beyond 1e+18 ([0.0, 1e+300, 0.0]); scale it (to metres, say)
     """
     values = np.asarray(values, dtype=np.float64)
     with np.errstate(invalid="ignore"):

@@ -82,8 +82,10 @@ def temporary_path(path) -> str:
 
     Examples
     --------
-    >>> is_temporary(temporary_path("out/arm.npz")), temporary_path("out/arm [take 2].usda").endswith("~arm__take_2_.usda")
-    (True, True)
+    >>> is_temporary(temporary_path("out/arm.npz"))
+    True
+    >>> temporary_path("out/arm [take 2].usda").endswith("~arm__take_2_.usda")
+    True
     """
     folder, name = os.path.split(os.fspath(path))
     prefix = f".wst~{os.getpid()}~{host_name()}~{secrets.token_hex(4)}~"

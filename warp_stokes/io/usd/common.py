@@ -7,8 +7,8 @@ import numpy as np
 
 from ...errors import WarpStokesError
 
-__all__ = ["FRAMES_PER_CHUNK", "animation_rate", "extent", "vec3f", "define_mesh", "set_timing", "deformed_frames", "new_stage",
-           "save_layer"]
+__all__ = ["FRAMES_PER_CHUNK", "animation_rate", "extent", "vec3f", "define_mesh", "set_timing", "deformed_frames",
+           "new_stage", "save_layer"]
 
 #: frames deformed per device launch (bounded so that frames x vertices x 12 bytes stays small)
 FRAMES_PER_CHUNK = 64
