@@ -120,7 +120,7 @@ def _warp_stokes_case(pair: dict, n: int, threads: int, method: str, memory_gb: 
     deformed = binding.deform(pair["pose"])
     tool = f"warp-stokes {method}" + ("" if memory_gb is None else f", --memory-gb {memory_gb:g}")
     return dict(tool=tool, grid=f"{n} (cells along the longest axis)", seconds=seconds, peak=peak,
-                deformed=np.asarray(deformed, dtype=np.float64), iterations=binding.stats["iterations"])
+                deformed=np.asarray(deformed, dtype=np.float64), iterations=binding.stats.solver.iterations)
 
 
 def _child(pair_name: str, tool: str, n: int, cores: int, method: str, memory_gb: float | None = None) -> dict:

@@ -102,8 +102,8 @@ def compare(args) -> int:
                                 sampling=args.sampling)
                 seconds = time.perf_counter() - start
                 row = measure(name, mesh, cage, pose, reference, regions, b.weights.astype(np.float64), args.device)
-                rows.append({**row, "method": f"{label} ({args.sampling})", "n": n, "iterations": b.stats["iterations"], "seconds": seconds,
-                             "pu": b.stats["partition_of_unity_error"], "lp": b.stats["linear_precision_error"]})
+                rows.append({**row, "method": f"{label} ({args.sampling})", "n": n, "iterations": b.stats.solver.iterations, "seconds": seconds,
+                             "pu": b.stats.partition_of_unity_error, "lp": b.stats.linear_precision_error})
                 print(json.dumps(rows[-1]), flush=True)
     if args.json:
         with open(args.json, "a") as fh:
@@ -145,9 +145,9 @@ def refinement(args) -> int:
                 distance = float(segment_distance(mesh.vertices[j : j + 1], a, b)[0])
                 rows.append({"pair": name, "method": f"{label} ({args.sampling})", "n": n, "min_weight": float(w[j, l]), "vertex": int(j),
                              "handle": int(l), "fold_distance": distance / cage.diagonal,
-                             "spacing": bound.stats["spacing"] / cage.diagonal,
-                             "iterations": bound.stats["iterations"], "seconds": seconds,
-                             "cut_off_nodes": bound.stats.get("cut_off_nodes", 0), "change_from_previous": change})
+                             "spacing": bound.stats.grid.spacing / cage.diagonal,
+                             "iterations": bound.stats.solver.iterations, "seconds": seconds,
+                             "cut_off_nodes": bound.stats.grid.cut_off_nodes, "change_from_previous": change})
                 print(json.dumps(rows[-1]), flush=True)
     if args.json:
         with open(args.json, "a") as fh:

@@ -123,7 +123,7 @@ def measure(name: str, scales, device, resolution: int, offsets=(None,), files=N
     rows = [dict(pair=name, cage="artist", asked=artist.n_handles, handles=artist.n_handles, seconds=None,
                  inside=float(held.mean()), crossing=0, mean_distance=None, max_distance=None,
                  volume_between=(artist_volume - mesh_volume) / mesh_volume, rms=artist_rms, max=artist_max,
-                 pu=reference.stats["partition_of_unity_error"], lp=reference.stats["linear_precision_error"],
+                 pu=reference.stats.partition_of_unity_error, lp=reference.stats.linear_precision_error,
                  reduction=1 - artist.n_handles / len(mesh.vertices), moved=float(
                      np.linalg.norm(targets - mesh.vertices, axis=2).max() / diag))]
     for scale, offset in [(scale, offset) for scale in scales for offset in offsets]:
@@ -143,7 +143,7 @@ def measure(name: str, scales, device, resolution: int, offsets=(None,), files=N
                          crossing=int(len(crossing_faces(cage.vertices, cage.faces))),
                          mean_distance=made.distance[0], max_distance=made.distance[1],
                          volume_between=(cage_volume - mesh_volume) / mesh_volume, rms=rms, max=worst,
-                         pu=binding.stats["partition_of_unity_error"], lp=binding.stats["linear_precision_error"],
+                         pu=binding.stats.partition_of_unity_error, lp=binding.stats.linear_precision_error,
                          reduction=1 - cage.n_handles / len(mesh.vertices), notes=made.notes))
         print(f"{name} {label}: {made.summary()}", file=sys.stderr, flush=True)
     return rows
@@ -180,7 +180,7 @@ def meshes(paths, handles, device, resolution: int) -> list[dict]:
                          seconds=seconds, inside=float(inside.mean()),
                          crossing=int(len(crossing_faces(made.cage.vertices, made.cage.faces))),
                          mean_distance=made.distance[0], max_distance=made.distance[1],
-                         pu=binding.stats["partition_of_unity_error"], lp=binding.stats["linear_precision_error"],
+                         pu=binding.stats.partition_of_unity_error, lp=binding.stats.linear_precision_error,
                          notes=made.notes))
         print(f"{Path(path).name}: {made.summary()}", file=sys.stderr, flush=True)
     return rows
@@ -198,8 +198,8 @@ def synthetic(seeds, handles: int, device) -> list[dict]:
             binding = ws.bind(pair.cage, made.cage, resolution=32, device=device)
             rows.append(dict(shape=pair.name, seed=seed, handles=made.cage.n_handles, seconds=time.perf_counter() - t,
                              inside=float(inside.mean()), mean_distance=made.distance[0],
-                             max_distance=made.distance[1], pu=binding.stats["partition_of_unity_error"],
-                             lp=binding.stats["linear_precision_error"], notes=made.notes))
+                             max_distance=made.distance[1], pu=binding.stats.partition_of_unity_error,
+                             lp=binding.stats.linear_precision_error, notes=made.notes))
     return rows
 
 

@@ -118,13 +118,13 @@ def main(argv=None) -> int:
                 first = (seconds, binding.weights, threads)
             speedup = first[0] / seconds
             stats = binding.stats
-            spent = stats["seconds"]
-            print(table_row([args.pair, n, threads, stats["chunks"], f"{seconds:.2f}", f"{spent['voxelize']:.2f}",
+            spent = stats.seconds
+            print(table_row([args.pair, n, threads, stats.solver.chunks, f"{seconds:.2f}", f"{spent['voxelize']:.2f}",
                              f"{spent['setup']:.2f}", f"{spent['boundary']:.2f}", f"{spent['solve']:.2f}",
                              f"{spent['sample']:.2f}",
                              f"{speedup:.2f}", f"{speedup / (threads / first[2]):.0%}"]
-                            + ([f"{ceiling[threads]:.2f}"] if ceiling else []) + [stats["iterations"],
-                             f"{peak_bytes / 2**20:.0f}", f"{stats['memory_estimate_bytes'] / 2**20:.0f}",
+                            + ([f"{ceiling[threads]:.2f}"] if ceiling else []) + [stats.solver.iterations,
+                             f"{peak_bytes / 2**20:.0f}", f"{stats.memory_estimate_bytes / 2**20:.0f}",
                              f"{np.abs(binding.weights - first[1]).max():.1e}"]), flush=True)
     if args.kernels:
         for n in args.resolutions:
@@ -187,7 +187,7 @@ def kernel_table(mesh, cage, n: int, threads: int, rows: int = 16) -> None:
         seconds = time.perf_counter() - start
     finally:
         wp.launch = launch
-    stages = ", ".join(f"{k} {v:.2f}" for k, v in binding.stats["seconds"].items())
+    stages = ", ".join(f"{k} {v:.2f}" for k, v in binding.stats.seconds.items())
     print(f"\nn = {n}, {threads} thread(s): {seconds:.2f} s ({stages})")
     print(table_head(["kernel", "calls", "seconds", "ms a call"]))
     for key, total in spent.most_common(rows):

@@ -3,7 +3,7 @@
     python benchmarks/bench_host_memory.py --meshes arm ogre ogre:1 ogre:2 --resolution 48
 
 Each bind runs in a fresh process after a warm-up bind of the arm (kernels loaded); the peak is the growth of the
-process's maximum resident set size (``ru_maxrss``) over the bind, the estimate is ``stats["memory_estimate_bytes"]``
+process's maximum resident set size (``ru_maxrss``) over the bind, the estimate is ``stats.memory_estimate_bytes``
 (which on the CPU counts the host arrays: the grid's, the mesh's and all the weights). ``ogre:K`` is the ogre
 subdivided K times (each about 4x the vertices), inside the ogre's cage.
 """
@@ -50,7 +50,7 @@ def run_case(mesh: str, cage: str, resolution: int) -> dict:
         warnings.simplefilter("ignore")
         b = ws.bind(mesh, cage, resolution=resolution, device="cpu")
     return {"vertices": b.n_vertices, "handles": b.n_handles, "resolution": resolution,
-            "estimate": b.stats["memory_estimate_bytes"], "peak_growth": memory.bytes, "before": memory.before}
+            "estimate": b.stats.memory_estimate_bytes, "peak_growth": memory.bytes, "before": memory.before}
 
 
 def main(argv=None) -> int:

@@ -5,7 +5,7 @@
 Each cage is a latitude-longitude sphere of radius 1.2 (RINGSxSECTIONS: 2 + (RINGS - 1) SECTIONS handles, slivers at
 the poles) around an icosphere of radius 1 (642 vertices). Each bind runs in a fresh process after a warm-up bind of
 the arm (kernels loaded). Host peak = growth of the process's maximum resident set size over the bind; the
-estimate is ``stats["memory_estimate_bytes"]`` (on the CPU it counts the host arrays, the local data's normal
+estimate is ``stats.memory_estimate_bytes`` (on the CPU it counts the host arrays, the local data's normal
 derivatives among them: 8 bytes per cage face and handle). With ``--memory-gb`` the plan must keep to that budget.
 """
 
@@ -52,9 +52,9 @@ def run_case(mesh: str, cage: str, resolution: int, device: str, memory_gb: floa
     if wp.get_device(device).is_cuda:
         device_peak = b.stats.get("peak_memory_bytes")
     return {"handles": b.n_handles, "faces": len(b.cage_faces), "resolution": resolution, "device": device,
-            "seconds": b.stats["seconds"], "chunks": b.stats["chunks"], "iterations": b.stats["iterations"],
-            "estimate": b.stats["memory_estimate_bytes"], "host_peak": memory.bytes, "device_peak": device_peak,
-            "partition_of_unity_error": b.stats["partition_of_unity_error"]}
+            "seconds": b.stats.seconds, "chunks": b.stats.solver.chunks, "iterations": b.stats.solver.iterations,
+            "estimate": b.stats.memory_estimate_bytes, "host_peak": memory.bytes, "device_peak": device_peak,
+            "partition_of_unity_error": b.stats.partition_of_unity_error}
 
 
 def main(argv=None) -> int:

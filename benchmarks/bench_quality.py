@@ -166,16 +166,16 @@ def run(args) -> list:
                     warnings.simplefilter("ignore")
                     b = ws.bind(mesh, cage, resolution=n, device=args.device, method=method)
                 bound.append((n, b, time.perf_counter() - start, peak.bytes))
-                print(f"  {method} n = {n}: {bound[-1][2]:.2f} s, {b.stats['iterations']} iterations", file=sys.stderr,
+                print(f"  {method} n = {n}: {bound[-1][2]:.2f} s, {b.stats.solver.iterations} iterations", file=sys.stderr,
                       flush=True)
             for i, (n, b, seconds, peak_bytes) in enumerate(bound):
                 finer = bound[i + 1] if i + 1 < len(bound) else None
                 q = measure(pair, b.weights, args.device, None if finer is None else finer[1].weights, args.fraction)
                 rows.append({"pair": name, "method": method.capitalize(), "n": n,
                              "finer_n": None if finer is None else finer[0], "seconds": seconds,
-                             "peak_bytes": peak_bytes, "quality": q, "iterations": b.stats["iterations"],
-                             "partition_of_unity_error": b.stats["partition_of_unity_error"],
-                             "linear_precision_error": b.stats["linear_precision_error"]})
+                             "peak_bytes": peak_bytes, "quality": q, "iterations": b.stats.solver.iterations,
+                             "partition_of_unity_error": b.stats.partition_of_unity_error,
+                             "linear_precision_error": b.stats.linear_precision_error})
             del bound
     return rows
 

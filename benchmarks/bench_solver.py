@@ -141,7 +141,7 @@ def one(name, n, device, memory_budget=None):
 
     # tightly converged reference
     ref = ws.bind(mesh, cage, resolution=n, device=device, tol=1e-9, max_iterations=60)
-    out["ref_iterations"] = ref.stats["iterations"]
+    out["ref_iterations"] = ref.stats.solver.iterations
     out["error"] = float(np.abs(b.weights - ref.weights).max())
 
     if s["chunks"] == 1:

@@ -7,7 +7,7 @@ the fine-level sweeps are from the copy bandwidth, throughput of mixed assets, a
     python benchmarks/bench_speed.py --device cuda:0 --resolutions 256 --kernels 256   # and each solver kernel alone
 
 Tables (markdown): (1) per resolution: median wall of ``ws.bind`` over ``--repeats`` warm binds, its phases
-(``stats["seconds"]``), the GPU's busy time in one bind (``wp.timing``: kernels, copies, memsets), the ten kernels that
+(``stats.seconds``), the GPU's busy time in one bind (``wp.timing``: kernels, copies, memsets), the ten kernels that
 take longest, CG iterations, peak pool memory; the bandwidth limit: the bytes the fine-level stencil launches must
 move (one read of the input and one write of the output per launch, every handle column) over the measured
 device-to-device copy bandwidth; (2) throughput: mixed assets (the arm, SMPL, the ogre, round robin) bound one after
@@ -70,9 +70,9 @@ def profile(mesh, cage, resolution, device, repeats, bandwidth):
     for _ in range(repeats):
         binding, wall = bind_once(mesh, cage, resolution, device)
         walls.append(wall)
-    row = {"n": resolution, "wall": statistics.median(walls), "phases": binding.stats["seconds"],
-           "iterations": binding.stats["iterations"], "interior": binding.stats["interior_nodes"],
-           "handles": binding.stats["handles"], "chunks": binding.stats["chunks"]}
+    row = {"n": resolution, "wall": statistics.median(walls), "phases": binding.stats.seconds,
+           "iterations": binding.stats.solver.iterations, "interior": binding.stats.grid.interior_nodes,
+           "handles": binding.stats.handles, "chunks": binding.stats.solver.chunks}
     if not ws.resolve_device(device).is_cuda:
         return row, []
     with DevicePeak(device) as peak:
@@ -106,7 +106,7 @@ def kernel_limits(mesh, cage, resolution, device, bandwidth, columns):
     kernel is from its own limit. Rows: (kernel, level, nodes, ms, GB, limit ms, limit / time)."""
     from warp_stokes.kernels import cg as cg_kernels
     from warp_stokes.kernels import multigrid as mg_kernels
-    from warp_stokes.device import reduction_threads
+    from warp_stokes.device import Backend
     from warp_stokes.solver.operator import apply_operator, chebyshev_step
 
     with warnings.catch_warnings():
@@ -156,7 +156,7 @@ def kernel_limits(mesh, cage, resolution, device, bandwidth, columns):
                    2 * n * vec + coarse.n * vec)
             if depth == 0:
                 out = wp.zeros(columns, dtype=wp.float64)
-                threads = reduction_threads(n, columns, device)
+                threads = Backend.of(device).reduction_threads(n, columns)
                 record("CG dot products", 0, n,
                        lambda: wp.launch(cg_kernels.column_dots, dim=(threads, columns), inputs=[x, r, threads],
                                          outputs=[out]), 2 * n * vec)

@@ -39,13 +39,14 @@ def spread_bind(mesh, cage, resolution, on_cpu: bool, shares_per_device: int, de
     # K shares per device: the spread's own task with a share of a GPU each (a check, not a speed-up)
     original = spread.spread_columns
 
-    def shared(checked, points, res, names, **options):
+    def shared(checked, points, res, names, plan):
         task = ray.remote(spread._solve_share).options(num_cpus=0 if not on_cpu else 1,
                                                        num_gpus=0 if on_cpu else 1.0 / shares_per_device)
         parts = np.array_split(np.arange(checked.n_handles), count)
         start = time.perf_counter()
+        threads = max(1, plan.backend.threads // count) if on_cpu else None
         refs = [task.remote(checked, points, res, slice(int(s[0]), int(s[-1]) + 1), "cpu" if on_cpu else "cuda:0",
-                            options) for s in parts]
+                            threads, plan) for s in parts]
         return spread._gathered(ray.get(refs), time.perf_counter() - start)
 
     spread.spread_columns = shared
@@ -86,11 +87,11 @@ def main(argv=None) -> int:
             t = time.perf_counter()
             many = spread_bind(mesh, cage, n, on_cpu, args.shares, devices)
             wall = time.perf_counter() - t
-            s = many.stats["seconds"]
-            rows.append((n, one.stats["handles"], f"{one.stats['interior_nodes']:,}", f"{single:.2f}",
-                         len(many.stats["devices"]), f"{wall:.2f}", f"{wall / single:.2f}",
+            s = many.stats.seconds
+            rows.append((n, one.stats.handles, f"{one.stats.grid.interior_nodes:,}", f"{single:.2f}",
+                         len(many.stats.solver.devices), f"{wall:.2f}", f"{wall / single:.2f}",
                          f"{s['voxelize'] + s['setup']:.2f}", f"{s['solve']:.2f}", f"{s['spread']:.2f}",
-                         many.stats["iterations"], f"{np.abs(many.weights - one.weights).max():.1e}"))
+                         many.stats.solver.iterations, f"{np.abs(many.weights - one.weights).max():.1e}"))
     ray.shutdown()
     print()
     print(markdown_table(["n", "handles", "interior nodes", "one device s", "shares", "spread s", "ratio",

@@ -155,7 +155,7 @@ class DevicePeak:
         self.bytes = float("nan")
 
     def __enter__(self):
-        from warp_stokes.device import reset_peak_memory
+        from warp_stokes.memory import reset_peak_memory
 
         self._base = pool_used(self.device)
         if self._base is not None:

@@ -39,8 +39,8 @@ def probe(name: str, coarse: int, fine: int, device) -> None:
         per_vertex = change.max(axis=1)
         inside, distance = classify_points(cage, b[coarse].mesh_vertices, device=device)
         print(f"{name} {label}: max change {per_vertex.max():.3f}; p99 {np.percentile(per_vertex, 99):.4f}; vertices "
-              f"> 0.05: {(per_vertex > 0.05).sum()}; beyond the band {b[coarse].stats['vertices_beyond_band']} / "
-              f"{b[fine].stats['vertices_beyond_band']}")
+              f"> 0.05: {(per_vertex > 0.05).sum()}; beyond the band {b[coarse].stats.vertices_beyond_band} / "
+              f"{b[fine].stats.vertices_beyond_band}")
         for j in np.argsort(per_vertex)[::-1][:4]:
             h = int(change[j].argmax())
             print(f"   v{j}: change {per_vertex[j]:.3f} (handle {h}: {b[coarse].weights[j, h]:.3f} -> "

@@ -116,7 +116,7 @@ def test_a_solve_short_of_its_tolerance_is_written_and_one_without_exact_weights
     assert rc == 1 and strict["status"] == "not converged" and (out / "strict.npz").exists()
     assert strict["error"].startswith("the solver did not reach tol 1e-09") and strict["outputs"]
     assert "1 written without reaching the solver's tolerance" in captured.out
-    assert ws.load_binding(out / "strict.npz").stats["partition_of_unity_error"] <= 1e-6
+    assert ws.load_binding(out / "strict.npz").stats.partition_of_unity_error <= 1e-6
     # run again, it is redone and said so again (not skipped as up to date: exit code 0 would hide it)
     assert main(["batch", str(manifest), "-o", str(out), "--device", "cpu"]) == 1
     assert json.loads((out / "summary.json").read_text())["assets"][0]["status"] == "not converged"
@@ -239,7 +239,7 @@ def test_the_compile_notice_comes_once_the_folder_is_ours(manifest, tmp_path, mo
     import subprocess
     import sys
 
-    import warp_stokes.device as device
+    import warp_stokes.kernel_cache as device
 
     monkeypatch.setattr(device, "kernels_compiled", lambda d=None, modules=None: False)  # as on a fresh machine
     out = tmp_path / "out"

@@ -58,8 +58,8 @@ def test_workers_give_the_serial_batch_s_files_and_weights(tmp_path):
         b = ws.load_binding(tmp_path / "ray" / f"{name}.npz", device="cpu")
         np.testing.assert_allclose(b.weights, a.weights, atol=1e-6)
         # the cores shared out: a serial bind takes them all, each of 2 workers its half
-        assert a.stats["threads"] == min(ws.device.cpu_threads(), a.n_handles)
-        assert b.stats["threads"] == max(1, ws.device.cpu_threads() // 2)
+        assert a.stats.solver.threads == min(ws.threads.cpu_threads(), a.n_handles)
+        assert b.stats.solver.threads == max(1, ws.threads.cpu_threads() // 2)
     got, expected = summary(tmp_path / "ray"), summary(tmp_path / "serial")
     assert {k: v["status"] for k, v in got.items()} == {k: v["status"] for k, v in expected.items()}
     assert "not closed" in got["broken"]["error"]

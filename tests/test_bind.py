@@ -16,20 +16,20 @@ def test_partition_of_unity_and_linear_precision_on_real_pairs(name, bindings):
     cage = ws.check_cage(cage_path)
     w = b.weights.astype(np.float64)
     assert w.shape == (len(mesh.vertices), len(cage.vertices))
-    assert b.stats["converged"]
+    assert b.stats.converged
     # every vertex, including those outside the cage (the ogre has ~90)
     assert np.abs(w.sum(1) - 1).max() <= 1e-5
     assert np.linalg.norm(w @ cage.vertices - mesh.vertices, axis=1).max() <= 1e-5 * cage.diagonal
-    assert b.stats["partition_of_unity_error"] <= 1e-5 and b.stats["linear_precision_error"] <= 1e-5
+    assert b.stats.partition_of_unity_error <= 1e-5 and b.stats.linear_precision_error <= 1e-5
 
 
 def test_vertices_outside_the_cage_are_counted_and_weighted(bindings, device):
     b = bindings("ogre")
     mesh_path, cage_path = pair("ogre")
     inside, _ = ws.classify_points(ws.check_cage(cage_path), ws.load_surface(mesh_path).vertices, device=device)
-    assert b.stats["vertices_outside_cage"] == int((~inside).sum())
-    assert 60 <= b.stats["vertices_outside_cage"] <= 120  # MANIFEST.md: 90 of 26,155
-    assert b.stats["vertices_beyond_band"] == 0  # they are within 0.67% of the diagonal: inside the band
+    assert b.stats.vertices_outside_cage == int((~inside).sum())
+    assert 60 <= b.stats.vertices_outside_cage <= 120  # MANIFEST.md: 90 of 26,155
+    assert b.stats.vertices_beyond_band == 0  # they are within 0.67% of the diagonal: inside the band
 
 
 def test_vertex_beyond_the_band_gets_the_boundary_data_and_a_warning(arm_cage, device):
@@ -47,7 +47,7 @@ def test_vertex_beyond_the_band_gets_the_boundary_data_and_a_warning(arm_cage, d
     local = local_values(arm_cage, far[None], grid.spacing, device=device)[0]
     np.testing.assert_allclose(b.weights[-1], local, rtol=1e-5, atol=1e-6)
     assert abs(local.sum() - 1) < 1e-6 and np.linalg.norm(local @ arm_cage.vertices - far) < 1e-6 * arm_cage.diagonal
-    assert b.stats["vertices_beyond_band"] == 1
+    assert b.stats.vertices_beyond_band == 1
     with pytest.warns(UserWarning, match="beyond the grid's band"):
         b = ws.bind((vertices, None), arm_cage, resolution=16, device=device, boundary="mvc")
     mvc = ws.mean_value_coordinates(arm_cage, far[None], device=device)[0]
@@ -68,8 +68,8 @@ def test_weights_do_not_jump_where_the_band_ends(arm_cage, device):
             warnings.simplefilter("ignore")
             b = ws.bind((np.vstack([mesh.vertices, ray]), None), arm_cage, resolution=16, device=device)
         weights = b.weights[-len(ray):]
-        edge = len(ray) - b.stats["vertices_beyond_band"]
-        assert 0 < b.stats["vertices_beyond_band"] < len(ray) - 20
+        edge = len(ray) - b.stats.vertices_beyond_band
+        assert 0 < b.stats.vertices_beyond_band < len(ray) - 20
         assert np.abs(weights[edge] - weights[edge - 1]).max() < 0.2, face
 
 
@@ -107,7 +107,7 @@ def test_a_pair_far_from_the_origin_binds_as_at_it(arm_cage, device):
         home = ws.bind(mesh, arm_cage, resolution=16, device=device)
         away = ws.bind((mesh.vertices + shift, mesh.faces), (arm_cage.vertices + shift, arm_cage.faces),
                        resolution=16, device=device)
-    assert away.stats["linear_precision_error"] <= 1e-5 and away.stats["partition_of_unity_error"] <= 1e-5
+    assert away.stats.linear_precision_error <= 1e-5 and away.stats.partition_of_unity_error <= 1e-5
     np.testing.assert_allclose(away.weights, home.weights, rtol=0, atol=1e-6)
     # deformed in float32 coordinates: as exact as they can be there
     moved = away.deform(arm_cage.vertices + shift + [0.5, 0.0, 0.0])
@@ -172,8 +172,8 @@ def test_save_and_load_round_trip(bindings, tmp_path, device):
     back = ws.load_binding(path, device=device)
     np.testing.assert_array_equal(back.weights, b.weights)
     np.testing.assert_array_equal(back.cage_faces, b.cage_faces)
-    assert back.settings["resolution"] == 24 and back.stats["iterations"] == b.stats["iterations"]
-    assert back.settings["warp_version"] and json.dumps(back.stats)
+    assert back.settings["resolution"] == 24 and back.stats.solver.iterations == b.stats.solver.iterations
+    assert back.settings["warp_version"] and json.dumps(back.stats.record())
     pose = b.cage_vertices * 1.1
     # loaded on `device` (a kernel), bound on the CPU (BLAS): float32 sums in other orders, 8 eps of their size
     np.testing.assert_allclose(back.deform(pose), b.deform(pose), rtol=0,
@@ -228,9 +228,9 @@ def test_thin_features_are_detected_with_a_suggested_resolution(device):
     # the arm's fingers are thinner than two cells at resolution 16, not at 32
     with pytest.warns(UserWarning, match=r"mesh vertices lie in parts of the cage thinner .* resolution=\d+ would"):
         b = ws.bind(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", resolution=16, device=device)
-    assert b.stats["vertices_in_thin_features"] > 0
+    assert b.stats.vertices_in_thin_features > 0
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         b = ws.bind(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", resolution=32, device=device)
     assert not any("parts of the cage thinner" in str(w.message) for w in caught)  # (folded edges are still named)
-    assert b.stats["vertices_in_thin_features"] == 0
+    assert b.stats.vertices_in_thin_features == 0

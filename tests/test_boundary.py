@@ -200,5 +200,5 @@ def test_box_cages_bind_like_any_cage(subdivided, boundary, device):
     mesh = trimesh.creation.icosphere(subdivisions=2, radius=0.8)
     b = ws.bind((mesh.vertices, mesh.faces), (box.vertices, box.faces), resolution=24, device=device,
                 boundary=boundary)
-    assert b.stats["converged"] and b.stats["iterations"] <= 10
-    assert b.stats["partition_of_unity_error"] <= 1e-5 and b.stats["linear_precision_error"] <= 1e-5
+    assert b.stats.converged and b.stats.solver.iterations <= 10
+    assert b.stats.partition_of_unity_error <= 1e-5 and b.stats.linear_precision_error <= 1e-5

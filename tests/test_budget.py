@@ -32,7 +32,7 @@ MEASURE = textwrap.dedent(
         fh.write("5")  # reset the peak to the current resident size
     base = status("VmRSS")
     b = ws.bind(mesh, cage, resolution=n, device="cpu", threads=threads)
-    print(b.stats["threads"], b.stats["memory_estimate_bytes"], status("VmHWM") - base)
+    print(b.stats.solver.threads, b.stats.memory_estimate_bytes, status("VmHWM") - base)
     """
 )
 
@@ -82,12 +82,12 @@ def test_chunked_and_unchunked_solves_give_the_same_weights(arm_cage, device):
                           threads=1)
     # (on a CPU the multigrid's setup, a constant, may set the peak below 30 columns: the plan then fits more)
     planned = ws.plan_chunks(estimate, 58, budget, 24)
-    assert whole.stats["chunks"] == 1 and chunked.stats["chunks"] == len(planned) >= 2
-    assert chunked.stats["memory_estimate_bytes"] <= budget < whole.stats["memory_estimate_bytes"]
+    assert whole.stats.solver.chunks == 1 and chunked.stats.solver.chunks == len(planned) >= 2
+    assert chunked.stats.memory_estimate_bytes <= budget < whole.stats.memory_estimate_bytes
     np.testing.assert_allclose(chunked.weights, whole.weights, atol=1e-5)
-    assert chunked.stats["partition_of_unity_error"] <= 1e-5
+    assert chunked.stats.partition_of_unity_error <= 1e-5
     # each chunk ran the identity check (partition of unity, with the complement column)
-    assert chunked.stats["converged"] and 0 < chunked.stats["identity_error"] <= 1e-6
+    assert chunked.stats.converged and 0 < chunked.stats.solver.identity_error <= 1e-6
 
 
 def test_threads_solve_chunks_at_once_with_the_weights_of_one_thread(arm_cage):
@@ -98,10 +98,10 @@ def test_threads_solve_chunks_at_once_with_the_weights_of_one_thread(arm_cage):
         warnings.simplefilter("ignore")
         one = ws.bind(EXAMPLE / "arm.obj", arm_cage, resolution=24, device="cpu", threads=1)
         three = ws.bind(EXAMPLE / "arm.obj", arm_cage, resolution=24, device="cpu", threads=3)
-    assert (one.stats["threads"], one.stats["chunks"]) == (1, 1)
-    assert (three.stats["threads"], three.stats["chunks"]) == (3, 3)
+    assert (one.stats.solver.threads, one.stats.solver.chunks) == (1, 1)
+    assert (three.stats.solver.threads, three.stats.solver.chunks) == (3, 3)
     np.testing.assert_allclose(three.weights, one.weights, atol=1e-6)
-    assert three.stats["partition_of_unity_error"] <= 1e-5 and three.stats["converged"]
+    assert three.stats.partition_of_unity_error <= 1e-5 and three.stats.converged
     grid = ws.voxelize(arm_cage, 24, device="cpu")
     estimate = ws.estimate_memory(grid, one.n_vertices, levels=ws.coarsen(grid, "cpu"), device="cpu", n_handles=58,
                                   boundary_bytes=ws.geometry.local_data.local_data_bytes(arm_cage))
@@ -112,7 +112,7 @@ def test_threads_solve_chunks_at_once_with_the_weights_of_one_thread(arm_cage):
     lattice = start_lattice_nodes(grid, "local", "cpu")
     assert 0 < lattice < grid.n_interior + grid.n_ring
     table = 8 * (grid.n_interior + grid.n_ring + lattice) * 58
-    assert three.stats["memory_estimate_bytes"] == estimate.total(3 * 21, 3) + table > one.stats["memory_estimate_bytes"]
+    assert three.stats.memory_estimate_bytes == estimate.total(3 * 21, 3) + table > one.stats.memory_estimate_bytes
     # a smaller budget: smaller chunks taken in turn by the lanes, all of them at once within it
     budget = estimate.total(2 * 11, 2)
     chunks, lanes = ws.solver.budget.plan_lanes(estimate, 58, budget, 24, lanes=3)
@@ -234,7 +234,7 @@ def test_the_memory_budget_reaches_voxelisation(arm_cage, device):
 def test_a_containers_cpu_quota_caps_the_threads(tmp_path, monkeypatch):
     """A container limited to fewer CPUs than its affinity shows (docker --cpus): the quota, rounded up, caps the
     threads; cgroup v2's cpu.max (the tightest of the group and its parents), v1's CFS quota and period, none."""
-    from warp_stokes.device import cgroup_cpu_limit
+    from warp_stokes.threads import cgroup_cpu_limit
 
     def tree(files, membership):
         root = tmp_path / f"root{len(list(tmp_path.iterdir()))}"
@@ -256,10 +256,10 @@ def test_a_containers_cpu_quota_caps_the_threads(tmp_path, monkeypatch):
     assert cgroup_cpu_limit(str(tmp_path / "none"), str(tmp_path / "none")) is None
     # the bind's threads: the affinity within the quota
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: set(range(64)), raising=False)
-    monkeypatch.setattr(ws.device, "cgroup_cpu_limit", lambda: 2)
-    assert ws.device.cpu_threads() == 2 and ws.device.cpu_threads(5) == 5
-    monkeypatch.setattr(ws.device, "cgroup_cpu_limit", lambda: None)
-    assert ws.device.cpu_threads() == 64
+    monkeypatch.setattr(ws.threads, "cgroup_cpu_limit", lambda: 2)
+    assert ws.threads.cpu_threads() == 2 and ws.threads.cpu_threads(5) == 5
+    monkeypatch.setattr(ws.threads, "cgroup_cpu_limit", lambda: None)
+    assert ws.threads.cpu_threads() == 64
 
 
 def test_bench_cpu_threads_tabulates_threads_beside_the_memory_bandwidth():

@@ -95,8 +95,8 @@ def test_a_triangle_soup_cage_is_merged_and_binds_like_the_original(tmp_path):
                            str(out), "--resolution", "16", "--device", "cpu"], capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr
     b = ws.load_binding(out, device="cpu")
-    assert b.n_handles == 58 and b.stats["partition_of_unity_error"] <= 1e-5
-    assert b.stats["linear_precision_error"] <= 1e-5 and "merged into 58 handles" in b.settings["cage_handles"]
+    assert b.n_handles == 58 and b.stats.partition_of_unity_error <= 1e-5
+    assert b.stats.linear_precision_error <= 1e-5 and "merged into 58 handles" in b.settings["cage_handles"]
     assert np.array_equal(b.cage_source_index, cage.source_index)
 
     # a deformed STL with the same layout deforms the mesh like the deformed cage as OBJ

@@ -67,7 +67,7 @@ def test_an_unconverged_bind_exits_non_zero(tmp_path, capsys, device):
     captured = capsys.readouterr()
     assert rc == 1 and out.exists() and "NOT converged" in captured.out
     assert "the solver did not reach tol 1e-09" in captured.err and "float32 accuracy limit" in captured.err
-    assert ws.load_binding(out).stats["partition_of_unity_error"] <= 1e-6
+    assert ws.load_binding(out).stats.partition_of_unity_error <= 1e-6
 
 
 def test_a_recovered_solve_says_so_once(tmp_path):
@@ -90,7 +90,7 @@ def test_a_recovered_solve_says_so_once(tmp_path):
         notices = [line for line in proc.stderr.splitlines() if "the solver's" in line]
         assert len(notices) == 1 and notices[0].startswith("warning: the solver's multigrid preconditioner failed after "
                                                            "0 iterations (the preconditioner is not positive definite")
-        recoveries = ws.load_binding(out).stats["recoveries"]
+        recoveries = ws.load_binding(out).stats.solver.recoveries
         assert [e["next"] for e in recoveries] == ["multigrid with guaranteed smoother bounds"] * threads
 
 
@@ -116,7 +116,7 @@ def test_console_script_is_installed(tmp_path):
 def test_a_first_run_says_it_compiles_the_kernels(tmp_path, monkeypatch, capsys):
     import warp as wp
 
-    import warp_stokes.device as device
+    import warp_stokes.kernel_cache as device
 
     assert device.kernels_compiled("cpu")  # the suite has run kernels on the CPU by now
     empty = tmp_path / "cache"
@@ -144,7 +144,7 @@ def test_kernels_compiled_at_once_are_the_ones_the_launches_use(tmp_path, monkey
     included, and leaves out the GPU's patch walks on a CPU: the launches after it compile nothing more."""
     import warp as wp
 
-    import warp_stokes.device as device
+    import warp_stokes.kernel_cache as device
     from warp_stokes.kernels import stencil
     from warp_stokes.solver.operator import apply_operator, chebyshev_step
 
@@ -177,12 +177,12 @@ def test_kernels_compiled_at_once_are_the_ones_the_launches_use(tmp_path, monkey
 
 
 class FakeCuda:
-    """What device._warp_modules reads of a CUDA device."""
-    is_cpu = False
+    """What kernel_cache._warp_modules reads of a CUDA device."""
+    is_cpu, is_cuda = False, True
 
 
 def test_the_command_says_so_before_it_compiles(tmp_path, monkeypatch, capsys):
-    import warp_stokes.device as device
+    import warp_stokes.kernel_cache as device
 
     monkeypatch.setattr(device, "kernels_compiled", lambda d=None, modules=None: False)  # as on a fresh machine
     rc = main(["bind", str(EXAMPLE / "arm.obj"), str(EXAMPLE / "arm_cage.obj"), "-o", str(tmp_path / "a.npz"),

@@ -283,4 +283,4 @@ def test_a_mesh_float32_cannot_resolve_is_refused_by_its_size(tmp_path, scale, c
     made = ws.make_cage((ball.vertices * inside, ball.faces), handles=30, device="cpu")
     binding = ws.bind((ball.vertices * inside, ball.faces), made.cage, resolution=16, device="cpu")
     assert made.cage.n_handles == 30
-    assert binding.stats["partition_of_unity_error"] <= 1e-5 and binding.stats["linear_precision_error"] <= 1e-5
+    assert binding.stats.partition_of_unity_error <= 1e-5 and binding.stats.linear_precision_error <= 1e-5

@@ -20,10 +20,10 @@ def test_cpu_and_cuda_weights_agree(name):
         cpu = ws.bind(mesh, cage, resolution=24, device="cpu")
         gpu = ws.bind(mesh, cage, resolution=24, device="cuda:0")
     diff = np.abs(cpu.weights - gpu.weights).max()
-    print(f"{name}: max |w_cpu - w_cuda| = {diff:.2e}; iterations cpu {cpu.stats['iterations']}, "
-          f"cuda {gpu.stats['iterations']}")
-    assert cpu.stats["grid_shape"] == gpu.stats["grid_shape"]
-    assert cpu.stats["interior_nodes"] == gpu.stats["interior_nodes"]
+    print(f"{name}: max |w_cpu - w_cuda| = {diff:.2e}; iterations cpu {cpu.stats.solver.iterations}, "
+          f"cuda {gpu.stats.solver.iterations}")
+    assert cpu.stats.grid.shape == gpu.stats.grid.shape
+    assert cpu.stats.grid.interior_nodes == gpu.stats.grid.interior_nodes
     assert diff <= 1e-5
     pose = cpu.cage_vertices * 1.2 + 3.0
     # the weights' difference times the centred pose (deform sums w (c - centre)), and float32 sums of products
@@ -44,6 +44,6 @@ def test_a_threaded_cpu_bind_on_a_gpu_host_stays_on_the_cpu():
         warnings.simplefilter("ignore")
         one = ws.bind(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", resolution=24, device="cpu", threads=1)
         four = ws.bind(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", resolution=24, device="cpu", threads=4)
-    assert four.stats["threads"] == 4 and four.stats["device"] == "cpu"
+    assert four.stats.solver.threads == 4 and four.stats.device == "cpu"
     np.testing.assert_allclose(four.weights, one.weights, atol=1e-6)
     assert wp.get_device().is_cuda  # and the default is left as it was

@@ -106,12 +106,12 @@ def test_normal_derivatives_and_slopes_are_the_same_in_groups_of_faces(arm_cage,
     from warp_stokes.geometry import local_data
 
     monkeypatch.setattr(local_data, "_KEPT_DERIVATIVES", type(local_data._KEPT_DERIVATIVES)())
-    whole = local_data._normal_derivatives(arm_cage, settings, ws.device.resolve_device(device))
+    whole = local_data._normal_derivatives(arm_cage, settings, ws.device.Backend.of(device))
     slopes = local_data.data_slopes(arm_cage, settings, device)
     monkeypatch.setattr(local_data, "_KEPT_DERIVATIVES", type(local_data._KEPT_DERIVATIVES)())
     monkeypatch.setattr(local_data, "_KEPT_SLOPES", {})
     monkeypatch.setattr(local_data, "FACE_GROUP_HANDLES", 7 * arm_cage.n_handles)  # groups of 7 faces
-    grouped = local_data._normal_derivatives(arm_cage, settings, ws.device.resolve_device(device))
+    grouped = local_data._normal_derivatives(arm_cage, settings, ws.device.Backend.of(device))
     assert np.allclose(grouped, whole, rtol=0, atol=1e-13 * np.abs(whole).max())
     assert np.allclose(local_data.data_slopes(arm_cage, settings, device), slopes, rtol=1e-13, atol=0)
 
@@ -174,7 +174,7 @@ def test_local_data_decouples_parts_close_in_space_far_along_the_cage(device):
         warnings.simplefilter("ignore")
         for data in ("mvc", "local"):
             b = ws.bind((points, None), cage, resolution=40, device=device, boundary=data)
-            assert b.stats["converged"] and b.stats["linear_precision_error"] < 1e-5
+            assert b.stats.converged and b.stats.linear_precision_error < 1e-5
             share[data] = np.abs(b.weights[:, tips]).sum(axis=1).max()
     assert share["local"] < 0.7 * share["mvc"], share
 
@@ -210,7 +210,7 @@ def test_the_cage_check_notes_folded_edges_and_a_coarse_bind_warns_of_them(devic
     texts = [str(w.message) for w in caught if "folded edges" in str(w.message)]  # (and thin parts at 16)
     assert len(texts) == 1 and re.search(r"at resolution 16 the grid does not yet cut off .* from resolution (\d+) on"
                                          r".*give --resolution auto \(the default\) or more", texts[0]), texts
-    assert any("folds back" in w for w in b.stats["warnings"]) and texts[0] in b.stats["warnings"]
+    assert any("folds back" in w for w in b.stats.warnings) and texts[0] in b.stats.warnings
 
 
 def test_a_chunks_local_field_and_its_complement_sum_to_one(arm_cage, device):

@@ -46,8 +46,8 @@ def test_arm_open_mesh_binds_exactly(device):
     assert_valid(made, mesh.vertices, handles=58)
     assert made.distance[1] < 0.05  # tight: no vertex farther than 5 % of the diagonal from the cage
     binding = ws.bind(EXAMPLE / "arm.obj", made.cage, resolution=32, device=device)
-    assert binding.stats["partition_of_unity_error"] <= 1e-5
-    assert binding.stats["linear_precision_error"] <= 1e-5
+    assert binding.stats.partition_of_unity_error <= 1e-5
+    assert binding.stats.linear_precision_error <= 1e-5
 
 
 def test_pieces_get_their_own_shells():
@@ -303,7 +303,7 @@ def test_cli_usd_asset_named_prims(tmp_path):
                           capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr
     skin = ws.bind(EXAMPLE / "arm.usda", out, mesh_prims=["/Arm/Geo/Skin"], resolution=24, device="cpu")
-    assert skin.n_handles == 40 and skin.stats["partition_of_unity_error"] <= 1e-5
+    assert skin.n_handles == 40 and skin.stats.partition_of_unity_error <= 1e-5
     world = skin.mesh_vertices
     inside, _ = ws.classify_points(ws.check_cage(out), world, device="cpu")
     assert inside.all()
@@ -345,7 +345,7 @@ def test_cli_usd_asset_cage_as_a_prim_of_a_new_layer(tmp_path):
     assert proc.returncode == 0, proc.stderr
     binding = ws.load_binding(out)
     np.testing.assert_allclose(binding.cage_vertices, expected.vertices, atol=1e-4)
-    assert binding.stats["partition_of_unity_error"] <= 1e-5
+    assert binding.stats.partition_of_unity_error <= 1e-5
 
 
 @pytest.mark.parametrize("args, message", [
@@ -394,10 +394,10 @@ def test_bind_auto_makes_and_records_the_cage(tmp_path):
     cage_file = tmp_path / "arm.cage.obj"
     assert "made a cage of" in proc.stdout and str(cage_file) in proc.stdout
     binding = ws.load_binding(out)
-    record = binding.stats["made_cage"]
+    record = binding.stats.made_cage
     assert record["chosen"] and record["handles"] == binding.n_handles == len(ws.load_surface(cage_file).vertices)
     np.testing.assert_allclose(ws.load_surface(cage_file).vertices, binding.cage_vertices, atol=1e-6)
-    assert binding.stats["partition_of_unity_error"] <= 1e-5 and binding.stats["linear_precision_error"] <= 1e-5
+    assert binding.stats.partition_of_unity_error <= 1e-5 and binding.stats.linear_precision_error <= 1e-5
     with pytest.raises(ws.CageError, match="give one of them"):
         ws.bind(EXAMPLE / "arm.usda", "auto", cage_prim="/Arm/Rig/Cage")
     # the made cage's handles and offset, asked for; refused with a cage given
@@ -406,7 +406,7 @@ def test_bind_auto_makes_and_records_the_cage(tmp_path):
                            "--handles", "40", "--offset", "0.03", "-o", str(out), "--resolution", "16", "--device",
                            "cpu"], capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr
-    record = ws.load_binding(out).stats["made_cage"]
+    record = ws.load_binding(out).stats.made_cage
     assert (record["handles"], record["chosen"]) == (40, False) and len(ws.load_surface(tmp_path / "arm40.cage.obj")
                                                                          .vertices) == 40
     proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "bind", str(EXAMPLE / "arm.obj"),
@@ -417,7 +417,7 @@ def test_bind_auto_makes_and_records_the_cage(tmp_path):
     # a MadeCage itself, bound and recorded as "auto" is
     made = make_cage(EXAMPLE / "arm.obj", handles=36, device="cpu")
     binding = ws.bind(EXAMPLE / "arm.obj", made, resolution=16, device="cpu")
-    assert binding.n_handles == 36 and binding.stats["made_cage"]["handles_asked"] == 36
+    assert binding.n_handles == 36 and binding.stats.made_cage["handles_asked"] == 36
 
 
 def test_batch_manifest_cage_auto(tmp_path):
@@ -450,15 +450,15 @@ offset = 0.03
     assert "making a cage" in proc.stderr
     assert sorted(p.name for p in out.iterdir()) == ["arm.cage.obj", "arm.npz", "arm_40.cage.obj", "arm_40.npz",
                                                       "arm_usd.cage.obj", "arm_usd.npz", "summary.json"]
-    record = ws.load_binding(out / "arm_40.npz").stats["made_cage"]
+    record = ws.load_binding(out / "arm_40.npz").stats.made_cage
     assert (record["handles"], record["handles_asked"], record["chosen"]) == (40, 40, False)
     assert record["offset"] == pytest.approx(0.03 * bounding_diagonal(ws.load_surface(EXAMPLE / "arm.obj").vertices))
     for name in ("arm", "arm_usd", "arm_40"):
         binding = ws.load_binding(out / f"{name}.npz")
         read = trimesh.load(out / f"{name}.cage.obj", process=False)
-        assert read.is_watertight and read.volume > 0 and binding.stats["made_cage"]["chosen"] == (name != "arm_40")
+        assert read.is_watertight and read.volume > 0 and binding.stats.made_cage["chosen"] == (name != "arm_40")
         np.testing.assert_allclose(read.vertices, binding.cage_vertices, atol=1e-6)
-        assert binding.stats["partition_of_unity_error"] <= 1e-5
+        assert binding.stats.partition_of_unity_error <= 1e-5
     # the skin sits under a transform: its made cage is in world space, the same as the OBJ's around the same skin
     np.testing.assert_allclose(ws.load_binding(out / "arm_usd.npz").cage_vertices,
                                ws.load_binding(out / "arm.npz").cage_vertices, atol=1e-4)

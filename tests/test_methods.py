@@ -27,10 +27,10 @@ def test_every_method_gives_exact_cage_coordinates(bindings):
     cage = ws.check_cage(CAGE)
     for method, binding in bindings.items():
         w = binding.weights.astype(np.float64)
-        assert binding.settings["method"] == method and binding.stats["method"] == method
+        assert binding.settings["method"] == method and binding.stats.method == method
         assert np.abs(w.sum(axis=1) - 1).max() <= 1e-5, method
         assert np.linalg.norm(w @ cage.vertices - binding.mesh_vertices, axis=1).max() <= 1e-5 * cage.diagonal
-        assert binding.stats["converged"]
+        assert binding.stats.converged
     # three different fields
     for a, b in (("stokes", "harmonic"), ("stokes", "mvc"), ("harmonic", "mvc")):
         assert np.abs(bindings[a].weights - bindings[b].weights).max() > 1e-2, (a, b)
@@ -41,7 +41,7 @@ def test_mvc_binding_is_mean_value_coordinates_at_the_vertices(bindings):
     direct = ws.mean_value_coordinates(ws.check_cage(CAGE), binding.mesh_vertices, device="cpu")
     # the float64 coordinates stored as float32: one rounding (half an eps) of each
     assert np.abs(binding.weights - direct).max() <= float32_rounding(np.abs(direct).max(), 1)
-    assert binding.settings["resolution"] is None and binding.stats["grid_shape"] is None
+    assert binding.settings["resolution"] is None and binding.stats.grid is None and binding.stats.solver is None
     assert "mean value coordinates" in repr(binding)
 
 

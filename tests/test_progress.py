@@ -64,4 +64,4 @@ def test_the_python_callback_sees_every_stage_in_order():
         iterations = [info["iteration"] for s, info in seen if s == "solving" and info.get("chunk") == chunk]
         assert iterations == list(range(1, len(iterations) + 1))
     assert all(info["residual"] >= 0 for s, info in seen if s == "solving")
-    assert len(chunks) == (1 if ws.device.cpu_threads() == 1 else min(ws.device.cpu_threads(), 58))
+    assert len(chunks) == (1 if ws.threads.cpu_threads() == 1 else min(ws.threads.cpu_threads(), 58))

@@ -7,6 +7,7 @@ import pytest
 
 import warp_stokes as ws
 from conftest import EXAMPLE, one_error_line, warp_stokes
+from warp_stokes.binding.stats import ResolutionChoice
 from warp_stokes.geometry import grid as grid_module
 from warp_stokes.geometry import resolution as resolution_module
 
@@ -37,10 +38,10 @@ def test_the_bundled_example_binds_by_default_without_a_warning(tmp_path):
     assert f"resolution {needed}, auto: the cage's folded edges need {needed}" in proc.stdout
     b = ws.load_binding(tmp_path / "arm.npz", device="cpu")
     assert b.settings["resolution"] == needed
-    assert b.stats["resolution"] == {"requested": "auto", "chosen": needed, "needed": needed,
-                                     "cap": resolution_module.AUTO_RESOLUTION_CAP["cpu"]}
+    assert b.stats.resolution == ResolutionChoice("auto", chosen=needed, needed=needed,
+                                                  cap=resolution_module.AUTO_RESOLUTION_CAP["cpu"])
     # the fold is recorded as a note, not warned of
-    assert any("folds back on itself" in note for note in b.stats["warnings"])
+    assert any("folds back on itself" in note for note in b.stats.warnings)
 
 
 def test_a_capped_auto_resolution_warns_once_saying_what_to_give(monkeypatch):
@@ -52,7 +53,7 @@ def test_a_capped_auto_resolution_warns_once_saying_what_to_give(monkeypatch):
     folded = [str(w.message) for w in caught if "folded edges" in str(w.message)]
     assert len(folded) == 1
     assert f"resolution 'auto' stops at 24 on this device; give --resolution {needed}" in folded[0]
-    assert b.settings["resolution"] == 24 and b.stats["resolution"]["needed"] == needed
+    assert b.settings["resolution"] == 24 and b.stats.resolution.needed == needed
 
 
 def test_the_cap_is_the_solving_devices_and_advice_names_what_auto_cannot_reach(monkeypatch):
@@ -119,16 +120,16 @@ def test_auto_goes_finer_for_a_cage_too_thin_and_for_the_meshs_thin_parts(monkey
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         b = ws.bind(slab.mesh, slab.cage, device="cpu")
-    assert b.settings["resolution"] == b.stats["resolution"]["chosen"] == 64
-    assert b.stats["partition_of_unity_error"] < 1e-5
+    assert b.settings["resolution"] == b.stats.resolution.chosen == 64
+    assert b.stats.partition_of_unity_error < 1e-5
     neck = shapes.dumbbell_pair(0.1, rotation=None)
     with pytest.warns(UserWarning, match="thinner than about two grid cells at resolution 16"):
         ws.bind(neck.mesh, neck.cage, resolution=16, device="cpu")
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         b = ws.bind(neck.mesh, neck.cage, device="cpu")
-    choice = b.stats["resolution"]
-    assert 16 < choice["chosen"] == choice["thin_parts"] <= 64 and b.settings["resolution"] == choice["chosen"]
+    choice = b.stats.resolution
+    assert 16 < choice.chosen == choice.thin_parts <= 64 and b.settings["resolution"] == choice.chosen
     # beyond the cap: the error names a resolution to give
     with pytest.raises(ws.ResolutionError, match="no grid node lies inside the cage at resolution 64 .* try resolution 256"):
         ws.bind(shapes.slab_pair(0.01, rotation=None).mesh, shapes.slab_pair(0.01, rotation=None).cage, device="cpu")
@@ -161,16 +162,16 @@ def test_auto_binds_at_the_finest_grid_the_memory_budget_holds_and_says_so_once(
         b = ws.bind(mesh, arm_cage, device="cpu", memory_budget=budget)
     said = [str(w.message) for w in caught]
     assert len(said) == 1, said
-    choice = b.stats["resolution"]
-    assert 24 <= choice["chosen"] == choice["memory_fits"] == b.settings["resolution"] < 32
-    assert choice["needed"] == needed and choice["memory_budget_bytes"] == budget
-    assert _one_handle_bytes(arm_cage, len(mesh.vertices), choice["chosen"]) <= budget
-    assert b.stats["memory_estimate_bytes"] <= budget
-    assert (f"resolution 'auto' bound at {choice['chosen']}, the finest grid that fits the memory budget "
+    choice = b.stats.resolution
+    assert 24 <= choice.chosen == choice.memory_fits == b.settings["resolution"] < 32
+    assert choice.needed == needed and choice.memory_budget_bytes == budget
+    assert _one_handle_bytes(arm_cage, len(mesh.vertices), choice.chosen) <= budget
+    assert b.stats.memory_estimate_bytes <= budget
+    assert (f"resolution 'auto' bound at {choice.chosen}, the finest grid that fits the memory budget "
             f"({budget / 2**20:.1f} MiB); the cage asks for {needed} (its folded edges need resolution {needed})"
             in said[0] and "--memory-gb" in said[0])
-    assert said[0] in b.stats["warnings"]  # recorded with the binding
-    assert b.stats["partition_of_unity_error"] < 1e-5
+    assert said[0] in b.stats.warnings  # recorded with the binding
+    assert b.stats.partition_of_unity_error < 1e-5
     # no grid of 16 or more fits: the budget's own error, naming what would be needed
     with pytest.raises(ws.ResolutionError, match="memory budget"):
         ws.bind(mesh, arm_cage, device="cpu", memory_budget=_one_handle_bytes(arm_cage, len(mesh.vertices), 16) - 1)

@@ -102,7 +102,7 @@ def test_binds_sample_with_hermite_by_default_and_trilinear_on_request(tmp_path,
         warnings.simplefilter("ignore")
         hermite = ws.bind(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", resolution=16, device=device)
     assert hermite.settings["sampling"] == "hermite"
-    assert hermite.stats["partition_of_unity_error"] <= 1e-5 and hermite.stats["linear_precision_error"] <= 1e-5
+    assert hermite.stats.partition_of_unity_error <= 1e-5 and hermite.stats.linear_precision_error <= 1e-5
     out = tmp_path / "t.npz"
     # the command line's choice, as a user runs it: a subprocess, on the CPU whatever the device under test
     proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "bind", str(EXAMPLE / "arm.obj"),
@@ -111,7 +111,7 @@ def test_binds_sample_with_hermite_by_default_and_trilinear_on_request(tmp_path,
     assert proc.returncode == 0, proc.stderr
     trilinear = ws.load_binding(out, device=device)
     assert trilinear.settings["sampling"] == "trilinear"
-    assert trilinear.stats["partition_of_unity_error"] <= 1e-5
+    assert trilinear.stats.partition_of_unity_error <= 1e-5
     assert 1e-4 < np.abs(trilinear.weights - hermite.weights).max() < 0.5  # the same field, sampled two ways
     proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "bind", str(EXAMPLE / "arm.obj"),
                            str(EXAMPLE / "arm_cage.obj"), "-o", str(out), "--sampling", "cubic"],

@@ -458,12 +458,12 @@ def test_an_underestimated_smoother_bound_is_caught_and_the_bound_guaranteed(hea
         report = ws.solve_biharmonic(grid, ws.boundary_field(grid, arm_cage, device=device), device=device,
                                      handles=arm_cage.vertices, callback=lambda k, field: numbers.append(k))
     assert len(report.recoveries) == 1 and numbers == list(range(report.iterations + 1))
-    assert [(e["preconditioner"], e["next"]) for e in s["recoveries"]] == [
+    assert [(e["preconditioner"], e["next"]) for e in s.solver.recoveries] == [
         ("multigrid", "multigrid with guaranteed smoother bounds")]
     # which sign comes first (r^T M r < 0, growth, a residual not finite) depends on the order of float sums
     assert re.match(r"the preconditioner is not positive definite|the residual (grew|is not finite)",
-                    s["recoveries"][0]["fault"]), s["recoveries"]
-    assert s["converged"] and s["iterations"] <= 12 and s["preconditioners"] == [
+                    s.solver.recoveries[0]["fault"]), s.solver.recoveries
+    assert s.converged and s.solver.iterations <= 12 and s.solver.preconditioners == [
         "multigrid with guaranteed smoother bounds"]
     assert len(warned) == 1 and "went on with multigrid with guaranteed smoother bounds" in warned[0]
     assert np.abs(b.weights - healthy.weights).max() <= 1e-5
@@ -484,9 +484,9 @@ def test_a_singular_coarsest_inverse_falls_back_to_the_inverse_diagonal(healthy,
     monkeypatch.setattr(multigrid, "coarsest_inverse", blown_up)
     b, warned = bind_arm(device)
     s = b.stats
-    assert [e["preconditioner"] for e in s["recoveries"]] == ["multigrid", "multigrid with guaranteed smoother bounds"]
-    assert s["preconditioners"] == ["jacobi"] and s["converged"] and len(warned) == 2
-    assert max(s["partition_of_unity_error"], s["linear_precision_error"]) <= 1e-5
+    assert [e["preconditioner"] for e in s.solver.recoveries] == ["multigrid", "multigrid with guaranteed smoother bounds"]
+    assert s.solver.preconditioners == ["jacobi"] and s.converged and len(warned) == 2
+    assert max(s.partition_of_unity_error, s.linear_precision_error) <= 1e-5
     assert np.abs(b.weights - healthy.weights).max() <= 1e-5
 
 
@@ -496,9 +496,9 @@ def test_a_stagnating_preconditioner_is_caught(healthy, device, monkeypatch):
 
     monkeypatch.setattr(multigrid.Multigrid, "apply", lambda self, r, z: wp.copy(z, r))
     b, warned = bind_arm(device)
-    faults = [e["fault"] for e in b.stats["recoveries"]]
+    faults = [e["fault"] for e in b.stats.solver.recoveries]
     assert len(faults) == 2 and all(f.startswith("the residual stagnates") for f in faults), faults
-    assert b.stats["recoveries"][0]["iteration"] <= 30 and b.stats["converged"]
+    assert b.stats.solver.recoveries[0]["iteration"] <= 30 and b.stats.converged
     assert np.abs(b.weights - healthy.weights).max() <= 1e-5
 
 
@@ -529,11 +529,12 @@ def test_a_column_that_is_not_finite_is_restarted_alone(arm_cage, device):
     grid = ws.voxelize(arm_cage, 16, device=device)
     field = ws.boundary_field(grid, arm_cage, device=device)
     with wp.ScopedDevice(device):  # as the solve runs it (its vectors on its device, not the default one)
-        clean = BatchedCG(grid, wp.clone(field), None, ws.solver.solve._jacobi("biharmonic", device), device).start()
+        clean = BatchedCG(grid, wp.clone(field), None, ws.solver.solve._jacobi("biharmonic", ws.Backend.of(device)),
+                          ws.Backend.of(device)).start()
         data = field.numpy()
         data[: grid.n_interior, 7] = np.nan
         broken = BatchedCG(grid, wp.array(data, dtype=wp.vec4f, device=device), None,
-                           ws.solver.solve._jacobi("biharmonic", device), device)
+                           ws.solver.solve._jacobi("biharmonic", ws.Backend.of(device)), ws.Backend.of(device))
         rel = broken.start()
         assert np.isnan(rel[7]) and np.isfinite(np.delete(rel, 7)).all()
         np.testing.assert_allclose(np.delete(rel, 7), np.delete(clean, 7), rtol=1e-6)

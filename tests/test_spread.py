@@ -33,9 +33,10 @@ def test_device_lists_name_a_spread_bind():
 def test_a_bind_spread_over_two_workers_gives_the_weights_of_one_device():
     ray = pytest.importorskip("ray")
     from warp_stokes.binding.columns import grid_columns
+    from warp_stokes.binding.plan import GridPlan
 
     one = ws.bind(ARM, ARM_CAGE, resolution=20, device="cpu")
-    assert ws.bind(ARM, ARM_CAGE, resolution=12, device=["cpu"]).stats["device"] == "cpu"  # a list of one device
+    assert ws.bind(ARM, ARM_CAGE, resolution=12, device=["cpu"]).stats.device == "cpu"  # a list of one device
     ray.init(num_cpus=2, include_dashboard=False)  # a running cluster: the binds use it and leave it running
     try:
         two = ws.bind(ARM, ARM_CAGE, resolution=20, device=["cpu", "cpu"])
@@ -49,14 +50,14 @@ def test_a_bind_spread_over_two_workers_gives_the_weights_of_one_device():
         assert ray.is_initialized()
     finally:
         ray.shutdown()
-    shares = two.stats["devices"]
+    shares = two.stats.solver.devices
     assert [s["handles"] for s in shares] == [[0, 29], [29, 58]] and shares[0]["pid"] != shares[1]["pid"]
-    assert two.stats["chunks"] == 2 and two.stats["converged"] and two.stats["grid_shape"] == one.stats["grid_shape"]
-    assert two.stats["partition_of_unity_error"] < 1e-5 and two.stats["linear_precision_error"] < 1e-5
+    assert two.stats.solver.chunks == 2 and two.stats.converged and two.stats.grid.shape == one.stats.grid.shape
+    assert two.stats.partition_of_unity_error < 1e-5 and two.stats.linear_precision_error < 1e-5
     # the same numbers as the shares solved in this process, one after another; within the solver's tolerance of
     # the bind that solves all handles at once
     cage = ws.check_cage(ARM_CAGE)
-    here = [grid_columns(cage, one.mesh_vertices, 20, ws.resolve_device("cpu"), handles=slice(a, b)).weights
+    here = [grid_columns(cage, one.mesh_vertices, 20, GridPlan.of("cpu"), handles=slice(a, b)).weights
             for a, b in ([0, 29], [29, 58])]
     np.testing.assert_array_equal(two.weights, np.concatenate(here, axis=1))
     assert np.abs(two.weights - one.weights).max() < 1e-5
@@ -68,7 +69,7 @@ def test_the_command_spreads_a_bind_and_says_what_it_cannot(tmp_path):
     done = bind_command("-o", out, "--resolution", "16", "--device", "cpu,cpu")
     assert done.returncode == 0, done.stderr[-2000:]
     binding = ws.load_binding(out, device="cpu")
-    assert len(binding.stats["devices"]) == 2 and binding.stats["partition_of_unity_error"] < 1e-5
+    assert len(binding.stats.solver.devices) == 2 and binding.stats.partition_of_unity_error < 1e-5
     alone = ws.bind(ARM, ARM_CAGE, resolution=16, device="cpu")
     assert np.abs(binding.weights - alone.weights).max() < 1e-5
     # every GPU of a cluster that has none; a mixed list: one line each, exit 2, no file

@@ -51,8 +51,8 @@ def test_bind_many_prims_in_one_solve_in_world_space(asset):
     np.testing.assert_allclose(binding.mesh_vertices, np.concatenate([geometry["body"], geometry["band"]]),
                                atol=1e-5 * diagonal)  # world space: the prims' transforms applied
     np.testing.assert_allclose(binding.cage_vertices, geometry["poses"][0], atol=1e-5 * diagonal)
-    assert binding.stats["vertices_outside_cage"] == 0 and binding.stats["converged"]
-    assert binding.stats["linear_precision_error"] < 1e-5 and binding.stats["partition_of_unity_error"] < 1e-5
+    assert binding.stats.vertices_outside_cage == 0 and binding.stats.converged
+    assert binding.stats.linear_precision_error < 1e-5 and binding.stats.partition_of_unity_error < 1e-5
     assert binding.asset["path"] == os.path.abspath(path) and binding.asset["rest_time"] == TIMES[0]
     assert binding.settings["cage_prim"] == CAGE and binding.settings["mesh_prims"] == [BODY, BAND]
     assert binding.mesh_face_counts.tolist() == [3] * (len(binding.mesh_faces) - 12) + [4] * 6

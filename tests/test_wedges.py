@@ -67,8 +67,8 @@ def test_the_wedge_no_longer_couples_its_two_sides(resolution, monkeypatch):
     points, across = points_around_the_slit(rotation)
     b = ws.bind((points, None), cage, resolution=resolution, device="cpu")
     w = b.weights
-    assert b.stats["cut_off_nodes"] > 0 and b.stats["converged"]
-    assert b.stats["partition_of_unity_error"] < 1e-5 and b.stats["linear_precision_error"] < 1e-5
+    assert b.stats.grid.cut_off_nodes > 0 and b.stats.converged
+    assert b.stats.partition_of_unity_error < 1e-5 and b.stats.linear_precision_error < 1e-5
     # the +x lip's handles hold almost nothing across the slit, and no weight is far below zero
     assert np.abs(w[across][:, lip]).max() < 0.05
     assert w.min() > -0.08
@@ -85,7 +85,7 @@ def test_a_resolution_too_coarse_for_the_folded_edges_is_warned_of(arm_cage):
     mesh = ws.load_surface(EXAMPLE / "arm.obj")
     with pytest.warns(UserWarning, match=rf"at resolution 16 the grid does not yet cut off .* from resolution {needed}"):
         b = ws.bind(mesh, arm_cage, resolution=16, device="cpu")
-    assert any("does not yet cut off" in note for note in b.stats["warnings"])
+    assert any("does not yet cut off" in note for note in b.stats.warnings)
     # the cut needs the faces to span cells: a finer grid cuts off more nodes of the arm's wedges
     counts = [ws.voxelize(arm_cage, n, device="cpu").n_cut_off for n in (16, 48)]
     assert counts[0] < counts[1]
@@ -102,5 +102,5 @@ def test_bind_reports_the_cut_off_nodes(tmp_path):
                            "--device", "cpu"], capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr
     line = next(line for line in proc.stdout.splitlines() if line.startswith("nodes"))
-    count = ws.load_binding(tmp_path / "b.npz", device="cpu").stats["cut_off_nodes"]
+    count = ws.load_binding(tmp_path / "b.npz", device="cpu").stats.grid.cut_off_nodes
     assert count > 0 and f"({count} inside, cut off by thin wedges of the cage)" in line

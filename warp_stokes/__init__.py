@@ -21,7 +21,7 @@ __version__ = "0.2.0"
 # Warp, numpy or trimesh; `import warp_stokes as ws; ws.bind(...)` works as if they were imported here.
 _PUBLIC = {
     ".errors": ["WarpStokesError", "MeshError", "CageError", "BindingError", "ResolutionError", "ConvergenceError"],
-    ".device": ["resolve_device", "device_name"],
+    ".device": ["Backend", "resolve_device", "device_name"],
     ".io": ["Surface", "load_surface", "Poses", "load_poses", "write_animation"],
     ".geometry": ["Cage", "check_cage", "signed_volume", "Grid", "voxelize", "wedge_resolution", "grid_from_mask",
                   "classify_points", "LocalData", "COMPLEMENT_COLUMNS", "mean_value_coordinates", "boundary_field",
@@ -34,7 +34,8 @@ _PUBLIC = {
     ".batch": ["read_manifest", "run_batch"],
 }
 _HOME = {name: module for module, names in _PUBLIC.items() for name in names}
-_SUBPACKAGES = {"errors", "device", "io", "geometry", "solver", "binding", "quality", "batch", "cli", "kernels"}
+_SUBPACKAGES = {"errors", "device", "threads", "memory", "kernel_cache", "cluster", "io", "geometry", "solver",
+                "binding", "quality", "batch", "cli", "kernels"}
 
 __all__ = [
     "bind", "load_binding", "Binding",
@@ -44,7 +45,7 @@ __all__ = [
     "solve_biharmonic", "apply_operator", "SolveReport", "Multigrid", "coarsen",
     "sample_weights", "deform_vertices", "deformation_quality", "mean_value_quality",
     "MemoryEstimate", "estimate_memory", "available_memory", "plan_chunks",
-    "resolve_device", "device_name",
+    "Backend", "resolve_device", "device_name",
     "Poses", "load_poses", "write_animation", "inbetween", "read_manifest", "run_batch",
     "write_skin", "skin_weights", "skin_error", "SkinWeights", "SkinError", "SkinReport",
     "WarpStokesError", "MeshError", "CageError", "BindingError", "ResolutionError", "ConvergenceError",

@@ -26,7 +26,9 @@ import numpy as np
 
 from .binding import bind
 from .binding.stats import identity_errors
-from .device import BIND_MODULES, compile_kernels, device_name, reset_peak_memory, resolve_device
+from .device import Backend
+from .kernel_cache import BIND_MODULES, compile_kernels
+from .memory import reset_peak_memory
 from .errors import ConvergenceError, WarpStokesError
 from .geometry.cage import check_cage
 from .io.outputs import atomic_output
@@ -145,7 +147,8 @@ def sweep(mesh, cage, resolutions, methods=("stokes",), pose=None, device=None, 
     resolutions = sorted({int(r) for r in resolutions})
     if any(m != "mvc" for m in methods) and not resolutions:
         raise WarpStokesError("a sweep needs at least one resolution")
-    device = resolve_device(device)
+    backend = Backend.of(device)
+    device = backend.device
     surface, checked = load_surface(mesh), check_cage(cage)
     rows, weights = [], {method: {} for method in methods}
     # the kernels loaded before any row is measured: the first harmonic row's peak was the Laplace module's load
@@ -156,8 +159,8 @@ def sweep(mesh, cage, resolutions, methods=("stokes",), pose=None, device=None, 
             peak = _PeakMemory(device)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                binding = bind(surface, checked, device=device, method="mvc")
-            rows.append(_row("mvc", None, binding.weights, surface, checked, pose, binding.stats["seconds"]["total"],
+                binding = bind(surface, checked, device=backend, method="mvc")
+            rows.append(_row("mvc", None, binding.weights, surface, checked, pose, binding.stats.seconds["total"],
                              peak.bytes(), None, None))
             continue
         for resolution in resolutions:
@@ -166,7 +169,7 @@ def sweep(mesh, cage, resolutions, methods=("stokes",), pose=None, device=None, 
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 try:
-                    binding = bind(surface, checked, resolution=resolution, device=device, tol=tol, method=method,
+                    binding = bind(surface, checked, resolution=resolution, device=backend, tol=tol, method=method,
                                    threads=threads)
                 except ConvergenceError as exc:  # a row that says so; the sweep goes on
                     row = dict.fromkeys(COLUMNS)
@@ -178,8 +181,8 @@ def sweep(mesh, cage, resolutions, methods=("stokes",), pose=None, device=None, 
                     continue
             weights[method][resolution] = binding.weights
             rows.append(_row(method, resolution, binding.weights, surface, checked, pose,
-                             binding.stats["seconds"]["total"], peak.bytes(), binding.stats["memory_estimate_bytes"],
-                             binding.stats["iterations"]))
+                             binding.stats.seconds["total"], peak.bytes(), binding.stats.memory_estimate_bytes,
+                             binding.stats.solver.iterations))
     for row in rows:
         mine = weights[row["method"]]
         if mine and row["resolution"] != max(mine):
@@ -187,7 +190,7 @@ def sweep(mesh, cage, resolutions, methods=("stokes",), pose=None, device=None, 
             row["weight_diff_max"] = float(largest.max())
             row["weight_diff_rms"] = float(np.sqrt(np.mean(largest**2)))
     for row in rows:
-        row["device"] = device_name(device)
+        row["device"] = backend.name
     return rows
 
 

@@ -66,10 +66,12 @@ def _up_to_date(outputs: list[str], digest: str) -> bool:
         return False
     import numpy as np
 
+    from ..binding.stats import BindStats
+
     try:  # the batch's own output, not an input: read directly
         with np.load(outputs[0], allow_pickle=False) as data:
             meta = json.loads(str(data["meta"]))
-        recorded, converged = meta.get("batch_inputs"), meta["stats"].get("converged")
+        recorded, converged = meta.get("batch_inputs"), BindStats.from_record(meta["stats"]).converged
     except Exception:  # unreadable or not a binding: redo it
         return False
     return recorded == digest and converged is True
@@ -227,13 +229,13 @@ def _bind_asset(asset, outputs: list, device, progress, k: int, total: int, resu
                    mesh_prims=asset.mesh_prims, rest_time=asset.rest_time, threads=threads)
     result.vertices, result.handles = binding.n_vertices, binding.n_handles
     result.resolution = binding.settings["resolution"]  # the number "auto" chose
-    result.device = binding.stats["device"]
-    if not binding.stats["converged"]:  # exact weights (bind raises otherwise), a residual short of tol: written
+    result.device = binding.stats.device
+    if not binding.stats.converged:  # exact weights (bind raises otherwise), a residual short of tol: written
         stats = binding.stats
         result.status = "not converged"
-        result.error = (f"the solver did not reach tol {asset.tol:g} (relative residual {stats['residual']:.2g}); "
-                        f"partition of unity within {stats['partition_of_unity_error']:.2g}, linear precision within "
-                        f"{stats['linear_precision_error']:.2g} of the diagonal")
+        result.error = (f"the solver did not reach tol {asset.tol:g} (relative residual {stats.solver.residual:.2g}); "
+                        f"partition of unity within {stats.partition_of_unity_error:.2g}, linear precision within "
+                        f"{stats.linear_precision_error:.2g} of the diagonal")
     if asset.cage == MADE_CAGE:
         write_cage_file(made, binding.cage_vertices, binding.cage_faces)
     binding.batch_inputs = digest

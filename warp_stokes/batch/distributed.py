@@ -22,7 +22,8 @@ import os
 import signal
 import time
 
-from ..device import cpu_threads, require_ray, start_ray
+from ..cluster import require_ray, start_ray
+from ..threads import cpu_threads
 from ..io.outputs import remove_temporaries_of
 from .asset import Result, bind_one, digest_now, earlier_records, skipped, warn_for
 

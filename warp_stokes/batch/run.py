@@ -8,7 +8,7 @@ import os
 import sys
 
 from .. import __version__
-from ..device import BIND_MODULES, KERNEL_MODULES, announce_compilation
+from ..kernel_cache import BIND_MODULES, KERNEL_MODULES, announce_compilation
 from ..errors import WarpStokesError
 from ..io.inputs import InputSet, inputs_of
 from ..io.outputs import atomic_output, check_output_target, output_folder, remove_stale_temporaries
@@ -55,10 +55,10 @@ def run_batch(manifest, outdir, force: bool = False, device=None, progress=True,
         require_ray()  # before any work or file
     else:
         from ..binding.spread import spread_devices
-        from ..device import resolve_device
+        from ..device import Backend
 
         if spread_devices(device) is None:
-            device = resolve_device(device)  # a device this machine lacks: refused before the folder is made
+            device = Backend.of(device).device  # a device this machine lacks: refused before the folder is made
     inputs, unreadable = {}, {}
     for asset in assets:  # an asset whose inputs cannot be read fails alone, below
         try:

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..device import Backend
 from ..errors import CageError, MeshError
 from ..geometry.cage import Cage, check_cage
 from ..geometry.inside import classify_points
@@ -40,18 +41,18 @@ class Inputs:
     distance: np.ndarray
     sources: list
 
-    def binding(self, weights: np.ndarray, settings: dict, stats: dict, device) -> Binding:
+    def binding(self, weights: np.ndarray, settings: dict, stats, backend: Backend) -> Binding:
         """The Binding of ``weights`` at the vertices, with what it records of its inputs."""
         if self.made is not None:
-            stats["made_cage"] = made_cage_record(self.made)
+            stats.made_cage = made_cage_record(self.made)
         surface, cage = self.surface, self.cage
         return Binding(weights, cage.vertices, cage.faces, surface.vertices, surface.faces, settings, stats,
-                       device=device, mesh_normals=surface.normals, cage_source_index=cage.source_index,
+                       device=backend, mesh_normals=surface.normals, cage_source_index=cage.source_index,
                        mesh_polygons=surface.polygons(), mesh_uvs=surface.uvs, parts=parts_record(self.scene),
                        asset=asset_record(self.scene), sources=self.sources)
 
 
-def load_inputs(mesh, cage, cage_prim, mesh_prims, rest_time, device, threads, seconds: dict) -> Inputs:
+def load_inputs(mesh, cage, cage_prim, mesh_prims, rest_time, backend: Backend, seconds: dict) -> Inputs:
     """The first stage of a bind: a cage made for the mesh where asked ("auto" or a MadeCage), the mesh's scene
     (the cage's prim left out when it is one of the mesh's stage), the cage checked, and the vertices classified;
     a mesh mostly outside its cage refused. ``seconds`` gets "cage" and "load"."""
@@ -62,7 +63,7 @@ def load_inputs(mesh, cage, cage_prim, mesh_prims, rest_time, device, threads, s
         if cage_prim is not None:
             raise CageError(f"cage 'auto' and a cage prim ({cage_prim}): give one of them")
         if isinstance(cage, str):
-            cage = make_cage(load_scene(mesh, mesh_prims=mesh_prims, rest_time=rest_time).surface(), device=device)
+            cage = make_cage(load_scene(mesh, mesh_prims=mesh_prims, rest_time=rest_time).surface(), device=backend)
         made = cage
         cage = made.cage
         seconds["cage"] = sum(made.seconds.values())
@@ -78,7 +79,7 @@ def load_inputs(mesh, cage, cage_prim, mesh_prims, rest_time, device, threads, s
         checked: Cage = check_cage(cage)
     except CageError as error:
         raise _swapped_hint(error, cage, surface) from None
-    inside, distance = classify_points(checked, surface.vertices, device=device, threads=threads)
+    inside, distance = classify_points(checked, surface.vertices, device=backend)
     _refuse_mesh_outside(surface, checked, inside, distance)
     seconds["load"] = time.perf_counter() - t
     return Inputs(scene, surface, checked, made, inside, distance, _sources(mesh, cage_argument))

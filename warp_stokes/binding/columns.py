@@ -15,18 +15,18 @@ from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
-import warp as wp
 
 from ..geometry.boundary import (COMPLEMENT_COLUMNS, boundary_field, start_lattice_nodes, start_rows,
                                  start_values)
 from ..geometry.local_boundary import blend_table
-from ..geometry.local_data import boundary_settings, local_data_bytes
+from ..geometry.local_data import local_data_bytes
 from ..geometry.cage import Cage
 from ..geometry.grid import voxelize
-from ..device import BIND_MODULES, compile_kernels, cpu_threads
-from ..solver.budget import available_memory, chunk_columns, estimate_memory, plan_lanes
+from ..kernel_cache import BIND_MODULES, compile_kernels
+from ..solver.budget import chunk_columns, estimate_memory, plan_lanes
 from ..solver.multigrid import Multigrid, coarsen
 from ..solver.solve import solve_biharmonic
+from .plan import GridPlan
 from .sample import sample_weights
 
 __all__ = ["GridColumns", "GridSummary", "grid_columns"]
@@ -86,17 +86,14 @@ class GridColumns:
     warnings: list = field(default_factory=list)
 
 
-def grid_columns(checked: Cage, points: np.ndarray, resolution: int, device, handles: slice = slice(None),
-                 solver: str = "multigrid", tol: float = 1e-6, max_iterations: int | None = None, boundary="local",
-                 sampling: str = "hermite", memory_budget: int | None = None,
-                 equation: str = "biharmonic", progress=None, threads: int | None = None) -> GridColumns:
-    """Solve the handles ``handles`` of a checked cage on a grid at ``resolution`` on ``device`` and sample them at
-    ``points`` (arguments as in :func:`warp_stokes.bind`, the device resolved).
+def grid_columns(checked: Cage, points: np.ndarray, resolution: int, plan: GridPlan, handles: slice = slice(None),
+                 progress=None) -> GridColumns:
+    """Solve the handles ``handles`` of a checked cage on a grid at ``resolution`` as ``plan`` says and sample them at
+    ``points``.
 
     A range short of the whole cage is solved with the rest of the cage as one more column (as the chunks of a bind
     too large for memory are), so that every solve checks partition of unity. On a CPU the handles are solved in
-    chunks by ``threads`` threads at once (default: every core this process may use, :func:`cpu_threads`), each
-    chunk with that column, within the memory budget.
+    chunks by the backend's threads at once, each chunk with that column, within the memory budget.
 
     Returns
     -------
@@ -104,144 +101,181 @@ def grid_columns(checked: Cage, points: np.ndarray, resolution: int, device, han
 
     Examples
     --------
-    >>> part = grid_columns(cage, mesh_vertices, 32, device, handles=slice(0, 20))  # doctest: +SKIP
+    >>> part = grid_columns(cage, mesh_vertices, 32, GridPlan.of("cpu"), handles=slice(0, 20))  # doctest: +SKIP
     >>> part.weights.shape  # doctest: +SKIP
     (2089, 20)
     """
     first, stop, _ = handles.indices(checked.n_handles)
-    n_range = stop - first
-    partial = n_range < checked.n_handles
-    seconds = {}
     tell = progress or (lambda stage, **info: None)
+    seconds = {}
     t = time.perf_counter()
     tell("voxelising", resolution=resolution)
-    grid = voxelize(checked, resolution, device=device, memory_budget=memory_budget, boundary=boundary,
-                    threads=threads)
-    # the levels' sizes first (cheap), so that the plan counts the hierarchy before it is formed
-    levels = coarsen(grid, device) if solver == "multigrid" else None
-    estimate = estimate_memory(grid, len(points), preconditioner=solver, levels=levels, device=device,
-                               n_handles=n_range,
-                               boundary_bytes=(0, 0, 0) if boundary_settings(boundary) == "mvc" else local_data_bytes(checked))
-    budget = available_memory(device) if memory_budget is None else int(memory_budget)
-    # on a CPU, chunks solved at once by threads (Warp runs a CPU launch on the calling thread, without the GIL); a
-    # partial range always carries the rest-of-the-cage column: the plan has room for it
-    lanes = cpu_threads(threads) if wp.get_device(device).is_cpu else 1
-    # lanes share one table of every handle's starting values (each chunk's would cost the whole search), and while
-    # it is formed on a CPU the values at the nodes it is interpolated from
-    table = 8 * (start_rows(grid, boundary_settings(boundary))
-                 + start_lattice_nodes(grid, boundary_settings(boundary), device)) * checked.n_handles
-    chunks, lanes = plan_lanes(estimate, n_range, budget, resolution, lanes, name=checked.name, partial=partial,
-                               lane_table=table)
-    chunks = [slice(first + c.start, first + c.stop) for c in chunks]
+    grid = voxelize(checked, resolution, device=plan.backend, memory_budget=plan.memory_budget,
+                    boundary=plan.boundary)
+    layout = _chunk_layout(checked, grid, len(points), first, stop, plan)
     seconds["voxelize"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    if solver == "multigrid":
-        tell("multigrid", levels=len(levels))
-    preconditioner = (Multigrid(grid, device=device, levels=levels, equation=equation, threads=threads)
-                      if solver == "multigrid" else "jacobi")
-    wp.synchronize_device(device)
+    if plan.multigrid:
+        tell("multigrid", levels=len(layout.levels))
+    preconditioner = (Multigrid(grid, device=plan.backend, levels=layout.levels, equation=plan.equation)
+                      if plan.multigrid else "jacobi")
+    plan.backend.synchronize()
     seconds["setup"] = time.perf_counter() - t
 
-    weights = np.empty((len(points), n_range), dtype=np.float32)
-    complement = partial or len(chunks) > 1
-    starts = None
-    if lanes > 1:
+    rounds = _Rounds(checked, points, grid, plan, layout, preconditioner, tell)
+    if layout.lanes > 1:
         t = time.perf_counter()
-        tell("boundary data", threads=lanes)
-        # the modules the lanes launch, loaded here: Warp's module loading is not made for several threads at once
-        compile_kernels(device, modules=BIND_MODULES + (("laplace",) if equation == "laplace" else ()))
-        starts = start_values(grid, checked, device=device, threads=lanes, data=boundary)
-        if boundary_settings(boundary) != "mvc":  # the rows' blend of faces, formed on every thread before the lanes
-            blend_table(grid, checked, slice(grid.n_interior, grid.n_active), device, threads=lanes)
-        if solver == "multigrid":
-            preconditioner.coarse_inverse  # formed here: the lanes' views, made on their threads, share it
-        seconds["start_values"] = time.perf_counter() - t
-
-    lanes_own = threading.local()  # each lane's view of the multigrid (its work vectors and smoother bounds)
-    # set when the main thread leaves the rounds early (Ctrl-C, an error in another lane): the lanes then stop at their
-    # next iteration or stage, instead of the interrupt waiting for every running solve to finish
-    abandoned = threading.Event()
-
-    def lane_tell(stage: str, **info) -> None:
-        if abandoned.is_set():
-            raise _Abandoned
-        tell(stage, **info)
-
-    def part_of(k: int) -> dict:
-        return {"chunk": k + 1, "chunks": len(chunks)} if len(chunks) > 1 else {}
-
-    def form(k: int) -> tuple:
-        """Chunk k's field: the boundary data (a chunk carries the rest of the cage in one more column, so that
-        its solve checks partition of unity); and its seconds."""
-        t = time.perf_counter()
-        lane_tell("boundary data", **part_of(k))
-        field_ = boundary_field(grid, checked, device=device, handles=chunks[k], complement=complement,
-                                data=boundary, start=starts, threads=lanes)
-        wp.synchronize_device(device)
-        return field_, time.perf_counter() - t
-
-    def solve(k: int, field_):
-        """Chunk k's solve, on this thread's view of the multigrid; its report."""
-        mine = preconditioner
-        if lanes > 1 and solver == "multigrid":
-            if getattr(lanes_own, "multigrid", None) is None:
-                lanes_own.multigrid = preconditioner.lane()
-            mine = lanes_own.multigrid
-        return solve_biharmonic(
-            grid, field_, tol=tol, max_iterations=max_iterations, handles=checked.vertices,
-            chunk=chunks[k] if complement else None, preconditioner=mine, device=device, equation=equation,
-            progress=lambda iteration, residual: lane_tell("solving", iteration=iteration, residual=residual,
-                                                           **part_of(k)),
-        )
-
-    def sample(k: int, field_) -> tuple:
-        """Chunk k's weights at the vertices, into ``weights``; the cells' corners and the seconds."""
-        t = time.perf_counter()
-        lane_tell("sampling", **part_of(k))
-        chunk = chunks[k]
-        sampled_columns, corners = sample_weights(grid, field_, points, device=device, method=sampling)
-        weights[:, chunk.start - first: chunk.stop - first] = sampled_columns[:, : chunk.stop - chunk.start]
-        return corners, time.perf_counter() - t
-
-    # rounds of `lanes` chunks, each stage of a round on its threads at once: the lanes are in the same stage
-    # together, so that a bind's peak memory is the plan's (every lane in its largest stage) from run to run
-    reports, corners = [], None
-    seconds["boundary"] = seconds["solve"] = seconds["sample"] = 0.0
-    with contextlib.ExitStack() as stack:
-        if lanes > 1:
-            # Warp's default device is one for all threads, and each ScopedDevice restores the one it found: set
-            # here for the lanes, every lane's scope finds and restores the CPU (on a GPU host, a lane's array on the
-            # GPU was an illegal memory access)
-            stack.enter_context(wp.ScopedDevice(device))
-            pool = stack.enter_context(ThreadPoolExecutor(max_workers=lanes, thread_name_prefix="warp-stokes-chunk"))
-            run = pool.map
-        else:
-            run = map
-        # on the way out (the pool's shutdown waits for its running lanes), the lanes are told to stop
-        stack.callback(abandoned.set)
-        for first_k in range(0, len(chunks), lanes):
-            ks = range(first_k, min(first_k + lanes, len(chunks)))
-            formed = list(run(form, ks))
-            seconds["boundary"] += max(spent for _, spent in formed)
-            fields = [field_ for field_, _ in formed]
-            del formed
-            solved = list(run(solve, ks, fields))
-            seconds["solve"] += max(report.seconds for report in solved)
-            reports += solved
-            sampled = list(run(sample, ks, fields))
-            seconds["sample"] += max(spent for _, spent in sampled)
-            corners = sampled[-1][0]
-            del fields, sampled
-    seconds["boundary"] += seconds.pop("start_values", 0.0)
+        rounds.share_boundary_tables()
+        seconds["boundary"] = time.perf_counter() - t
+    weights, corners, reports = rounds.run(seconds)
     summary = GridSummary(grid.shape, grid.spacing, grid.resolution, grid.n_interior, grid.n_ring, grid.n_band,
                           grid.n_cut_off, grid.n_inside)
     return GridColumns(
         weights=weights, corners=corners, reports=reports, grid=summary,
-        levels=preconditioner.level_sizes if solver == "multigrid" else [grid.n_interior],
-        multigrid_seconds=preconditioner.seconds if solver == "multigrid" else {},
-        coarsest=preconditioner.coarsest if solver == "multigrid" else None, chunks=len(chunks), threads=lanes,
-        memory_estimate=estimate.total(lanes * chunk_columns(chunks)
-                                       + (COMPLEMENT_COLUMNS if partial and len(chunks) == 1 else 0), lanes)
-        + (table if lanes > 1 else 0),
-        seconds=seconds)
+        levels=preconditioner.level_sizes if plan.multigrid else [grid.n_interior],
+        multigrid_seconds=preconditioner.seconds if plan.multigrid else {},
+        coarsest=preconditioner.coarsest if plan.multigrid else None, chunks=len(layout.chunks),
+        threads=layout.lanes, memory_estimate=layout.memory_estimate, seconds=seconds)
+
+
+@dataclass
+class _ChunkLayout:
+    """The chunks of handles a range is solved in, and the threads (lanes) that solve them at once."""
+
+    chunks: list  # slices of the cage's handles
+    lanes: int
+    levels: list | None  # the multigrid's levels' sizes, formed before the plan counts them
+    memory_estimate: int  # bytes: the largest chunk on every lane at once, and the tables the lanes share
+    table: int  # bytes of the tables the lanes share
+    complement: bool  # whether each chunk carries the rest of the cage as one more column
+
+
+def _chunk_layout(checked: Cage, grid, n_points: int, first: int, stop: int, plan: GridPlan) -> _ChunkLayout:
+    """The chunks that fit the memory budget, and on a CPU how many are solved at once (Warp runs a CPU launch on
+    the calling thread, without the GIL). A partial range always carries the rest-of-the-cage column: the plan has
+    room for it."""
+    backend, n_range = plan.backend, stop - first
+    partial = n_range < checked.n_handles
+    # the levels' sizes first (cheap), so that the plan counts the hierarchy before it is formed
+    levels = coarsen(grid, backend) if plan.multigrid else None
+    estimate = estimate_memory(grid, n_points, preconditioner=plan.preconditioner, levels=levels, device=backend,
+                               n_handles=n_range,
+                               boundary_bytes=local_data_bytes(checked) if plan.local_data else (0, 0, 0))
+    # lanes share one table of every handle's starting values (each chunk's would cost the whole search), and while
+    # it is formed on a CPU the values at the nodes it is interpolated from
+    table = 8 * (start_rows(grid, plan.boundary) + start_lattice_nodes(grid, plan.boundary, backend)) * checked.n_handles
+    chunks, lanes = plan_lanes(estimate, n_range, plan.budget(), grid.resolution, backend.lanes(backend.threads),
+                               name=checked.name, partial=partial, lane_table=table)
+    chunks = [slice(first + c.start, first + c.stop) for c in chunks]
+    total = estimate.total(lanes * chunk_columns(chunks) + (COMPLEMENT_COLUMNS if partial and len(chunks) == 1 else 0),
+                           lanes) + (table if lanes > 1 else 0)
+    return _ChunkLayout(chunks, lanes, levels, total, table, partial or len(chunks) > 1)
+
+
+class _Rounds:
+    """The chunks' stages (boundary data, solve, sampling) in rounds of ``lanes`` chunks, each stage of a round on
+    its threads at once: the lanes are in the same stage together, so that a bind's peak memory is the plan's (every
+    lane in its largest stage) from run to run."""
+
+    def __init__(self, checked: Cage, points: np.ndarray, grid, plan: GridPlan, layout: _ChunkLayout,
+                 preconditioner, tell):
+        self.checked, self.points, self.grid, self.plan, self.layout = checked, points, grid, plan, layout
+        self.preconditioner, self.tell = preconditioner, tell
+        # the boundary data's backend: each field's blend and starting guess on as many threads as chunks run at once
+        self.backend = plan.backend.with_threads(layout.lanes)
+        self.first = layout.chunks[0].start
+        self.weights = np.empty((len(points), layout.chunks[-1].stop - self.first), dtype=np.float32)
+        self.starts = None
+        self.own = threading.local()  # each lane's view of the multigrid (its work vectors and smoother bounds)
+        # set when the main thread leaves the rounds early (Ctrl-C, an error in another lane): the lanes then stop at
+        # their next iteration or stage, instead of the interrupt waiting for every running solve to finish
+        self.abandoned = threading.Event()
+
+    def share_boundary_tables(self) -> None:
+        """Before the lanes: every handle's starting values, the rows' blend of faces and the coarsest inverse,
+        formed once on all threads and shared (the lanes' modules loaded here: Warp's module loading is not made for
+        several threads at once)."""
+        plan, grid, backend = self.plan, self.grid, self.backend
+        self.tell("boundary data", threads=self.layout.lanes)
+        compile_kernels(backend.device, modules=BIND_MODULES + (("laplace",) if plan.equation == "laplace" else ()))
+        self.starts = start_values(grid, self.checked, device=backend, data=plan.boundary)
+        if plan.local_data:
+            blend_table(grid, self.checked, slice(grid.n_interior, grid.n_active), backend)
+        if plan.multigrid:
+            self.preconditioner.coarse_inverse  # formed here: the lanes' views, made on their threads, share it
+
+    def _tell(self, stage: str, k: int, **info) -> None:
+        if self.abandoned.is_set():
+            raise _Abandoned
+        chunks = self.layout.chunks
+        self.tell(stage, **info, **({"chunk": k + 1, "chunks": len(chunks)} if len(chunks) > 1 else {}))
+
+    def form(self, k: int) -> tuple:
+        """Chunk k's field: the boundary data (a chunk carries the rest of the cage in one more column, so that
+        its solve checks partition of unity); and its seconds."""
+        t = time.perf_counter()
+        self._tell("boundary data", k)
+        field_ = boundary_field(self.grid, self.checked, device=self.backend, handles=self.layout.chunks[k],
+                                complement=self.layout.complement, data=self.plan.boundary, start=self.starts)
+        self.backend.synchronize()
+        return field_, time.perf_counter() - t
+
+    def solve(self, k: int, field_):
+        """Chunk k's solve, on this thread's view of the multigrid; its report."""
+        mine = self.preconditioner
+        if self.layout.lanes > 1 and self.plan.multigrid:
+            if getattr(self.own, "multigrid", None) is None:
+                self.own.multigrid = self.preconditioner.lane()
+            mine = self.own.multigrid
+        plan, chunk = self.plan, self.layout.chunks[k]
+        return solve_biharmonic(
+            self.grid, field_, tol=plan.tol, max_iterations=plan.max_iterations, handles=self.checked.vertices,
+            chunk=chunk if self.layout.complement else None, preconditioner=mine, device=plan.backend,
+            equation=plan.equation,
+            progress=lambda iteration, residual: self._tell("solving", k, iteration=iteration, residual=residual))
+
+    def sample(self, k: int, field_) -> tuple:
+        """Chunk k's weights at the vertices, into ``weights``; the cells' corners and the seconds."""
+        t = time.perf_counter()
+        self._tell("sampling", k)
+        chunk = self.layout.chunks[k]
+        columns, corners = sample_weights(self.grid, field_, self.points, device=self.plan.backend,
+                                          method=self.plan.sampling)
+        self.weights[:, chunk.start - self.first: chunk.stop - self.first] = columns[:, : chunk.stop - chunk.start]
+        return corners, time.perf_counter() - t
+
+    def run(self, seconds: dict) -> tuple:
+        """Every chunk's stages; the weights, the corners and the solve reports (``seconds`` gains each stage's
+        time, a round's slowest lane's)."""
+        lanes, chunks = self.layout.lanes, self.layout.chunks
+        reports, corners = [], None
+        for stage in ("boundary", "solve", "sample"):
+            seconds.setdefault(stage, 0.0)
+        with contextlib.ExitStack() as stack:
+            if lanes > 1:
+                # Warp's default device is one for all threads, and each ScopedDevice restores the one it found: set
+                # here for the lanes, every lane's scope finds and restores the CPU (on a GPU host, a lane's array
+                # on the GPU was an illegal memory access)
+                stack.enter_context(self.plan.backend.scope())
+                pool = stack.enter_context(ThreadPoolExecutor(max_workers=lanes,
+                                                              thread_name_prefix="warp-stokes-chunk"))
+                run = pool.map
+            else:
+                run = map
+            # on the way out (the pool's shutdown waits for its running lanes), the lanes are told to stop
+            stack.callback(self.abandoned.set)
+            for first_k in range(0, len(chunks), lanes):
+                ks = range(first_k, min(first_k + lanes, len(chunks)))
+                formed = list(run(self.form, ks))
+                seconds["boundary"] += max(spent for _, spent in formed)
+                fields = [field_ for field_, _ in formed]
+                del formed
+                solved = list(run(self.solve, ks, fields))
+                seconds["solve"] += max(report.seconds for report in solved)
+                reports += solved
+                sampled = list(run(self.sample, ks, fields))
+                seconds["sample"] += max(spent for _, spent in sampled)
+                corners = sampled[-1][0]
+                del fields, sampled
+        return self.weights, corners, reports

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from ..device import resolve_device
+from ..device import Backend
 from ..errors import WarpStokesError
 from ..kernels import deform
 
@@ -60,7 +60,7 @@ def deform_vertices(weights_t: wp.array, poses, device=None):
     ----------
     weights_t : wp.array2d(float32), (L, V): the transposed weights, on ``device``
     poses : (L, 3) or (F, L, 3) numpy array, or a Warp array of vec3 with shape (L,) or (F, L)
-    device : None | str
+    device : None | str | Backend
 
     Returns
     -------
@@ -72,13 +72,13 @@ def deform_vertices(weights_t: wp.array, poses, device=None):
     WarpStokesError
         When the poses do not have one position per handle.
     """
-    device = resolve_device(device)
+    backend = Backend.of(device)
     n_handles, n_vertices = weights_t.shape
     as_warp = isinstance(poses, wp.array)
     # poses are small (frames x handles): centring them in float64 on the host keeps float32 sums exact
     batch, single = _pose_batch(np.asarray(poses.numpy() if as_warp else poses, dtype=np.float64), n_handles)
     centres = batch.mean(axis=1)
-    with wp.ScopedDevice(device):
+    with backend.scope():
         out = wp.empty((len(batch), n_vertices), dtype=wp.vec3)
         wp.launch(
             deform.deform_vertices,

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from ..device import resolve_device
+from ..device import Backend
 from ..errors import WarpStokesError
 from ..geometry.topology import bounding_diagonal
 from ..io.poses import Poses
@@ -60,10 +60,10 @@ def normal_equations(weights: np.ndarray, positions: np.ndarray, device=None,
     array([[ 1.5,  3. ,  4.5],
            [ 7.5,  9. , 10.5]])
     """
-    device = resolve_device(device)
+    backend = Backend.of(device)
     weights = np.asarray(weights)
     positions = np.asarray(positions)
-    if not (device.is_cuda if kernels is None else kernels):
+    if not (backend.pick(cpu=False, gpu=True) if kernels is None else kernels):
         w = weights.astype(np.float64)
         return w.T @ w, np.matmul(w.T[None], positions.astype(np.float64)).transpose(1, 0, 2)
     n_vertices, n_handles = weights.shape
@@ -73,7 +73,7 @@ def normal_equations(weights: np.ndarray, positions: np.ndarray, device=None,
     centre = 0.5 * (positions[0].min(axis=0) + positions[0].max(axis=0)) if positions.size else np.zeros(3)
     column_sums = weights.sum(axis=0, dtype=np.float64)
     batch_frames = max(1, FRAME_BYTES // max(1, 24 * n_vertices))
-    with wp.ScopedDevice(device):
+    with backend.scope():
         w = wp.array(np.ascontiguousarray(weights, dtype=np.float32), dtype=wp.float32)
         gram = wp.zeros((n_handles, n_handles), dtype=wp.float64)
         wp.launch(encode.gram, dim=(blocks, n_handles, n_handles), inputs=[w, VERTEX_BLOCK], outputs=[gram])
@@ -115,7 +115,7 @@ def encode_poses(binding, frames: Poses, smoothness: float = 0.0, device=None) -
                               f"{binding.n_vertices} vertices")
     if not (np.isfinite(smoothness) and smoothness >= 0):
         raise WarpStokesError(f"smoothness must be a number >= 0, got {smoothness!r}")
-    gram, rhs = normal_equations(binding.weights, positions, binding.device if device is None else device)
+    gram, rhs = normal_equations(binding.weights, positions, binding.backend if device is None else device)
     n_frames = len(positions)
     if smoothness == 0 or n_frames < 2:
         solution = np.linalg.solve(gram, rhs.reshape(len(gram), -1)).reshape(rhs.shape)

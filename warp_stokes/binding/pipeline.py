@@ -12,27 +12,25 @@ import warnings
 
 import numpy as np
 
-from ..arguments import integer, number
-from ..device import available_memory, cpu_threads, memory_size, resolve_device
-from ..errors import ConvergenceError, ResolutionError, WarpStokesError
+from ..device import Backend
+from ..errors import ConvergenceError, ResolutionError
 from ..geometry import resolution as resolution_policy
 from ..geometry.cage import Cage
 from ..geometry.local_boundary import local_values
-from ..geometry.local_data import boundary_settings
 from ..geometry.mean_value import mean_value_coordinates
+from ..memory import memory_size
 from ..geometry.resolution import AUTO_RESOLUTION, auto_resolution, check_resolution, wedge_resolution
 from ..solver.solve import ACCEPTABLE
 from .bind_inputs import Inputs, load_inputs
 from .columns import grid_columns
-from .sample import SAMPLINGS
+from .plan import METHODS, GridPlan
 from .spread import driver_device, spread_devices
-from .stats import grid_stats, identity_errors, mvc_stats, settings_record, solver_stats
+from .stats import (BindStats, ResolutionChoice, grid_stats, identity_errors, mvc_stats, settings_record,
+                    solver_stats)
 from .store import Binding
 
 __all__ = ["bind", "identity_errors", "METHODS"]
 
-#: the coordinates ``bind`` computes: the equation each grid method solves, and None for MVC (no grid)
-METHODS = {"stokes": "biharmonic", "harmonic": "laplace", "mvc": None}
 #: vertices per block of mean value coordinates (float64 on the device, float32 in the weights)
 MVC_ROWS = 1 << 16
 #: resolution "auto" goes no coarser than this to fit the memory budget (the budget's error is raised instead)
@@ -64,13 +62,13 @@ def bind(mesh, cage=None, resolution="auto", device=None, tol: float = 1e-6, max
         A closed, consistently oriented cage (quads and polygons are triangulated). May be left out when
         ``cage_prim`` names the cage in the mesh's USD stage. ``"auto"``: a cage made for the mesh
         (:func:`warp_stokes.geometry.make_cage.make_cage`, its default handles and offset), recorded in
-        ``stats["made_cage"]``; the binding holds it (``cage_vertices``, ``cage_faces``). A ``MadeCage``
+        ``stats.made_cage``; the binding holds it (``cage_vertices``, ``cage_faces``). A ``MadeCage``
         (``make_cage(mesh, handles=200)``, say) is bound and recorded the same way.
     resolution : "auto" | int
         Grid cells along the cage's longest axis. "auto": 64, or more where the cage's folded edges need a finer
         grid to cut off the thin wedges of outside space there (:func:`warp_stokes.geometry.resolution.auto_resolution`),
         and more again where the cage is too thin for its grid or the mesh has parts thinner than two cells (bound
-        once more), at most 96 on a CPU and 256 on a GPU; the choice is in ``stats["resolution"]``.
+        once more), at most 96 on a CPU and 256 on a GPU; the choice is in ``stats.resolution``.
     device : None | str | list of str
         ``"cpu"``, ``"cuda"`` or ``"cuda:N"``; default CUDA when present, else CPU. Several devices (a list,
         ``"cuda:0,cuda:1"``, or ``"cuda:all"`` for every GPU of the Ray cluster) spread the handles' solves over
@@ -127,122 +125,112 @@ def bind(mesh, cage=None, resolution="auto", device=None, tol: float = 1e-6, max
     >>> b.weights.shape  # doctest: +SKIP
     (2089, 58)
     """
-    _check_arguments(tol, memory_budget, solver, boundary, sampling, method, max_iterations)
-    if threads is not None:
-        cpu_threads(threads)  # a bad number is refused before any work
-    resolution = check_resolution(resolution)  # arguments first: before the inputs are loaded and checked
     devices = spread_devices(device)  # several: the handles' solves spread over them (Ray tasks)
     if devices is None and isinstance(device, (list, tuple)):
         device = device[0]  # a list of one device
-    device = resolve_device(device if devices is None else driver_device(devices))
+    plan = GridPlan.of(device if devices is None else driver_device(devices), method, boundary, solver, tol,
+                       max_iterations, sampling, memory_budget, threads)
+    resolution = check_resolution(resolution)  # arguments first: before the inputs are loaded and checked
     seconds = {}
-    inputs = load_inputs(mesh, cage, cage_prim, mesh_prims, rest_time, device, threads, seconds)
-    choice = {"requested": resolution}
-    if resolution == "auto":
-        if progress is not None and method != "mvc":
-            progress("choosing the resolution")  # the local data, formed here first: seconds for thousands of handles
-        kind = None if devices is None else "cpu" if devices[0] == "cpu" else "cuda"
-        resolution, needed, cap = ((AUTO_RESOLUTION,) * 2 + (None,) if method == "mvc"
-                                   else auto_resolution(inputs.cage, boundary, device, kind))
-        choice.update(chosen=resolution, needed=needed, cap=cap)
-    settings = settings_record(resolution, tol, max_iterations, solver, boundary, sampling, inputs.surface,
-                               inputs.cage, inputs.scene, cage_prim, method)
-    if method == "mvc":
-        return _bind_by_mean_value(inputs, settings, device, seconds)
-    options = dict(solver=solver, tol=tol, max_iterations=max_iterations, boundary=boundary, sampling=sampling,
-                   memory_budget=memory_budget, equation=METHODS[method], threads=threads)
-    part, resolution = _solve_grid(inputs, resolution, choice, device, devices, options, progress, seconds)
+    inputs = load_inputs(mesh, cage, cage_prim, mesh_prims, rest_time, plan.backend, seconds)
+    choice = _choose_resolution(inputs, resolution, plan, devices, progress)
+    resolution = resolution if choice.chosen is None else choice.chosen
+    settings = settings_record(resolution, plan, inputs.surface, inputs.cage, inputs.scene, cage_prim)
+    if plan.equation is None:
+        return _bind_by_mean_value(inputs, settings, plan.backend, seconds)
+    part, resolution = _solve_grid(inputs, resolution, choice, plan, devices, progress, seconds)
     settings["resolution"] = resolution
-    return _finish_grid(inputs, part, resolution, choice, settings, method, solver, boundary, memory_budget, devices,
-                        device, seconds)
+    return _finish_grid(inputs, part, resolution, choice, settings, plan, seconds)
 
 
-def _bind_by_mean_value(inputs: Inputs, settings: dict, device, seconds: dict) -> Binding:
+def _choose_resolution(inputs: Inputs, resolution, plan: GridPlan, devices, progress) -> ResolutionChoice:
+    """What was ``requested`` and, for "auto", what it stands for on this cage and device (``chosen``, ``needed``,
+    ``cap``; the later stages refine it)."""
+    if resolution != "auto":
+        return ResolutionChoice(resolution)
+    if plan.equation is None:
+        return ResolutionChoice(resolution, AUTO_RESOLUTION, AUTO_RESOLUTION)
+    if progress is not None:
+        progress("choosing the resolution")  # the local data, formed here first: seconds for thousands of handles
+    kind = None if devices is None else "cpu" if devices[0] == "cpu" else "cuda"
+    return ResolutionChoice(resolution, *auto_resolution(inputs.cage, plan.boundary, plan.backend, kind))
+
+
+def _bind_by_mean_value(inputs: Inputs, settings: dict, backend: Backend, seconds: dict) -> Binding:
     """Mean value coordinates at the vertices: no grid, no solve."""
     points = inputs.surface.vertices
-    weights = _mean_value_weights(inputs.cage, points, device, seconds)
+    weights = _mean_value_weights(inputs.cage, points, backend, seconds)
     seconds["total"] = sum(seconds.values())
     pu_error, lp_error = identity_errors(weights, inputs.cage.vertices, points)
-    stats = mvc_stats(inputs.cage, inputs.surface, inputs.inside, device, pu_error, lp_error, seconds)
-    return inputs.binding(weights, settings, stats, device)
+    stats = mvc_stats(inputs.cage, inputs.surface, inputs.inside, backend, pu_error, lp_error, seconds)
+    return inputs.binding(weights, settings, stats, backend)
 
 
-def _solve_grid(inputs: Inputs, resolution: int, choice: dict, device, devices, options: dict, progress,
+def _solve_grid(inputs: Inputs, resolution: int, choice: ResolutionChoice, plan: GridPlan, devices, progress,
                 seconds: dict):
     """The grid part of a bind, on one device or spread over ``devices``: the columns at ``resolution`` and the
-    resolution they were solved at. Resolution "auto" (``choice`` has "chosen") tries finer where the cage is too
+    resolution they were solved at. Resolution "auto" (``choice.chosen`` set) tries finer where the cage is too
     thin for the grid or the mesh has parts the grid does not resolve, and coarser where the memory asks for it,
     and ``choice`` records what it chose."""
     checked, points = inputs.cage, inputs.surface.vertices
 
     def columns(resolution):
         if devices is None:
-            return grid_columns(checked, points, resolution, device, progress=progress, **options)
+            return grid_columns(checked, points, resolution, plan, progress=progress)
         from .spread import spread_columns
 
         if progress is not None:
             progress("spreading", devices=len(devices))
-        return spread_columns(checked, points, resolution, devices, **options)
+        return spread_columns(checked, points, resolution, devices, plan)
 
     part, resolution = _columns_for(columns, resolution, choice)
     thin = _thin_vertices(part.corners, part.grid, inputs.inside)
-    if "chosen" in choice and thin.any():
+    if choice.chosen is not None and thin.any():
         # "auto" resolves the mesh's thin parts too, within the cap and the memory: one more bind at what resolves them
         suggestion = _suggest_resolution(resolution, part.grid.spacing, inputs.distance[thin])
-        choice["needed"] = max(choice["needed"], suggestion)
-        finer = min(suggestion, choice["cap"], choice.get("memory_fits") or suggestion)
+        choice.needed = max(choice.needed, suggestion)
+        finer = min(suggestion, choice.cap, choice.memory_fits or suggestion)
         if finer > resolution:
             first = sum(part.seconds.values())
-            choice["thin_parts"] = suggestion
+            choice.thin_parts = suggestion
             try:
                 part, resolution = _columns_for(columns, finer, choice, floor=resolution)
             except ResolutionError:  # none finer fits the memory: the first bind stands
-                choice["memory_fits"] = resolution
+                choice.memory_fits = resolution
             else:
                 seconds["first_resolution"] = first
-            choice["chosen"] = resolution
+            choice.chosen = resolution
     return part, resolution
 
 
-def _finish_grid(inputs: Inputs, part, resolution: int, choice: dict, settings: dict, method: str, solver: str,
-                 boundary, memory_budget, devices, device, seconds: dict) -> Binding:
+def _finish_grid(inputs: Inputs, part, resolution: int, choice: ResolutionChoice, settings: dict, plan: GridPlan,
+                 seconds: dict) -> Binding:
     """The last stage of a grid bind: vertices beyond the grid's band given the boundary data, the warnings, the
     exactness of the weights checked (an inexact result is refused) and the stats."""
-    if "chosen" in choice and choice.get("memory_fits") is not None and resolution < choice["needed"]:
-        choice["memory_budget_bytes"] = int(memory_budget if memory_budget is not None else available_memory(device))
+    if choice.memory_fits is not None and resolution < choice.needed:
+        choice.memory_budget_bytes = plan.budget()
     seconds.update(part.seconds)
     checked, surface = inputs.cage, inputs.surface
     grid, weights, corners = part.grid, part.weights, part.corners
     t = time.perf_counter()
     notes, beyond, thin = _vertices_off_the_grid(surface, checked, grid, resolution, weights, corners, inputs.inside,
-                                                 inputs.distance, device, boundary, choice)
+                                                 inputs.distance, plan, choice)
     seconds["sample"] += time.perf_counter() - t
     seconds["total"] = sum(seconds.values())
     pu_error, lp_error = identity_errors(weights, checked.vertices, surface.vertices)
     _refuse_inexact(checked, surface, pu_error, lp_error, part.reports)
-    stats = {
-        **grid_stats(grid, checked, surface, inputs.inside, beyond, thin, device),
-        "method": method,
-        "solver": solver,
-        "levels": part.levels,
-        "multigrid_seconds": part.multigrid_seconds,
-        "chunks": part.chunks,
-        "threads": part.threads,
-        "memory_estimate_bytes": part.memory_estimate,
-        "resolution": choice,
-        **({} if devices is None else {"devices": part.devices}),
-        **solver_stats(part.reports, part.coarsest),
-        "partition_of_unity_error": pu_error,
-        "linear_precision_error": lp_error,
-        "seconds": seconds,
-        "warnings": notes,
-    }
-    return inputs.binding(weights, settings, stats, device)
+    stats = BindStats(
+        device=plan.backend.name, method=plan.method, handles=checked.n_handles, vertices=len(surface.vertices),
+        vertices_outside_cage=int((~inputs.inside).sum()), vertices_beyond_band=int(beyond.sum()),
+        vertices_in_thin_features=int(thin.sum()), grid=grid_stats(grid), resolution=choice,
+        solver=solver_stats(part, plan.preconditioner), memory_estimate_bytes=part.memory_estimate,
+        partition_of_unity_error=pu_error, linear_precision_error=lp_error, seconds=seconds, warnings=notes)
+    return inputs.binding(weights, settings, stats, plan.backend)
 
 
-def _columns_for(columns, resolution: int, choice: dict, floor: int = 0):
-    """``columns(resolution)``, and the resolution it was solved at. For resolution "auto" (``choice`` has
-    "chosen"), a grid the cage is too thin for is tried finer (within the cap and the memory), and one the memory
+def _columns_for(columns, resolution: int, choice: ResolutionChoice, floor: int = 0):
+    """``columns(resolution)``, and the resolution it was solved at. For resolution "auto" (``choice.chosen``
+    set), a grid the cage is too thin for is tried finer (within the cap and the memory), and one the memory
     budget cannot hold is tried coarser (down to :data:`AUTO_MEMORY_FLOOR`, and above ``floor``: a finer bind tried
     after one that worked never ends coarser than it); ``choice`` records what was chosen. Other resolution errors,
     and every one of an explicit resolution, are raised."""
@@ -250,19 +238,19 @@ def _columns_for(columns, resolution: int, choice: dict, floor: int = 0):
         try:
             return columns(resolution), resolution
         except ResolutionError as error:
-            if "chosen" not in choice:
+            if choice.chosen is None:
                 raise
-            limit = min(choice["cap"], choice.get("memory_fits") or choice["cap"])
+            limit = min(choice.cap, choice.memory_fits or choice.cap)
             finer = min(error.suggested or 0, limit)
             coarser = error.fits or 0
             if finer > resolution:
-                choice["needed"] = max(choice["needed"], error.suggested)
+                choice.needed = max(choice.needed, error.suggested)
                 resolution = finer
             elif max(AUTO_MEMORY_FLOOR, floor + 1) <= coarser < resolution:
-                resolution = choice["memory_fits"] = coarser
+                resolution = choice.memory_fits = coarser
             else:
                 raise
-            choice["chosen"] = resolution
+            choice.chosen = resolution
 
 
 def _thin_vertices(corners: np.ndarray, grid, inside: np.ndarray) -> np.ndarray:
@@ -272,30 +260,15 @@ def _thin_vertices(corners: np.ndarray, grid, inside: np.ndarray) -> np.ndarray:
     return inside & sampled & ~((corners >= 0) & (corners < grid.n_inside)).any(axis=1)
 
 
-def _mean_value_weights(checked: Cage, points: np.ndarray, device, seconds: dict) -> np.ndarray:
+def _mean_value_weights(checked: Cage, points: np.ndarray, backend: Backend, seconds: dict) -> np.ndarray:
     """Mean value coordinates at the vertices, in blocks of rows (float64 on the device, stored as float32)."""
     t = time.perf_counter()
     weights = np.empty((len(points), checked.n_handles), dtype=np.float32)
     for start in range(0, len(points), MVC_ROWS):
         block = slice(start, start + MVC_ROWS)
-        weights[block] = mean_value_coordinates(checked, points[block], device=device)
+        weights[block] = mean_value_coordinates(checked, points[block], device=backend)
     seconds["mvc"] = time.perf_counter() - t
     return weights
-
-
-def _check_arguments(tol, memory_budget, solver, boundary, sampling, method, max_iterations=None) -> None:
-    if method not in METHODS:
-        raise WarpStokesError(f"method must be 'stokes', 'harmonic' or 'mvc', got {method!r}")
-    number(tol, "tol", 0, 0.1, low_open=True)
-    if memory_budget is not None:
-        number(memory_budget, "memory_budget (bytes)", 0, low_open=True)
-    if max_iterations is not None:
-        integer(max_iterations, "max_iterations", 1)
-    if solver not in ("multigrid", "jacobi"):
-        raise WarpStokesError(f"solver must be 'multigrid' or 'jacobi', got {solver!r}")
-    boundary_settings(boundary)
-    if sampling not in SAMPLINGS:
-        raise WarpStokesError(f"sampling must be 'hermite' or 'trilinear', got {sampling!r}")
 
 
 def _refuse_inexact(checked: Cage, surface, pu_error: float, lp_error: float, reports) -> None:
@@ -313,7 +286,7 @@ def _refuse_inexact(checked: Cage, surface, pu_error: float, lp_error: float, re
 
 
 def _vertices_off_the_grid(surface, checked: Cage, grid, resolution: int, weights: np.ndarray, corners: np.ndarray,
-                           inside: np.ndarray, distance: np.ndarray, device, boundary="local", choice=None):
+                           inside: np.ndarray, distance: np.ndarray, plan: GridPlan, choice: ResolutionChoice):
     """Vertices beyond the grid's band get the boundary data at their own position (in ``weights``): the data
     their neighbours within the band are interpolated from, so that a vertex's weights do not jump when a finer
     grid's band no longer reaches it (MVC there against the local data within the band changed a weight of the
@@ -325,32 +298,32 @@ def _vertices_off_the_grid(surface, checked: Cage, grid, resolution: int, weight
     notes = list(checked.notes)  # what the user is warned of, kept in the stats
     if beyond.any():
         points = surface.vertices
-        if boundary == "mvc":
-            weights[beyond] = mean_value_coordinates(checked, points[beyond], device=device).astype(np.float32)
+        if plan.local_data:
+            weights[beyond] = local_values(checked, points[beyond], grid.spacing, plan.boundary,
+                                           plan.backend).astype(np.float32)
         else:
-            weights[beyond] = local_values(checked, points[beyond], grid.spacing, boundary_settings(boundary),
-                                           device).astype(np.float32)
+            weights[beyond] = mean_value_coordinates(checked, points[beyond], device=plan.backend).astype(np.float32)
         notes.append(
             f"{surface.name}: {int(beyond.sum())} vertices lie outside {checked.name} beyond the grid's band "
             f"(up to {distance[beyond].max():.3g} from the cage, {distance[beyond].max() / checked.diagonal:.3g} of its "
             "diagonal); they get the boundary data at their position")
         warnings.warn(notes[-1], stacklevel=4)
     thin = _thin_vertices(corners, grid, inside)
-    below = wedge_resolution(checked, boundary, device)
+    below = wedge_resolution(checked, plan.boundary, plan.backend)
     folded = below is not None and resolution < below
-    if (choice or {}).get("memory_budget_bytes"):
+    if choice.memory_budget_bytes:
         # "auto" stopped short for the memory: one warning says why and what to do
         reasons = [f"{int(thin.sum())} mesh vertices lie in parts thinner than two of its cells"] if thin.any() else []
         reasons += [f"its folded edges need resolution {below}"] if folded else []
         notes.append(
             f"{checked.name}: resolution 'auto' bound at {resolution}, the finest grid that fits the memory budget "
-            f"({memory_size(choice['memory_budget_bytes'])}); the cage asks for {choice['needed']}"
+            f"({memory_size(choice.memory_budget_bytes)}); the cage asks for {choice.needed}"
             + (f" ({'; '.join(reasons)})" if reasons else "")
             + ": give more memory (--memory-gb, memory_budget=) or bind on a device with more")
         warnings.warn(notes[-1], stacklevel=4)
         return notes, beyond, thin
     if thin.any():
-        capped = (choice or {}).get("cap")
+        capped = choice.cap
         suggestion = _suggest_resolution(resolution, grid.spacing, distance[thin])
         notes.append(
             f"{checked.name}: {int(thin.sum())} mesh vertices lie in parts of the cage thinner than about two grid "
@@ -359,9 +332,9 @@ def _vertices_off_the_grid(surface, checked: Cage, grid, resolution: int, weight
             + (f" (resolution 'auto' stops at {capped} on this device)" if capped and suggestion > capped else ""))
         warnings.warn(notes[-1], stacklevel=4)
     if folded:
-        capped = (choice or {}).get("cap")
+        capped = choice.cap
         caps = resolution_policy.AUTO_RESOLUTION_CAP
-        reachable = below <= caps["cpu" if resolve_device(device).is_cpu else "cuda"]
+        reachable = below <= caps[plan.backend.kind]
         advice = (f"resolution 'auto' stops at {capped} on this device; give --resolution {min(below, 2048)} "
                   "(resolution= in Python) for weights that converge there" if capped else
                   "give --resolution auto (the default) or more" if reachable else

@@ -75,6 +75,7 @@ def table(field: _Field) -> _Field:
 
 
 RECORD = _Field(lambda v: isinstance(v, dict), "a record")
+LIST = _Field(lambda v: isinstance(v, list), "a list")
 MATRIX = list_of(list_of(real(), 4), 4)
 
 #: the settings every binding of format 1 carries and the commands read; (field, required)
@@ -122,6 +123,52 @@ STATS = {
     "resolution": (RECORD, False),
     "made_cage": (RECORD, False),
 }
+#: the typed report of format 2 (:class:`warp_stokes.binding.stats.BindStats`): every field, nested records whole
+STATS_2 = {
+    "format": (integer(2, 2), True),
+    "device": (TEXT, True),
+    "method": (one_of("stokes", "harmonic", "mvc"), True),
+    "handles": (integer(1), True),
+    "vertices": (integer(0), True),
+    "vertices_outside_cage": (integer(0), True),
+    "vertices_beyond_band": (integer(0), True),
+    "vertices_in_thin_features": (integer(0), True),
+    "grid": (optional(RECORD), True),
+    "resolution": (optional(RECORD), True),
+    "solver": (optional(RECORD), True),
+    "memory_estimate_bytes": (integer(0), True),
+    "partition_of_unity_error": (real(0), True),
+    "linear_precision_error": (real(0), True),
+    "seconds": (table(real(0)), True),
+    "warnings": (list_of(TEXT), True),
+    "made_cage": (optional(RECORD), True),
+}
+GRID = {"shape": (list_of(integer(1), 3), True), "spacing": (real(0, low_open=True), True),
+        "interior_nodes": (integer(0), True), "ring_nodes": (integer(0), True), "cut_off_nodes": (integer(0), True),
+        "band_nodes": (integer(0), True)}
+RESOLUTION = {"requested": (_Field(lambda v: v == "auto" or _is_int(v), "'auto' or an integer"), True),
+              **{key: (optional(integer(1)), True) for key in ("chosen", "needed", "cap", "thin_parts",
+                                                                "memory_fits", "memory_budget_bytes")}}
+SOLVER = {
+    "preconditioner": (one_of("multigrid", "jacobi"), True),
+    "levels": (list_of(integer(0)), True),
+    "chunks": (integer(1), True),
+    "threads": (integer(1), True),
+    "iterations": (integer(0), True),
+    "restarts": (integer(0), True),
+    "rounds": (LIST, True),
+    "residual": (real(0), True),
+    "identity_error": (real(0), True),
+    "converged": (FLAG, True),
+    "chunk_iterations": (list_of(integer(0)), True),
+    "chunk_rounds": (list_of(LIST), True),
+    "preconditioners": (list_of(TEXT), True),
+    "recoveries": (list_of(RECORD), True),
+    "coarsest_operator": (optional(RECORD), True),
+    "multigrid_seconds": (RECORD, True),
+    "devices": (optional(list_of(RECORD)), True),
+}
+
 PART = {
     "path": (TEXT, True),
     "vertices": (integer(0), True),
@@ -191,7 +238,7 @@ def check_metadata(meta, path: str, n_vertices: int, n_handles: int) -> None:
         if unknown:
             raise BindingError(f"{path}: the binding's settings.boundary_settings has unknown fields "
                                f"{sorted(unknown)}")
-    _record(stats, STATS, "stats.", path)
+    _check_stats(stats, path)
     if stats["handles"] != n_handles or stats["vertices"] != n_vertices:
         raise BindingError(f"{path}: the binding's stats count {stats['vertices']} vertices and {stats['handles']} "
                            f"handles; its weights are of {n_vertices} vertices and {n_handles} handles")
@@ -201,3 +248,25 @@ def check_metadata(meta, path: str, n_vertices: int, n_handles: int) -> None:
         raise BindingError(f"{path}: the stored parts' vertex counts do not add up to the mesh's")
     if meta.get("asset") is not None:
         _record(meta["asset"], ASSET, "asset.", path)
+
+
+def _check_stats(stats: dict, path: str) -> None:
+    """A binding's stats: the flat record of format 1 (no ``format``), or the typed report of format 2, whole."""
+    if "format" not in stats:
+        _record(stats, STATS, "stats.", path)
+        return
+    if stats["format"] != 2:
+        raise BindingError(f"{path}: the binding's stats are of format {_short(stats['format'])}; this version of "
+                           "warp-stokes reads formats 1 and 2 (bind again, or update warp-stokes)")
+    _exactly(stats, STATS_2, "stats.", path)
+    for name, fields in (("grid", GRID), ("resolution", RESOLUTION), ("solver", SOLVER)):
+        if stats[name] is not None:
+            _exactly(stats[name], fields, f"stats.{name}.", path)
+
+
+def _exactly(value: dict, fields: dict, where: str, path: str) -> None:
+    """``value`` holds the fields of ``fields``, each checked, and no other."""
+    unknown = set(value) - set(fields)
+    if unknown:
+        raise BindingError(f"{path}: the binding's {where[:-1]} has unknown fields {sorted(unknown)}")
+    _record(value, fields, where, path)

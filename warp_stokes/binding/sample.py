@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from ..device import resolve_device
+from ..device import Backend
 from ..geometry.grid import Grid
 from ..kernels import sample
 
@@ -31,7 +31,7 @@ def sample_weights(grid: Grid, field: wp.array, points: np.ndarray, device=None,
     grid : Grid
     field : wp.array2d(vec4f), (grid.n_active, handles), the solved field
     points : (V, 3) array of absolute positions
-    device : None | str
+    device : None | str | Backend
     method : "hermite" | "trilinear"
 
     Returns
@@ -46,11 +46,11 @@ def sample_weights(grid: Grid, field: wp.array, points: np.ndarray, device=None,
     """
     if method not in SAMPLINGS:
         raise ValueError(f"sampling must be one of {SAMPLINGS}, got {method!r}")
-    device = resolve_device(device)
+    backend = Backend.of(device)
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     n_points, n_handles = len(points), field.shape[1]
-    arrays = grid.device_arrays(device)
-    with wp.ScopedDevice(device):
+    arrays = grid.device_arrays(backend)
+    with backend.scope():
         pts = wp.array(points - grid.centre, dtype=wp.vec3d)
         corners = wp.empty((n_points, 8), dtype=wp.int32)
         fractions = wp.empty(n_points, dtype=wp.vec3d)

@@ -24,9 +24,11 @@ import warnings
 
 import numpy as np
 
-from ..device import cpu_threads, device_name, require_ray, resolve_device, start_ray
+from ..cluster import require_ray, start_ray
+from ..device import Backend, device_name
 from ..errors import WarpStokesError
 from .columns import GridColumns, grid_columns
+from .plan import GridPlan
 
 __all__ = ["spread_devices", "driver_device", "spread_columns", "ALL_GPUS"]
 
@@ -81,7 +83,7 @@ def driver_device(devices) -> str | None:
     return "cpu" if devices[0] == "cpu" else None
 
 
-def spread_columns(checked, points: np.ndarray, resolution: int, devices: list[str], **options) -> GridColumns:
+def spread_columns(checked, points: np.ndarray, resolution: int, devices: list[str], plan: GridPlan) -> GridColumns:
     """The weights of all handles, their shares solved as Ray tasks on ``devices`` (see the module docstring).
 
     Parameters
@@ -90,7 +92,7 @@ def spread_columns(checked, points: np.ndarray, resolution: int, devices: list[s
     points : (V, 3) the mesh's vertices
     resolution : int
     devices : list of str, from :func:`spread_devices`
-    **options : what :func:`warp_stokes.binding.columns.grid_columns` takes (solver, tol, ... equation)
+    plan : GridPlan, the bind's (each share's on its own device; a CPU share on its part of the threads)
 
     Returns
     -------
@@ -116,12 +118,12 @@ def spread_columns(checked, points: np.ndarray, resolution: int, devices: list[s
             raise WarpStokesError(f"devices {','.join(devices)}: {count} GPUs named, the Ray cluster has {gpus}")
         shares = [s for s in np.array_split(np.arange(checked.n_handles), count) if len(s)]
         resources = {"num_cpus": 1, "num_gpus": 0} if on_cpu else {"num_cpus": 1, "num_gpus": 1}
-        if on_cpu:  # the shares run at once on this host's cores: each its part of the threads
-            options = {**options, "threads": max(1, cpu_threads(options.get("threads")) // len(shares))}
+        # the shares run at once: a CPU share on its part of this host's threads
+        threads = max(1, plan.backend.threads // len(shares)) if on_cpu else None
         task = ray.remote(_solve_share).options(**resources)
         start = time.perf_counter()
         refs = [task.remote(checked, points, resolution, slice(int(s[0]), int(s[-1]) + 1),
-                            "cpu" if on_cpu else "cuda:0", options) for s in shares]
+                            "cpu" if on_cpu else "cuda:0", threads, plan) for s in shares]
         try:
             parts = ray.get(refs)
         except ray.exceptions.RayTaskError as exc:  # the task's own error, not Ray's wrapping of it
@@ -142,14 +144,16 @@ def _first_line(exc) -> str:
     return (str(exc).strip().splitlines() or [""])[0]
 
 
-def _solve_share(checked, points, resolution: int, handles: slice, device: str, options: dict) -> GridColumns:
+def _solve_share(checked, points, resolution: int, handles: slice, device: str, threads: int | None,
+                 plan: GridPlan) -> GridColumns:
     """One share of the handles, in a Ray worker process; what it warned of travels back with it."""
     import ray
 
-    resolved = resolve_device(device)
+    plan = plan.on(Backend.of(device, threads))  # a new process: its own device
+    resolved = plan.backend.device
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        part = grid_columns(checked, points, resolution, resolved, handles=handles, **options)
+        part = grid_columns(checked, points, resolution, plan, handles=handles)
     part.warnings = list(dict.fromkeys(str(w.message) for w in caught))
     # the GPUs Ray gave the task: its "cuda:0" is the first of them (CUDA_VISIBLE_DEVICES)
     gpus = [str(g) for g in ray.get_gpu_ids()] if resolved.is_cuda else []

@@ -11,7 +11,7 @@ import numpy as np
 import warp as wp
 
 from .. import __version__
-from ..device import resolve_device
+from ..device import Backend
 from ..errors import BindingError, WarpStokesError
 from ..io.door import read_numpy
 from ..io.outputs import atomic_output
@@ -19,6 +19,7 @@ from ..io.load import Surface, load_surface
 from ..io.poses import pose_vertices
 from .deform import deform_on_host, deform_vertices
 from .record import check_metadata
+from .stats import BindStats
 
 __all__ = ["Binding", "load_binding", "fingerprint", "FORMAT"]
 
@@ -52,7 +53,7 @@ class Binding:
     asset : dict or None, for a binding of a USD asset: ``path`` (absolute, at bind time), ``up_axis``,
         ``meters_per_unit``, ``default_prim``, ``time_codes_per_second`` and ``rest_time``
     settings : dict of the grid and solver settings used
-    stats : dict of what binding measured (grid shape, node counts, iterations, residual, errors, timings)
+    stats : BindStats, what the bind measured (or its record, as a binding file holds it)
     sources : list of str, the files it was bound from (real paths: the mesh's and the cage's, each USD file's
         whole layer stack): a command's output never replaces one of them
     batch_inputs : str or None, for a binding a batch wrote: the digest of the asset's inputs and entry, which a
@@ -81,11 +82,16 @@ class Binding:
              "to_world": np.eye(4).tolist()}]
         self.asset = None if asset is None else dict(asset)
         self.settings = dict(settings)
-        self.stats = dict(stats)
+        self.stats = stats if isinstance(stats, BindStats) else BindStats.from_record(stats)
         self.sources = list(sources or [])
         self.batch_inputs = batch_inputs
-        self.device = resolve_device(device)
+        self.backend = Backend.of(device)
         self._weights_t = None
+
+    @property
+    def device(self):
+        """The Warp device ``deform`` runs on."""
+        return self.backend.device
 
     @property
     def n_vertices(self) -> int:
@@ -138,11 +144,12 @@ class Binding:
         )
         if is_cage:
             poses = self._check_topology(load_surface(poses))
-        if self.device.is_cpu and not isinstance(poses, wp.array):
+        if self.backend.on_cpu and not isinstance(poses, wp.array):
             return deform_on_host(self.weights, poses)
         if self._weights_t is None:
-            self._weights_t = wp.array(np.ascontiguousarray(self.weights.T), dtype=wp.float32, device=self.device)
-        return deform_vertices(self._weights_t, poses, device=self.device)
+            self._weights_t = wp.array(np.ascontiguousarray(self.weights.T), dtype=wp.float32,
+                                       device=self.backend.device)
+        return deform_vertices(self._weights_t, poses, device=self.backend)
 
     def save(self, path) -> None:
         """Write the binding to ``path`` (a .npz file), atomically: a temporary file renamed when complete.
@@ -156,7 +163,7 @@ class Binding:
             "format": FORMAT,
             "version": __version__,
             "settings": self.settings,
-            "stats": self.stats,
+            "stats": self.stats.record(),
             "cage_fingerprint": fingerprint(self.cage_vertices, self.cage_faces),
             "mesh_fingerprint": fingerprint(self.mesh_vertices, self.mesh_faces),
             "parts": self.parts,

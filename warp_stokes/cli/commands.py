@@ -12,61 +12,58 @@ __all__ = ["format_stats", "announce_compilation", "cage_command", "bind_command
 
 def _resolution_choice(choice) -> str:
     """"; resolution 70, auto: ..." for the bind's table; nothing for a number the user gave."""
-    if not isinstance(choice, dict) or choice.get("requested") != "auto" or "chosen" not in choice:
+    if choice is None or choice.requested != "auto" or choice.chosen is None:
         return ""
-    why = ("" if choice["needed"] <= choice["chosen"] and choice["chosen"] == 64 else
-           f": the cage's folded edges need {choice['needed']}"
-           + (f", capped at {choice['cap']} on this device" if choice["needed"] > choice["chosen"] else ""))
-    return f"; resolution {choice['chosen']}, auto{why}"
+    why = ("" if choice.needed <= choice.chosen and choice.chosen == 64 else
+           f": the cage's folded edges need {choice.needed}"
+           + (f", capped at {choice.cap} on this device" if choice.needed > choice.chosen else ""))
+    return f"; resolution {choice.chosen}, auto{why}"
 
 
-def format_stats(stats: dict) -> str:
-    """The stats of a binding as a short two-column table."""
-    sec = stats["seconds"]
-    if stats.get("method") == "mvc":  # no grid, no solve
+def format_stats(stats) -> str:
+    """A binding's stats (:class:`warp_stokes.binding.stats.BindStats`) as a short two-column table."""
+    seconds = ("seconds", ", ".join(f"{k} {v:.2f}" for k, v in stats.seconds.items()))
+    exactness = [("partition of unity", f"max |sum w - 1| = {stats.partition_of_unity_error:.2e}"),
+                 ("linear precision", f"max |W C - P| = {stats.linear_precision_error:.2e} x diagonal")]
+    if stats.grid is None:  # mean value coordinates: no grid, no solve
+        rows = [("device", stats.device), ("method", "mean value coordinates at the vertices (no grid)"),
+                ("handles", str(stats.handles)),
+                ("vertices", f"{stats.vertices} ({stats.vertices_outside_cage} outside the cage)"),
+                *exactness, seconds]
+    else:
+        grid, solver = stats.grid, stats.solver
         rows = [
-            ("device", stats["device"]),
-            ("method", "mean value coordinates at the vertices (no grid)"),
-            ("handles", str(stats["handles"])),
-            ("vertices", f"{stats['vertices']} ({stats['vertices_outside_cage']} outside the cage)"),
-            ("partition of unity", f"max |sum w - 1| = {stats['partition_of_unity_error']:.2e}"),
-            ("linear precision", f"max |W C - P| = {stats['linear_precision_error']:.2e} x diagonal"),
-            ("seconds", ", ".join(f"{k} {v:.2f}" for k, v in sec.items())),
+            ("device", stats.device),
+            ("method", {"harmonic": "harmonic coordinates (7-point Laplace)"}.get(
+                stats.method, "Stokes coordinates (biharmonic)")),
+            ("grid", " x ".join(str(s) for s in grid.shape) + f"  (h = {grid.spacing:.4g}"
+             + _resolution_choice(stats.resolution) + ")"),
+            ("nodes", f"{grid.interior_nodes} interior, {grid.ring_nodes} ring"
+             + (f" ({grid.cut_off_nodes} inside, cut off by thin wedges of the cage)" if grid.cut_off_nodes else "")
+             + f", {grid.band_nodes} band"),
+            ("handles", str(stats.handles)),
+            ("vertices", f"{stats.vertices} ({stats.vertices_outside_cage} outside the cage, "
+                         f"{stats.vertices_beyond_band} beyond the band)"),
+            ("solver", f"{solver.preconditioner}, {len(solver.levels)} level(s), {solver.chunks} chunk(s)"
+             + (f" on {solver.threads} threads" if solver.threads > 1 else "") + ", "
+             f"{solver.iterations} iterations, residual {solver.residual:.2e}, "
+             + ("converged" if solver.converged else "NOT converged")
+             + (f" (after {len(solver.recoveries)} fault(s) of its preconditioner, with "
+                f"{solver.preconditioners[-1]})" if solver.recoveries else "")),
+            ("memory", f"{stats.memory_estimate_bytes / 2**20:.0f} MiB (estimate)"),
+            *exactness, seconds,
         ]
-        width = max(len(k) for k, _ in rows)
-        return "\n".join(f"{k:<{width}}  {v}" for k, v in rows)
-    rows = [
-        ("device", stats["device"]),
-        ("method", {"harmonic": "harmonic coordinates (7-point Laplace)"}.get(stats.get("method"),
-                                                                              "Stokes coordinates (biharmonic)")),
-        ("grid", " x ".join(str(s) for s in stats["grid_shape"]) + f"  (h = {stats['spacing']:.4g}"
-                 + _resolution_choice(stats.get("resolution")) + ")"),
-        ("nodes", f"{stats['interior_nodes']} interior, {stats['ring_nodes']} ring"
-                  + (f" ({stats['cut_off_nodes']} inside, cut off by thin wedges of the cage)"
-                     if stats.get("cut_off_nodes") else "") + f", {stats['band_nodes']} band"),
-        ("handles", str(stats["handles"])),
-        ("vertices", f"{stats['vertices']} ({stats['vertices_outside_cage']} outside the cage, "
-                     f"{stats['vertices_beyond_band']} beyond the band)"),
-        ("solver", f"{stats['solver']}, {len(stats['levels'])} level(s), {stats['chunks']} chunk(s)"
-                   + (f" on {stats['threads']} threads" if stats.get("threads", 1) > 1 else "") + ", "
-                   f"{stats['iterations']} iterations, residual {stats['residual']:.2e}, "
-                   + ("converged" if stats["converged"] else "NOT converged")
-                   + (f" (after {len(stats['recoveries'])} fault(s) of its preconditioner, with "
-                      f"{stats['preconditioners'][-1]})" if stats.get("recoveries") else "")),
-        ("memory", f"{stats['memory_estimate_bytes'] / 2**20:.0f} MiB (estimate)"),
-        ("partition of unity", f"max |sum w - 1| = {stats['partition_of_unity_error']:.2e}"),
-        ("linear precision", f"max |W C - P| = {stats['linear_precision_error']:.2e} x diagonal"),
-        ("seconds", ", ".join(f"{k} {v:.2f}" for k, v in sec.items())),
-    ]
     width = max(len(k) for k, _ in rows)
     return "\n".join(f"{k:<{width}}  {v}" for k, v in rows)
 
 
 def announce_compilation(device, harmonic: bool = False) -> None:
-    """One line on stderr before a first run's kernel compilation (see :func:`warp_stokes.device.announce_compilation`)."""
-    from warp_stokes.device import announce_compilation as announce
+    """One line on stderr before a first run's kernel compilation (see
+    :func:`warp_stokes.kernel_cache.announce_compilation`)."""
+    from warp_stokes.device import Backend
+    from warp_stokes.kernel_cache import announce_compilation as announce
 
-    announce(device, harmonic=harmonic)
+    announce(Backend.of(device).device, harmonic=harmonic)
 
 
 def cage_command(args) -> int:
@@ -150,17 +147,17 @@ def bind_command(args) -> int:
         binding.save(args.output)
     print(format_stats(binding.stats))
     if made_cage is not None:
-        record = binding.stats["made_cage"]
+        record = binding.stats.made_cage
         print(f"made a cage of {record['handles']} handles: {made_cage}")
     if len(binding.parts) > 1:
         print(f"{len(binding.parts)} meshes: " + ", ".join(f"{p['path']} ({p['vertices']})" for p in binding.parts))
     print(f"wrote {args.output}")
-    if not binding.stats["converged"]:
+    if not binding.stats.converged:
         stats = binding.stats
         print(f"warp-stokes: error: the solver did not reach tol {args.tol:g} (relative residual "
-              f"{stats['residual']:.2g}); {args.output} holds weights with partition of unity within "
-              f"{stats['partition_of_unity_error']:.2g} and linear precision within "
-              f"{stats['linear_precision_error']:.2g} of the diagonal", file=sys.stderr)
+              f"{stats.solver.residual:.2g}); {args.output} holds weights with partition of unity within "
+              f"{stats.partition_of_unity_error:.2g} and linear precision within "
+              f"{stats.linear_precision_error:.2g} of the diagonal", file=sys.stderr)
         return 1
     return 0
 
@@ -286,7 +283,7 @@ def encode_command(args) -> int:
         else:
             write_cage_poses(args.output, binding.cage_vertices, binding.cage_faces, poses)
     if made:
-        record = binding.stats["made_cage"]
+        record = binding.stats.made_cage
         print(f"made a cage of {record['handles']} handles: {made[0]}; bound at n = "
               f"{binding.settings['resolution']}: {made[1]}")
     worst = int(np.argmax(rms))
@@ -328,14 +325,14 @@ def _bind_first_frame(args, cage_path: str, binding_path: str):
 
 
 def sweep_command(args) -> int:
-    from warp_stokes.device import resolve_device
+    from warp_stokes.device import Backend
     from warp_stokes.errors import WarpStokesError
     from warp_stokes.geometry.cage import check_cage
     from warp_stokes.io.inputs import inputs_of
     from warp_stokes.io.outputs import output_folder, writing
     from warp_stokes.sweep import format_sweep, plot_sweep, sweep, write_sweep
 
-    device = resolve_device(args.device)
+    device = Backend.of(args.device)
     names = ("sweep.csv", "sweep.json", "convergence.png", "cost.png")
     with output_folder(args.output) as folder, writing([os.path.join(folder, n) for n in names],
                                                        inputs_of(args.mesh, args.cage, args.pose)):

@@ -14,7 +14,7 @@ import warnings
 import numpy as np
 import warp as wp
 
-from ..device import in_threads, resolve_device
+from ..device import Backend
 from ..kernels import mvc, stencil
 from .cage import Cage
 from .grid import Grid
@@ -31,21 +31,22 @@ __all__ = ["mean_value_coordinates", "boundary_field", "COMPLEMENT_COLUMNS"]
 COMPLEMENT_COLUMNS = 1
 
 
-def _node_positions(grid: Grid, rows: int, device) -> wp.array:
+def _node_positions(grid: Grid, rows: int, backend: Backend) -> wp.array:
     """The first ``rows`` active nodes' positions relative to the grid's centre (vec3d), formed on the device from
     the nodes' coordinates there (at n = 512, 0.2 s on the host and a 120 MB copy)."""
+    device = backend.device
     positions = wp.empty(rows, dtype=wp.vec3d, device=device)
-    wp.launch(mvc.node_positions, dim=rows, inputs=[grid.device_arrays(device)["active_ijk"],
+    wp.launch(mvc.node_positions, dim=rows, inputs=[grid.device_arrays(backend)["active_ijk"],
                                                     wp.vec3d(*grid.origin), wp.float64(grid.spacing)],
               outputs=[positions], device=device)
     return positions
 
 
-def _even_nodes(grid: Grid, rows: int, device) -> np.ndarray:
+def _even_nodes(grid: Grid, rows: int, backend: Backend) -> np.ndarray:
     """The nodes of even coordinates around the first ``rows`` active nodes (those a trilinear interpolation reads:
     the node itself when its coordinates are even, 2, 4 or 8 around it otherwise), as (m, 3) coordinates in a
     lattice of half the nodes per axis, in lattice order."""
-    kept = grid.device_arrays(device)  # once per grid and rows (the memory plan asks for their number first)
+    kept = grid.device_arrays(backend)  # once per grid and rows (the memory plan asks for their number first)
     if ("even nodes", rows) in kept:
         return kept[("even nodes", rows)]
     ijk = np.asarray(grid.active_ijk[:rows], dtype=np.int64)
@@ -65,15 +66,17 @@ def start_lattice_nodes(grid: Grid, data, device=None) -> int:
     (with the local data on a CPU: :func:`boundary_field`), 0 where it takes them at its rows themselves: what the
     memory plan counts for their values (8 bytes per node and handle)."""
     data = (getattr(grid, "boundary", None) or "mvc") if data is None else boundary_settings(data)
-    if data == "mvc" or not resolve_device(device).is_cpu:
+    backend = Backend.of(device)
+    if data == "mvc" or not backend.on_cpu:
         return 0
-    return len(_even_nodes(grid, start_rows(grid, data), device))
+    return len(_even_nodes(grid, start_rows(grid, data), backend))
 
 
-def _start_lattice(grid: Grid, rows: int, device) -> tuple[wp.array, wp.array]:
+def _start_lattice(grid: Grid, rows: int, backend: Backend) -> tuple[wp.array, wp.array]:
     """:func:`_even_nodes`: their positions relative to the grid's centre (vec3d, on the device) and their rows in
     the lattice of half the nodes per axis (-1 elsewhere)."""
-    lattice = _even_nodes(grid, rows, device)
+    lattice = _even_nodes(grid, rows, backend)
+    device = backend.device
     shape = tuple(int(s) for s in lattice.max(axis=0, initial=0) + 1) if len(lattice) else (1, 1, 1)
     index = np.full(shape, -1, dtype=np.int32)
     index[tuple(lattice.T)] = np.arange(len(lattice), dtype=np.int32)
@@ -81,23 +84,24 @@ def _start_lattice(grid: Grid, rows: int, device) -> tuple[wp.array, wp.array]:
     return (wp.array(positions, dtype=wp.vec3d, device=device), wp.array(index, dtype=wp.int32, device=device))
 
 
-def _start_on_lattice(grid: Grid, cage: Cage, rows: int, handles: slice, device, out: wp.array,
-                      threads: int | None = None) -> None:
+def _start_on_lattice(grid: Grid, cage: Cage, rows: int, handles: slice, backend: Backend, out: wp.array) -> None:
     """Mean value coordinates of ``handles`` at the first ``rows`` active nodes, interpolated (trilinearly) from
     those at the nodes of even coordinates: the solve's starting guess and the gradients next to it need not be
     exact, only smooth and close (their exact values cost the search over every face at eight times the points:
     most of a small CPU bind's boundary data). Constants and linear functions are interpolated exactly, so the start
-    keeps partition of unity and linear precision. On a CPU the lattice is shared out between ``threads``."""
-    positions, index = _start_lattice(grid, rows, device)
+    keeps partition of unity and linear precision. On a CPU the lattice is shared out between the backend's
+    threads."""
+    device = backend.device
+    positions, index = _start_lattice(grid, rows, backend)
     first, stop, _ = handles.indices(cage.n_handles)
     lattice_values = wp.empty((positions.shape[0], stop - first), dtype=wp.float64, device=device)
-    in_threads(positions.shape[0], lambda a, b: mvc_on_device(cage, grid.centre, positions[a:b], handles, device,
-                                                                 out=lattice_values[a:b]),
-               device, threads, modules=("mvc",))
-    ijk = grid.device_arrays(device)["active_ijk"]
-    in_threads(rows, lambda a, b: wp.launch(mvc.lattice_interpolation, dim=(b - a, stop - first),
-                                            inputs=[lattice_values, index, ijk[a:b]], outputs=[out[a:b]],
-                                            device=device), device, threads, modules=("mvc",))
+    backend.in_threads(positions.shape[0], lambda a, b: mvc_on_device(cage, grid.centre, positions[a:b], handles,
+                                                                         device, out=lattice_values[a:b]),
+                       modules=("mvc",))
+    ijk = grid.device_arrays(backend)["active_ijk"]
+    backend.in_threads(rows, lambda a, b: wp.launch(mvc.lattice_interpolation, dim=(b - a, stop - first),
+                                                    inputs=[lattice_values, index, ijk[a:b]], outputs=[out[a:b]],
+                                                    device=device), modules=("mvc",))
 
 
 def start_rows(grid: Grid, data) -> int:
@@ -112,26 +116,26 @@ def start_values(grid: Grid, cage: Cage, device=None, threads: int | None = None
     ``boundary_field(..., start=)``): a chunk's coordinates cost the search over every face whatever its handles, so
     T chunks cost T times one. On a CPU the rows are shared out between ``threads`` threads. With the local data on
     a CPU they are interpolated from the nodes of even coordinates, as :func:`boundary_field` forms them."""
-    device = resolve_device(device)
+    backend = Backend.of(device, threads)
     data = _data_for(grid, data)
     rows = start_rows(grid, data)
-    values = wp.empty((rows, cage.n_handles), dtype=wp.float64, device=device)
-    _start_into(grid, cage, rows, slice(None), device, values, data, threads)
+    values = wp.empty((rows, cage.n_handles), dtype=wp.float64, device=backend.device)
+    _start_into(grid, cage, rows, slice(None), backend, values, data)
     return values
 
 
-def _start_into(grid: Grid, cage: Cage, rows: int, handles: slice, device, out: wp.array, data,
-                threads: int | None) -> None:
+def _start_into(grid: Grid, cage: Cage, rows: int, handles: slice, backend: Backend, out: wp.array,
+                data) -> None:
     """Mean value coordinates of ``handles`` at the first ``rows`` active nodes, into ``out``: exact for the MVC
     data (the boundary data itself) and on a GPU (where the search over the faces costs less than the lattice's
     numbering on the host: the ogre at n = 256 on an H100, 0.02 against 0.47 s), else interpolated from the nodes of
     even coordinates (:func:`_start_on_lattice`)."""
-    if data != "mvc" and device.is_cpu:
-        _start_on_lattice(grid, cage, rows, handles, device, out, threads)
+    if data != "mvc" and backend.on_cpu:
+        _start_on_lattice(grid, cage, rows, handles, backend, out)
         return
-    positions = _node_positions(grid, rows, device)
-    in_threads(rows, lambda a, b: mvc_on_device(cage, grid.centre, positions[a:b], handles, device, out=out[a:b]),
-               device, threads, modules=("mvc",))
+    positions = _node_positions(grid, rows, backend)
+    backend.in_threads(rows, lambda a, b: mvc_on_device(cage, grid.centre, positions[a:b], handles, backend.device,
+                                                        out=out[a:b]), modules=("mvc",))
 
 
 def boundary_field(grid: Grid, cage: Cage, device=None, handles: slice = slice(None),
@@ -143,7 +147,7 @@ def boundary_field(grid: Grid, cage: Cage, device=None, handles: slice = slice(N
     ----------
     grid : Grid
     cage : Cage
-    device : None | str
+    device : None | str | Backend
     handles : slice, the handles (columns) to compute, e.g. ``slice(0, 32)`` for a chunk; all by default
     complement : bool
         Append :data:`COMPLEMENT_COLUMNS` (one) column that stands for the rest of the cage: the sum over the
@@ -176,7 +180,8 @@ def boundary_field(grid: Grid, cage: Cage, device=None, handles: slice = slice(N
     >>> field.shape[1]                                                             # doctest: +SKIP
     33
     """
-    device = resolve_device(device)
+    backend = Backend.of(device, threads)
+    device = backend.device
     data = _data_for(grid, data)
     first, stop, _ = handles.indices(cage.n_handles)
     n_columns = stop - first + (COMPLEMENT_COLUMNS if complement else 0)
@@ -184,7 +189,7 @@ def boundary_field(grid: Grid, cage: Cage, device=None, handles: slice = slice(N
         rows = start_rows(grid, data)
         values = (wp.empty if rows == grid.n_active else wp.zeros)((grid.n_active, n_columns), dtype=wp.float64,
                                                                     device=device)
-        _start_into(grid, cage, rows, handles, device, values[:rows, 0 : stop - first], data, threads)
+        _start_into(grid, cage, rows, handles, backend, values[:rows, 0 : stop - first], data)
     else:
         values = wp.zeros((grid.n_active, n_columns), dtype=wp.float64, device=device)
         wp.launch(mvc.copy_columns, dim=(start.shape[0], stop - first), inputs=[start, first], outputs=[values],
@@ -193,7 +198,7 @@ def boundary_field(grid: Grid, cage: Cage, device=None, handles: slice = slice(N
     # then
     if complement:
         wp.launch(mvc.complement_column, dim=grid.n_active, inputs=[stop - first], outputs=[values], device=device)
-    arrays = grid.device_arrays(device)
+    arrays = grid.device_arrays(backend)
     field = wp.empty(values.shape, dtype=wp.vec4f, device=device)
     wp.launch(
         stencil.pack_nodal_field,
@@ -205,8 +210,7 @@ def boundary_field(grid: Grid, cage: Cage, device=None, handles: slice = slice(N
     if data != "mvc":
         # ring and band rows take the local data; the interior keeps the MVC field as its starting guess (exact
         # too, and smooth: starting from the local data's Taylor extension took twice the iterations)
-        local_field(grid, cage, field, slice(grid.n_interior, grid.n_active), handles, complement, data, device,
-                    threads=threads)
+        local_field(grid, cage, field, slice(grid.n_interior, grid.n_active), handles, complement, data, backend)
     return field
 
 

@@ -24,7 +24,7 @@ def crossing_faces(vertices: np.ndarray, faces: np.ndarray, device=None) -> np.n
     ----------
     vertices : (L, 3) array
     faces : (F, 3) int array
-    device : the Warp device of the test (default: CUDA when present, else the CPU)
+    device : None | str | Backend, where the test runs (default: CUDA when present, else the CPU)
 
     Returns
     -------
@@ -38,7 +38,7 @@ def crossing_faces(vertices: np.ndarray, faces: np.ndarray, device=None) -> np.n
     """
     import warp as wp
 
-    from ..device import resolve_device
+    from ..device import Backend
     from ..kernels import intersect
 
     vertices = np.asarray(vertices, dtype=np.float64)
@@ -48,8 +48,7 @@ def crossing_faces(vertices: np.ndarray, faces: np.ndarray, device=None) -> np.n
     centre = 0.5 * (vertices.min(axis=0) + vertices.max(axis=0))
     relative = vertices - centre
     diag = bounding_diagonal(vertices)
-    device = resolve_device(device)
-    with wp.ScopedDevice(device):
+    with Backend.of(device).scope():
         mesh = wp.Mesh(points=wp.array(relative.astype(np.float32), dtype=wp.vec3),
                        indices=wp.array(faces.ravel(), dtype=wp.int32))
         first = wp.empty(len(faces), dtype=wp.int32)

@@ -11,7 +11,8 @@ from .cage import Cage
 from .inside import WINDING_ACCURACY, cage_mesh
 from .local_data import boundary_settings, data_slopes
 from .resolution import CUT_OFF_MAX_CHANGE, check_resolution
-from ..device import available_memory, in_threads, memory_size, resolve_device
+from ..device import Backend
+from ..memory import memory_size
 from ..errors import ResolutionError
 from ..kernels import labels as node_labels
 from ..kernels import stencil, stencil_cpu
@@ -161,17 +162,19 @@ class Grid:
                         axis=1).astype(np.int32)
 
     def device_arrays(self, device) -> dict:
-        """``index``, ``active_ijk`` and the stencil's work items on ``device``: on a GPU the patch walk's
-        ``patches`` and the smoother step's ``step_patches``, on a CPU the node loop's ``neighbours`` (made there by
-        ``voxelize``; for another device uploaded and made there, once)."""
-        d = resolve_device(device)
+        """``index``, ``active_ijk`` and the stencil's work items on ``device`` (a Backend, or what
+        :meth:`Backend.of` takes): on a GPU the patch walk's ``patches`` and the smoother step's ``step_patches``, on a
+        CPU the node loop's ``neighbours`` (made there by ``voxelize``; for another device uploaded and made there,
+        once)."""
+        backend = Backend.of(device)
+        d = backend.device
         arrays = self._device_arrays.setdefault(d.alias, {})
         if "index" not in arrays:
             arrays["index"] = wp.array(self.index, dtype=wp.int32, device=d)
             arrays["active_ijk"] = wp.array(self.active_ijk, dtype=wp.vec3i, device=d)
         if "neighbours" not in arrays and "patches" not in arrays:
             labels = wp.array(self.labels, dtype=wp.int8, device=d)
-            arrays.update(_stencil_arrays(labels, arrays["index"], arrays["active_ijk"], self.n_interior))
+            arrays.update(_stencil_arrays(backend, labels, arrays["index"], arrays["active_ijk"], self.n_interior))
         return arrays
 
 
@@ -197,7 +200,7 @@ def voxelize(cage: Cage, resolution: int = 64, device=None, max_rows: int = MAX_
         A checked cage (see :func:`warp_stokes.check_cage`).
     resolution : int
         Cells along the longest axis of the cage's bounding box (the grid adds ``MARGIN`` nodes per side).
-    device : None | str
+    device : None | str | Backend
         Warp device; default CUDA when present, else CPU.
     max_rows : int
         Most active nodes a grid may have (rows are 32-bit); a lower value is for tests.
@@ -228,7 +231,7 @@ def voxelize(cage: Cage, resolution: int = 64, device=None, max_rows: int = MAX_
     """
     resolution = check_resolution(resolution)
     boundary = boundary_settings(boundary)
-    device = resolve_device(device)
+    backend = Backend.of(device, threads)
     lo, hi = cage.vertices.min(axis=0), cage.vertices.max(axis=0)
     centre = 0.5 * (lo + hi)
     extent = hi - lo
@@ -241,7 +244,7 @@ def voxelize(cage: Cage, resolution: int = 64, device=None, max_rows: int = MAX_
     shape = tuple(int(c) for c in counts)
     # the dense node arrays (VOXELIZE_NODE_BYTES: labels, classes and the row index): fail before allocating
     dense = VOXELIZE_NODE_BYTES * int(np.prod(counts))
-    room = available_memory(device) if memory_budget is None else int(memory_budget)
+    room = backend.available_memory() if memory_budget is None else int(memory_budget)
     if dense > room:
         fits = int(resolution * (room / dense) ** (1.0 / 3.0) * 0.9)
         advice = (f"resolution {fits} or less would fit" if fits >= 8 else
@@ -252,12 +255,11 @@ def voxelize(cage: Cage, resolution: int = 64, device=None, max_rows: int = MAX_
         )
         error.fits = fits  # what resolution "auto" tries instead
         raise error
-    with wp.ScopedDevice(device):
-        mesh = cage_mesh(cage, centre, device)
-        inside = classify_grid_nodes(mesh, shape, origin, spacing, device, threads)
-        cut_off = None if boundary == "mvc" else _wedge_cut_off(cage, mesh, inside, origin, spacing, boundary)
-    grid = _number_nodes(inside, centre, origin, spacing, resolution, device, max_rows, cage.name, cut_off,
-                         threads)
+    with backend.scope():
+        mesh = cage_mesh(cage, centre, backend.device)
+        inside = classify_grid_nodes(mesh, shape, origin, spacing, backend)
+        cut_off = None if boundary == "mvc" else _wedge_cut_off(cage, mesh, inside, origin, spacing, boundary, backend)
+    grid = _number_nodes(inside, centre, origin, spacing, resolution, backend, max_rows, cage.name, cut_off)
     grid.boundary = boundary
     if grid.n_interior == 0:
         error = ResolutionError(
@@ -269,29 +271,30 @@ def voxelize(cage: Cage, resolution: int = 64, device=None, max_rows: int = MAX_
     return grid
 
 
-def classify_grid_nodes(mesh: wp.Mesh, shape: tuple, origin: np.ndarray, spacing: float, device,
-                        threads: int | None = None) -> wp.array:
+def classify_grid_nodes(mesh: wp.Mesh, shape: tuple, origin: np.ndarray, spacing: float,
+                        backend: Backend) -> wp.array:
     """The nodes of a lattice inside the cage ``mesh`` (INTERIOR) or not (OUTSIDE), as an int8 array of ``shape``:
     node (i, j, k) at origin + spacing (i, j, k), in the mesh's frame (:func:`warp_stokes.kernels.voxel.classify_node`:
     the winding number, and the nodes on the cage outside). A GPU takes a winding number at every node; a CPU (where
     each costs a thread's time) at the nodes of even coordinates, then at the others only where those around them
     disagree or the cage passes near (``classify_between_even_nodes``): the same labels. On a CPU the slabs of
-    nodes are shared out between ``threads`` threads."""
-    device = resolve_device(device)
+    nodes are shared out between the backend's threads."""
+    device = backend.device
     inside = wp.empty(shape, dtype=wp.int8, device=device)
     # the winding numbers' arguments: the cage, the lattice, the accuracy and the tolerance of the surface
     lattice = [mesh.id, wp.vec3(*np.asarray(origin).astype(np.float32)), float(spacing), WINDING_ACCURACY,
                1e-5 * spacing]
-    if not device.is_cpu:
+    if not backend.on_cpu:
         wp.launch(voxel.classify_nodes, dim=shape, inputs=[*lattice, 0, 1], outputs=[inside], device=device)
         return inside
     even = tuple((n + 1) // 2 for n in shape)
-    in_threads(even[0], lambda a, b: wp.launch(voxel.classify_nodes, dim=(b - a, even[1], even[2]),
-                                               inputs=[*lattice, 2 * a, 2], outputs=[inside], device=device),
-               device, threads, modules=("voxel",))
-    in_threads(shape[0], lambda a, b: wp.launch(voxel.classify_between_even_nodes, dim=(b - a, shape[1], shape[2]),
-                                                inputs=[*lattice, a], outputs=[inside], device=device),
-               device, threads, modules=("voxel",))
+    backend.in_threads(even[0], lambda a, b: wp.launch(voxel.classify_nodes, dim=(b - a, even[1], even[2]),
+                                                       inputs=[*lattice, 2 * a, 2], outputs=[inside], device=device),
+                       modules=("voxel",))
+    backend.in_threads(shape[0], lambda a, b: wp.launch(voxel.classify_between_even_nodes,
+                                                        dim=(b - a, shape[1], shape[2]), inputs=[*lattice, a],
+                                                        outputs=[inside], device=device),
+                       modules=("voxel",))
     return inside
 
 
@@ -303,7 +306,7 @@ def grid_from_mask(interior, spacing: float = 1.0, origin=(0.0, 0.0, 0.0), devic
     interior : (nx, ny, nz) bool array; must be False within ``MARGIN`` nodes of the array's edge
     spacing : float, node spacing h
     origin : (3,) position of node (0, 0, 0)
-    device : None | str
+    device : None | str | Backend
 
     Returns
     -------
@@ -325,14 +328,15 @@ def grid_from_mask(interior, spacing: float = 1.0, origin=(0.0, 0.0, 0.0), devic
         raise ResolutionError(f"interior nodes must stay {MARGIN} nodes away from the mask's edge")
     if not interior.any():
         raise ResolutionError("the interior mask is empty")
-    device = resolve_device(device)
-    inside = wp.array(interior.astype(np.int8), dtype=wp.int8, device=device)
+    backend = Backend.of(device)
+    inside = wp.array(interior.astype(np.int8), dtype=wp.int8, device=backend.device)
     resolution = max(interior.shape) - 1 - 2 * MARGIN
-    return _number_nodes(inside, np.zeros(3), np.asarray(origin, dtype=np.float64), float(spacing), resolution, device,
-                         MAX_ROWS, "the interior mask")
+    return _number_nodes(inside, np.zeros(3), np.asarray(origin, dtype=np.float64), float(spacing), resolution,
+                         backend, MAX_ROWS, "the interior mask")
 
 
-def _wedge_cut_off(cage: Cage, mesh: wp.Mesh, inside: wp.array, origin, spacing: float, boundary):
+def _wedge_cut_off(cage: Cage, mesh: wp.Mesh, inside: wp.array, origin, spacing: float, boundary,
+                   backend: Backend):
     """The launch that moves interior nodes cut off by thin wedges to the ring (see :func:`voxelize`), as a function
     of the labels array; run after the ring and band are marked (the numbering counts the nodes it moved)."""
     settings = boundary_settings(boundary)
@@ -343,7 +347,7 @@ def _wedge_cut_off(cage: Cage, mesh: wp.Mesh, inside: wp.array, origin, spacing:
     device = inside.device
     inputs = [wp.array(cage.faces.astype(np.int32), dtype=wp.int32, device=device),
               wp.array(adjacent, dtype=wp.int8, device=device),
-              wp.array(data_slopes(cage, settings, device).astype(np.float32), dtype=float, device=device), inside,
+              wp.array(data_slopes(cage, settings, backend).astype(np.float32), dtype=float, device=device), inside,
               wp.vec3(*np.asarray(origin, dtype=np.float32)), float(spacing), WEDGE_FACING, CUT_OFF_MAX_CHANGE]
 
     def cut_off(labels: wp.array) -> None:
@@ -375,16 +379,16 @@ def lattice_rows(classes: wp.array, counts: wp.array, n_rows: int) -> tuple[wp.a
     return index, ijk
 
 
-def _number_nodes(inside: wp.array, centre, origin, spacing, resolution, device, max_rows, name, cut_off=None,
-                  threads: int | None = None) -> Grid:
+def _number_nodes(inside: wp.array, centre, origin, spacing, resolution, backend: Backend, max_rows, name,
+                  cut_off=None) -> Grid:
     """Mark the ring and band around the interior nodes of `inside` (and those that ``cut_off`` moves to the ring),
     and number the active nodes: interior, cut off, other ring, band (on the device; the host only reads counts)."""
     shape = inside.shape
-    with wp.ScopedDevice(device):
+    with backend.scope():
         labels = wp.empty(shape, dtype=wp.int8)
-        in_threads(shape[0], lambda first, stop: wp.launch(
+        backend.in_threads(shape[0], lambda first, stop: wp.launch(
             voxel.mark_ring_and_band, dim=(stop - first, shape[1], shape[2]), inputs=[inside, BAND_WIDTH, first],
-            outputs=[labels]), device, threads, modules=("voxel",))
+            outputs=[labels]), modules=("voxel",))
         if cut_off is not None:
             cut_off(labels)
         classes = wp.empty(shape, dtype=wp.int8)
@@ -402,7 +406,7 @@ def _number_nodes(inside: wp.array, centre, origin, spacing, resolution, device,
             )
         index, active_ijk = lattice_rows(classes, counts, n_active)
         del classes, counts
-        work_items = _stencil_arrays(labels, index, active_ijk, n_interior)
+        work_items = _stencil_arrays(backend, labels, index, active_ijk, n_interior)
         labels_np = labels.numpy()
         grid = Grid(
             centre=np.asarray(centre, dtype=np.float64),
@@ -417,17 +421,18 @@ def _number_nodes(inside: wp.array, centre, origin, spacing, resolution, device,
             n_cut_off=n_cut_off,
         )
     # the device's numbering is the grid's (the host copy of the index is made when first read)
-    grid._device_arrays[device.alias] = {"index": index, "active_ijk": active_ijk, **work_items}
+    grid._device_arrays[backend.alias] = {"index": index, "active_ijk": active_ijk, **work_items}
     return grid
 
 
-def _stencil_arrays(labels: wp.array, index: wp.array, active_ijk: wp.array, n_interior: int) -> dict:
+def _stencil_arrays(backend: Backend, labels: wp.array, index: wp.array, active_ijk: wp.array,
+                    n_interior: int) -> dict:
     """The stencil's work items on the labels' device. A GPU's patch walks: the operator's ``patches`` and the
     smoother step's ``step_patches``, made from the labels there (numpy's passes over the lattice in
     :meth:`Grid.interior_patches` took 0.4-0.6 s each at n = 512). A CPU's node loops: each interior node's neighbour
     rows, ``neighbours`` (n_interior, 18) (:mod:`warp_stokes.kernels.stencil_cpu`)."""
     device = labels.device
-    if device.is_cpu:
+    if backend.on_cpu:
         neighbours = wp.empty((n_interior, stencil_cpu.NEIGHBOURS), dtype=wp.int32, device=device)
         wp.launch(stencil_cpu.neighbour_rows, dim=neighbours.shape, inputs=[index, active_ijk], outputs=[neighbours],
                   device=device)

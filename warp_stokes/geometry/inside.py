@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from ..device import in_threads, resolve_device
+from ..device import Backend
 from ..kernels import voxel
 from .cage import Cage
 
@@ -31,7 +31,7 @@ def classify_points(cage: Cage, points: np.ndarray, device=None, threads: int | 
     ----------
     cage : Cage
     points : (N, 3) array of positions
-    device : None | str
+    device : None | str | Backend
     threads : int, optional, on a CPU the threads that share the points out (default: every core)
 
     Returns
@@ -43,18 +43,18 @@ def classify_points(cage: Cage, points: np.ndarray, device=None, threads: int | 
     --------
     >>> inside, dist = classify_points(cage, cage.vertices.mean(axis=0)[None])  # doctest: +SKIP
     """
-    device = resolve_device(device)
+    backend = Backend.of(device, threads)
     centre = 0.5 * (cage.vertices.min(axis=0) + cage.vertices.max(axis=0))
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     if len(points) == 0:
         return np.zeros(0, dtype=bool), np.zeros(0)
-    with wp.ScopedDevice(device):
-        mesh = cage_mesh(cage, centre, device)
+    with backend.scope():
+        mesh = cage_mesh(cage, centre, backend.device)
         pts = wp.array((points - centre).astype(np.float32), dtype=wp.vec3)
         inside = wp.empty(len(points), dtype=wp.int32)
         distance = wp.empty(len(points), dtype=float)
-        in_threads(len(points), lambda a, b: wp.launch(voxel.classify_points, dim=b - a,
-                                                       inputs=[mesh.id, pts[a:b], WINDING_ACCURACY],
-                                                       outputs=[inside[a:b], distance[a:b]]),
-                   device, threads, modules=("voxel",))
+        backend.in_threads(len(points), lambda a, b: wp.launch(voxel.classify_points, dim=b - a,
+                                                               inputs=[mesh.id, pts[a:b], WINDING_ACCURACY],
+                                                               outputs=[inside[a:b], distance[a:b]]),
+                           modules=("voxel",))
         return inside.numpy().astype(bool), distance.numpy().astype(np.float64)

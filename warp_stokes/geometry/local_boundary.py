@@ -8,7 +8,7 @@ import threading
 import numpy as np
 import warp as wp
 
-from ..device import in_threads, resolve_device
+from ..device import Backend
 from ..kernels import local_boundary
 from .cage import Cage, unit_normals
 from .grid import Grid
@@ -37,7 +37,7 @@ def local_field(grid: Grid, cage: Cage, field: wp.array, rows: slice, handles: s
     handles : slice, the handles of the field's first columns
     complement : bool, the column after them stands for the rest of the cage (see ``boundary_field``)
     settings : LocalData
-    device : None | str
+    device : None | str | Backend
     threads : int, optional, on a CPU the threads that form the rows' blend table the first time (every core)
 
     Examples
@@ -45,21 +45,22 @@ def local_field(grid: Grid, cage: Cage, field: wp.array, rows: slice, handles: s
     >>> field = boundary_field(grid, cage)                                                    # doctest: +SKIP
     >>> local_field(grid, cage, field, slice(grid.n_interior, grid.n_active))                 # doctest: +SKIP
     """
-    device = resolve_device(device)
+    backend = Backend.of(device, threads)
+    device = backend.device
     first, stop, _ = handles.indices(cage.n_handles)
     start, end, _ = rows.indices(grid.n_active)
     relative = wp.array(cage.vertices - grid.centre, dtype=wp.vec3d, device=device)
     triangles = wp.array(cage.faces.astype(np.int32), dtype=wp.vec3i, device=device)
-    ijk = grid.device_arrays(device)["active_ijk"]
+    ijk = grid.device_arrays(backend)["active_ijk"]
     per_face = [wp.array(unit_normals(cage), dtype=wp.vec3d, device=device),
                 wp.array(tangent_gradients(cage), dtype=wp.vec3d, device=device),
-                _kept_on(normal_derivatives(cage, settings, device), device)]
+                _kept_on(normal_derivatives(cage, settings, backend), backend)]
     handles_args = [first, stop - first, int(complement)]
-    with wp.ScopedDevice(device):
-        if device.is_cpu:
+    with backend.scope():
+        if backend.on_cpu:
             # the blend of each row found once, for every chunk of handles (the search over the faces was the
             # boundary data's time, repeated per chunk)
-            table = blend_table(grid, cage, slice(start, end), device, threads)
+            table = blend_table(grid, cage, slice(start, end), backend)
             wp.launch(local_boundary.local_field_from_table, dim=end - start,
                       inputs=[ijk, start, wp.vec3d(*grid.origin), wp.float64(grid.spacing), relative, triangles,
                               *per_face, table, *handles_args], outputs=[field])
@@ -85,11 +86,12 @@ def blend_table(grid: Grid, cage: Cage, rows: slice, device=None, threads: int |
     >>> table.shape[0] == grid.n_ring + grid.n_band                                    # doctest: +SKIP
     True
     """
-    device = resolve_device(device)
+    backend = Backend.of(device, threads)
+    device = backend.device
     start, end, _ = rows.indices(grid.n_active)
-    _, key = cage_key(cage, LocalData(), None)
+    _, key = cage_key(cage, LocalData(), backend)
     name = ("blend", start, end, key[2])
-    arrays = grid.device_arrays(device)
+    arrays = grid.device_arrays(backend)
     with _BLEND_LOCK:
         table = arrays.get(name)
         if table is None:
@@ -109,15 +111,15 @@ def blend_table(grid: Grid, cage: Cage, rows: slice, device=None, threads: int |
                                   wp.float64(BLEND_BAND * grid.spacing), relative, triangles, mesh.id, float(slack)],
                           outputs=[table[a:b]], device=device)
 
-            in_threads(end - start, rows, device, threads, modules=("local_boundary",))
+            backend.in_threads(end - start, rows, modules=("local_boundary",))
             arrays[name] = table
     return table
 
 
-def _kept_on(kept: np.ndarray, device) -> wp.array:
-    """The kept normal derivatives as a Warp array on ``device``: on the CPU the host array itself (threads that
-    form boundary fields at once share it), else a copy."""
-    return wp.array(kept, dtype=wp.float64, device=device, copy=not device.is_cpu)
+def _kept_on(kept: np.ndarray, backend: Backend) -> wp.array:
+    """The kept normal derivatives as a Warp array on the backend's device: on the CPU the host array itself
+    (threads that form boundary fields at once share it), else a copy."""
+    return wp.array(kept, dtype=wp.float64, device=backend.device, copy=backend.pick(cpu=False, gpu=True))
 
 
 def local_values(cage: Cage, points: np.ndarray, spacing: float, settings: LocalData = LocalData(),
@@ -132,7 +134,7 @@ def local_values(cage: Cage, points: np.ndarray, spacing: float, settings: Local
     points : (N, 3) array, absolute positions
     spacing : float, the grid's node spacing (it sets the faces' blending band)
     settings : LocalData
-    device : None | str
+    device : None | str | Backend
 
     Returns
     -------
@@ -142,10 +144,10 @@ def local_values(cage: Cage, points: np.ndarray, spacing: float, settings: Local
     --------
     >>> w = local_values(cage, far_points, grid.spacing)     # doctest: +SKIP
     """
-    device = resolve_device(device)
+    backend = Backend.of(device)
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     centre = 0.5 * (cage.vertices.min(axis=0) + cage.vertices.max(axis=0))
-    with wp.ScopedDevice(device):
+    with backend.scope():
         out = wp.empty((len(points), cage.n_handles), dtype=wp.vec4f)
         if len(points):
             wp.launch(
@@ -157,7 +159,7 @@ def local_values(cage: Cage, points: np.ndarray, spacing: float, settings: Local
                         wp.array(cage.faces.astype(np.int32), dtype=wp.vec3i),
                         wp.array(unit_normals(cage), dtype=wp.vec3d),
                         wp.array(tangent_gradients(cage), dtype=wp.vec3d),
-                        _kept_on(normal_derivatives(cage, settings, device), device), 0, cage.n_handles, 0],
+                        _kept_on(normal_derivatives(cage, settings, backend), backend), 0, cage.n_handles, 0],
                 outputs=[out],
             )
     return out.numpy()[..., 0].astype(np.float64)

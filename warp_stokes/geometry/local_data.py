@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from ..device import resolve_device
+from ..device import Backend
 from ..errors import WarpStokesError
 from ..kernels import local_boundary
 from .cage import FOLD_DEGREES, Cage, face_edges, folded_edges, unit_normals
@@ -107,7 +107,7 @@ def cage_graph_distances(cage: Cage, device=None) -> np.ndarray:
     Parameters
     ----------
     cage : Cage
-    device : None | str
+    device : None | str | Backend
 
     Returns
     -------
@@ -121,7 +121,7 @@ def cage_graph_distances(cage: Cage, device=None) -> np.ndarray:
     >>> bool(np.isclose(d[1, 2], np.sqrt(2)))
     True
     """
-    device = resolve_device(device)
+    backend = Backend.of(device)
     v = np.asarray(cage.vertices, dtype=np.float64)
     n = len(v)
     edges = face_edges(cage.faces)
@@ -132,7 +132,7 @@ def cage_graph_distances(cage: Cage, device=None) -> np.ndarray:
     np.cumsum(np.bincount(edges[:, 0], minlength=n), out=offsets[1:])
     distances = np.empty((n, n))
     per_group = max(1, min(n, GRAPH_SCRATCH_BYTES // (16 * max(n, 1))))
-    with wp.ScopedDevice(device):
+    with backend.scope():
         graph = [wp.array(offsets, dtype=wp.int32), wp.array(edges[:, 1].astype(np.int32), dtype=wp.int32),
                  wp.array(lengths, dtype=wp.float64)]
         heap = wp.empty((per_group, n), dtype=wp.int32)
@@ -198,7 +198,7 @@ def normal_derivatives(cage: Cage, settings: LocalData = LocalData(), device=Non
     ----------
     cage : Cage
     settings : LocalData
-    device : None | str, where MVC is evaluated ("mvc-cut")
+    device : None | str | Backend, where MVC is evaluated ("mvc-cut")
 
     Returns
     -------
@@ -210,14 +210,14 @@ def normal_derivatives(cage: Cage, settings: LocalData = LocalData(), device=Non
     >>> np.allclose(g.sum(axis=1), 0), np.allclose(g @ cage.vertices, unit_normals)     # doctest: +SKIP
     (True, True)
     """
-    device = resolve_device(device)
-    cage, key = cage_key(cage, settings, device)
+    backend = Backend.of(device)
+    cage, key = cage_key(cage, settings, backend)
     with _KEPT_LOCK:
         kept = _KEPT_DERIVATIVES.get(key)
         if kept is not None:
             _KEPT_DERIVATIVES.move_to_end(key)
     if kept is None:
-        kept = _normal_derivatives(cage, settings, device)
+        kept = _normal_derivatives(cage, settings, backend)
         kept.flags.writeable = False
         with _KEPT_LOCK:
             _KEPT_DERIVATIVES[key] = kept
@@ -230,7 +230,7 @@ def normal_derivatives(cage: Cage, settings: LocalData = LocalData(), device=Non
     return kept
 
 
-def cage_key(cage: Cage, settings: LocalData, device) -> tuple[Cage, tuple]:
+def cage_key(cage: Cage, settings: LocalData, backend: Backend) -> tuple[Cage, tuple]:
     """The cage with float64 vertices and int64 faces (what is computed from them), and the key of what is kept
     for it: its arrays, the settings and, for MVC's normal derivatives, the device."""
     vertices = np.ascontiguousarray(cage.vertices, dtype=np.float64)
@@ -238,7 +238,7 @@ def cage_key(cage: Cage, settings: LocalData, device) -> tuple[Cage, tuple]:
     if vertices is not cage.vertices or faces is not cage.faces:
         cage = dataclasses.replace(cage, vertices=vertices, faces=faces)
     key = (vertices.shape, faces.shape, hashlib.sha1(vertices.tobytes() + faces.tobytes()).hexdigest(), settings,
-           str(device) if settings.model == "mvc-cut" else None)
+           backend.alias if settings.model == "mvc-cut" else None)
     return cage, key
 
 
@@ -248,10 +248,10 @@ def _face_groups(cage: Cage):
         yield slice(first, min(first + per_group, len(cage.faces)))
 
 
-def _normal_derivatives(cage: Cage, settings: LocalData, device) -> np.ndarray:
+def _normal_derivatives(cage: Cage, settings: LocalData, backend: Backend) -> np.ndarray:
     v, f = cage.vertices, cage.faces
     mean_edge = float(np.linalg.norm(np.subtract(*v[face_edges(f)].transpose(1, 0, 2)), axis=1).mean())
-    graph = cage_graph_distances(cage, device)
+    graph = cage_graph_distances(cage, backend)
     normals = unit_normals(cage)
     fold_ends = np.zeros(0, dtype=np.int64)
     if settings.model == "mvc-cut" and settings.fold_radius > 0:
@@ -265,7 +265,7 @@ def _normal_derivatives(cage: Cage, settings: LocalData, device) -> np.ndarray:
         inverse_weight = np.exp(-(distance - distance.min(axis=1, keepdims=True)) / (settings.falloff * mean_edge))
         start = np.zeros_like(distance)
         if settings.model == "mvc-cut":
-            start = _mvc_normal_derivatives(cage, group, mean_edge, device)
+            start = _mvc_normal_derivatives(cage, group, mean_edge, backend)
             start *= distance <= settings.radius * mean_edge
         # per face, the least weighted change to `start` that meets the constraints, on (1, c - centroid) for
         # conditioning: a (4, 4) system each, solved for the group's faces at once
@@ -294,7 +294,7 @@ def data_slopes(cage: Cage, settings: LocalData = LocalData(), device=None) -> n
     ----------
     cage : Cage
     settings : LocalData
-    device : None | str, where MVC is evaluated ("mvc-cut")
+    device : None | str | Backend, where MVC is evaluated ("mvc-cut")
 
     Returns
     -------
@@ -310,9 +310,9 @@ def data_slopes(cage: Cage, settings: LocalData = LocalData(), device=None) -> n
     >>> slopes.shape, bool((slopes >= 1 / np.sqrt(2)).all())  # a hat falls from 1 to 0 over a height of sqrt(2)
     ((8,), True)
     """
-    device = resolve_device(device)
-    derivatives = normal_derivatives(cage, settings, device)
-    _, key = cage_key(cage, settings, device)
+    backend = Backend.of(device)
+    derivatives = normal_derivatives(cage, settings, backend)
+    _, key = cage_key(cage, settings, backend)
     with _KEPT_LOCK:
         kept = _KEPT_SLOPES.get(key)
     if kept is not None:
@@ -335,13 +335,13 @@ def data_slopes(cage: Cage, settings: LocalData = LocalData(), device=None) -> n
     return slope
 
 
-def _mvc_normal_derivatives(cage: Cage, faces: slice, mean_edge: float, device) -> np.ndarray:
+def _mvc_normal_derivatives(cage: Cage, faces: slice, mean_edge: float, backend: Backend) -> np.ndarray:
     """(faces, L): MVC's outward normal derivative at the centroids of ``faces``, by a one-sided difference (MVC
     reproduces constants and linear functions, so the constraints hold up to the difference's rounding)."""
     f = cage.faces[faces]
     step = 1e-4 * mean_edge
     centroid = cage.vertices[f].mean(axis=1)
-    w = mean_value_coordinates(cage, centroid + step * unit_normals(cage)[faces], device=device)
+    w = mean_value_coordinates(cage, centroid + step * unit_normals(cage)[faces], device=backend)
     np.put_along_axis(w, f, np.take_along_axis(w, f, axis=1) - 1.0 / 3.0, axis=1)
     w /= step
     return w

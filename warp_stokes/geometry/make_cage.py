@@ -21,7 +21,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import warp as wp
 
-from ..device import resolve_device
+from ..device import Backend
 from ..errors import CageError, MeshError
 from ..io.scene import load_scene
 from ..kernels import cage as cage_kernels
@@ -219,7 +219,7 @@ def make_cage(mesh, handles: int | None = None, offset: float | None = None, dev
     if not (areas > 1e-12 * diag ** 2).any():  # a distance field needs a surface: lines have no inside or outside
         raise MeshError(f"{name}: every face has zero area (its vertices lie on lines); a cage is made around a "
                         "surface")
-    device = resolve_device(device)
+    device = Backend.of(device).device
     # the default offset is raised where the cage cannot reach the handles asked: a cage of about the count asked
     # matters more to the user than one that hugs the mesh (an offset given is kept, with a note if it stops short)
     fractions = [offset] if offset is not None else [DEFAULT_OFFSET * factor for factor in OFFSET_STEPS]
@@ -383,7 +383,7 @@ def _area(v: np.ndarray, f: np.ndarray) -> float:
 
 
 def made_cage_record(made: MadeCage) -> dict:
-    """What a binding records of a cage made for it (``stats["made_cage"]``): plain numbers and strings.
+    """What a binding records of a cage made for it (``stats.made_cage``): plain numbers and strings.
 
     Examples
     --------

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from ..device import resolve_device
+from ..device import Backend
 from ..kernels import mvc as mvc_kernels
 from .cage import Cage
 
@@ -49,7 +49,7 @@ def mean_value_coordinates(cage: Cage, points: np.ndarray, device=None) -> np.nd
     ----------
     cage : Cage
     points : (N, 3) array, anywhere off the cage (on it, the coordinates are the hat functions)
-    device : None | str
+    device : None | str | Backend
 
     Returns
     -------
@@ -61,7 +61,7 @@ def mean_value_coordinates(cage: Cage, points: np.ndarray, device=None) -> np.nd
     >>> np.allclose(w @ cage.vertices, cage.vertices.mean(axis=0))  # doctest: +SKIP
     True
     """
-    device = resolve_device(device)
+    device = Backend.of(device).device
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     if len(points) == 0:
         return np.zeros((0, len(cage.vertices)))

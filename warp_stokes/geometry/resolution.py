@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..device import resolve_device
+from ..device import Backend
 from ..errors import ResolutionError
 from .cage import Cage
 from .cage_faults import folded_edges
@@ -50,7 +50,7 @@ def auto_resolution(cage: Cage, boundary="local", device=None, kind: str | None 
     ----------
     cage : Cage
     boundary : "local" | LocalData | "mvc"
-    device : None | str, where the local data is evaluated
+    device : None | str | Backend, where the local data is evaluated
     kind : "cpu" | "cuda", optional: the kind of the devices that solve, when it is not ``device``'s (a bind spread
         over GPUs from a host without one)
 
@@ -68,9 +68,9 @@ def auto_resolution(cage: Cage, boundary="local", device=None, kind: str | None 
     >>> auto_resolution(check_cage((box.vertices, box.faces)), device="cpu")
     (64, 64, 96)
     """
-    device = resolve_device(device)
-    cap = AUTO_RESOLUTION_CAP[kind or ("cpu" if device.is_cpu else "cuda")]
-    needed = max(AUTO_RESOLUTION, wedge_resolution(cage, boundary, device) or 0)
+    backend = Backend.of(device)
+    cap = AUTO_RESOLUTION_CAP[kind or backend.kind]
+    needed = max(AUTO_RESOLUTION, wedge_resolution(cage, boundary, backend) or 0)
     return min(needed, cap), needed, cap
 
 
@@ -83,7 +83,7 @@ def wedge_resolution(cage: Cage, boundary="local", device=None) -> int | None:
     ----------
     cage : Cage
     boundary : "local" | LocalData | "mvc"
-    device : None | str, where the local data's MVC normal derivatives are evaluated
+    device : None | str | Backend, where the local data's MVC normal derivatives are evaluated
 
     Returns
     -------
@@ -101,7 +101,7 @@ def wedge_resolution(cage: Cage, boundary="local", device=None) -> int | None:
     folds = folded_edges(cage)
     if boundary == "mvc" or not len(folds):
         return None
-    slopes = data_slopes(cage, boundary, device)
+    slopes = data_slopes(cage, boundary, Backend.of(device))
     at_fold = cage.faces[np.isin(cage.faces, np.unique(folds)).any(axis=1)]  # the faces around folded edges
     extent = float((cage.vertices.max(axis=0) - cage.vertices.min(axis=0)).max())
     # the kernel's test, 1.5 h slope <= CUT_OFF_MAX_CHANGE, with h = extent / resolution

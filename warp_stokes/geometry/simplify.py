@@ -296,7 +296,7 @@ def simplify_enclosing(vertices: np.ndarray, faces: np.ndarray, handles: int, po
     """
     import warp as wp
 
-    from ..device import resolve_device
+    from ..device import Backend
     from ..kernels import collapse
 
     v = np.array(vertices, dtype=np.float64)
@@ -314,7 +314,7 @@ def simplify_enclosing(vertices: np.ndarray, faces: np.ndarray, handles: int, po
     refused_at = np.zeros(0, dtype=np.int64)
     centre = 0.5 * (v.min(axis=0) + v.max(axis=0))
     pad = 1e-6 * np.linalg.norm(v.max(axis=0) - v.min(axis=0))
-    device = resolve_device(device)
+    device = Backend.of(device).device
     rounds = 0
     reasons = np.zeros(8, dtype=np.int64)
     left, gave_up = [], False  # the surviving vertices after each round

@@ -6,7 +6,7 @@ import numpy as np
 import warp as wp
 
 from ..kernels import voxel
-from ..device import resolve_device
+from ..device import Backend
 from ..geometry.cage import Cage
 from .measures import row_chunks
 
@@ -21,11 +21,11 @@ def nearest_faces(cage: Cage, points: np.ndarray, device=None) -> np.ndarray:
     """(N,) index of the cage face nearest to each point (Warp's BVH query, float32)."""
     from ..geometry.inside import cage_mesh
 
-    device = resolve_device(device)
+    backend = Backend.of(device)
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     centre = 0.5 * (cage.vertices.min(axis=0) + cage.vertices.max(axis=0))
-    with wp.ScopedDevice(device):
-        mesh = cage_mesh(cage, centre, device)
+    with backend.scope():
+        mesh = cage_mesh(cage, centre, backend.device)
         out = wp.empty(len(points), dtype=wp.int32)
         wp.launch(voxel.nearest_faces, dim=len(points),
                   inputs=[mesh.id, wp.array((points - centre).astype(np.float32), dtype=wp.vec3)], outputs=[out])

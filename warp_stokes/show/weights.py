@@ -13,7 +13,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..device import resolve_device
+from ..device import Backend
 from ..errors import WarpStokesError
 from ..geometry.boundary import boundary_field
 from ..geometry.cage import check_cage
@@ -96,7 +96,7 @@ def weight_slice(binding, handle: int, axis="z", fraction: float = 0.5, device=N
     with warnings.catch_warnings():  # the cage was checked, and its notes shown, when it was bound
         warnings.simplefilter("ignore")
         cage = check_cage((binding.cage_vertices, binding.cage_faces), name="the bound cage")
-    device = resolve_device(device)
+    device = Backend.of(device)
     lo, hi = cage.vertices.min(axis=0), cage.vertices.max(axis=0)
     position = float(lo[a] + float(fraction) * (hi[a] - lo[a]))
     if method == "mvc":

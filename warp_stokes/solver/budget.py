@@ -36,7 +36,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..geometry.boundary import COMPLEMENT_COLUMNS, start_lattice_nodes
-from ..device import available_memory, memory_size, resolve_device  # noqa: F401 (available_memory re-exported)
+from ..device import Backend
+from ..memory import available_memory, memory_size  # noqa: F401 (available_memory re-exported)
 from ..errors import ResolutionError
 from ..geometry.grid import DEVICE_NODE_BYTES, HOST_NODE_BYTES, Grid
 from ..geometry.local_boundary import BLEND_ROW_BYTES
@@ -108,7 +109,7 @@ def estimate_memory(grid: Grid, n_vertices: int = 0, preconditioner: str = "mult
     levels : list of multigrid levels (:func:`warp_stokes.solver.multigrid.coarsen`), optional
         Their sizes make the hierarchy's share exact; without them coarse levels are estimated from
         ``COARSENING_RATIO``.
-    device : None | str, where the bind runs; on the CPU the grid's host arrays count too, and so do the mesh's
+    device : None | str | Backend, where the bind runs; on the CPU the grid's host arrays count too, and so do the mesh's
     n_handles : int, all the cage's handles: on the CPU the bind's weights (4 bytes per vertex and handle) live in
         the same memory throughout
     boundary_bytes : (kept, work, device_work), the boundary data's arrays of the whole cage
@@ -126,6 +127,7 @@ def estimate_memory(grid: Grid, n_vertices: int = 0, preconditioner: str = "mult
     >>> est.total(118) / 2**30                           # doctest: +SKIP
     1.9
     """
+    backend = Backend.of(device)
     n_int, n_act, n_v = grid.n_interior, grid.n_active, int(n_vertices)
     kept, local_work, device_work = (int(b) for b in (tuple(boundary_bytes) + (0, 0, 0))[:3])
     nodes = int(np.prod(grid.shape))
@@ -133,7 +135,7 @@ def estimate_memory(grid: Grid, n_vertices: int = 0, preconditioner: str = "mult
     if not multigrid:
         coarse, hierarchy, dense = 0.0, 0, 0
     else:
-        limit = coarsest_nodes_for(device)
+        limit = coarsest_nodes_for(backend)
         if levels is None:  # coarsen by the typical ratio until the coarsest level's size
             sizes = [float(n_int)]
             while sizes[-1] > limit:
@@ -146,7 +148,7 @@ def estimate_memory(grid: Grid, n_vertices: int = 0, preconditioner: str = "mult
         # the coarsest level's dense inverse (float32) does not shrink with the resolution: at most this
         dense = 4 * (4 * limit) ** 2
     work = (2 * VEC4 * n_int + 4 * VEC4 * coarse) if multigrid else 0.0
-    on_cpu = resolve_device(device).is_cpu
+    on_cpu = backend.on_cpu
     if on_cpu:  # the node loop's neighbour rows: 18 int32 per interior node
         work_items = 4 * NEIGHBOURS * n_int
     else:  # the patch walks: an item per 2 x 2 columns and up to 64 planes, fewer than one per 16 nodes; the
@@ -162,7 +164,7 @@ def estimate_memory(grid: Grid, n_vertices: int = 0, preconditioner: str = "mult
     field_bytes = VEC4 * n_act
     # a CPU with the local data interpolates the starting guess from MVC at nodes of even coordinates (their own
     # values and positions beside the rows')
-    lattice = start_lattice_nodes(grid, "local", device) if kept else 0
+    lattice = start_lattice_nodes(grid, "local", backend) if kept else 0
     stages = [
         # boundary data: positions, MVC values in float64, the local data's normal derivatives (the device's copy;
         # a CPU reads the host's, but measured its peak as if it copied them: counted)

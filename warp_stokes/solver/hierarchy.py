@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import warp as wp
 
-from ..device import resolve_device
+from ..device import Backend
 from ..geometry.grid import Grid, lattice_counts, lattice_rows
 from ..kernels import multigrid as mg_kernels
 
@@ -35,7 +35,7 @@ def coarsest_nodes_for(device) -> int:
     >>> coarsest_nodes_for("cpu")
     100
     """
-    return COARSEST_NODES_CPU if resolve_device(device).is_cpu else COARSEST_NODES
+    return Backend.of(device).pick(cpu=COARSEST_NODES_CPU, gpu=COARSEST_NODES)
 
 
 #: device bytes per node of a coarse level: 27 blocks of the operator and its neighbours' rows, the diagonal's
@@ -63,7 +63,7 @@ def coarsen(grid: Grid, device=None, coarsest_nodes: int | None = None) -> list[
     Parameters
     ----------
     grid : Grid
-    device : None | str
+    device : None | str | Backend
     coarsest_nodes : int, optional, coarsening stops at a level with at most this many nodes (default by the
         device: :func:`coarsest_nodes_for`)
 
@@ -77,14 +77,14 @@ def coarsen(grid: Grid, device=None, coarsest_nodes: int | None = None) -> list[
     >>> [lev.n for lev in levels]                # doctest: +SKIP
     [16563, 2077, 268]
     """
-    device = resolve_device(device)
-    coarsest_nodes = coarsest_nodes_for(device) if coarsest_nodes is None else int(coarsest_nodes)
-    arrays = grid.device_arrays(device)
+    backend = Backend.of(device)
+    coarsest_nodes = coarsest_nodes_for(backend) if coarsest_nodes is None else int(coarsest_nodes)
+    arrays = grid.device_arrays(backend)
     n0 = grid.n_interior
     fine = Level(n=n0, ijk=grid.active_ijk[:n0], index=arrays["index"], ijk_device=arrays["active_ijk"][:n0])
     levels = [fine]
     shape = np.array(grid.shape)
-    with wp.ScopedDevice(device):
+    with backend.scope():
         while levels[-1].n > coarsest_nodes:
             lev = levels[-1]
             shift = lattice_shift(lev)

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from ..device import reduction_threads, resolve_device
+from ..device import Backend
 from ..geometry.grid import Grid
 from ..kernels import cg, cg_cpu
 from .operator import apply_operator
@@ -34,13 +34,13 @@ class BatchedCG:
     over (interior node, handle). ``x`` is a view of the field's interior rows: the solve updates the field in
     place."""
 
-    def __init__(self, grid: Grid, field: wp.array, source, precondition, device, equation: str = "biharmonic"):
+    def __init__(self, grid: Grid, field: wp.array, source, precondition, backend: Backend,
+                 equation: str = "biharmonic"):
         n, n_cols = grid.n_interior, field.shape[1]
-        self.grid, self.field, self.precondition, self.device = grid, field, precondition, device
+        self.grid, self.field, self.precondition, self.backend = grid, field, precondition, backend
         self.equation = equation
         self.shape = (n, n_cols)
-        self.threads = reduction_threads(n, n_cols, device)
-        self.on_cpu = resolve_device(device).is_cpu
+        self.threads = backend.reduction_threads(n, n_cols)
         self.rhs = None  # zero: Stokes coordinates have no source
         if source is not None:
             src = np.zeros((n, n_cols, 4), dtype=np.float32)
@@ -61,7 +61,7 @@ class BatchedCG:
 
     def dots(self, a, b):
         out = wp.zeros(self.shape[1], dtype=wp.float64)
-        if self.on_cpu:  # a thread per block of rows, reading them in order (kernels/cg_cpu.py)
+        if self.backend.on_cpu:  # a thread per block of rows, reading them in order (kernels/cg_cpu.py)
             wp.launch(cg_cpu.column_dots_rows, dim=self.threads, inputs=[a, b, self.threads], outputs=[out])
         else:
             wp.launch(cg.column_dots, dim=(self.threads, self.shape[1]), inputs=[a, b, self.threads], outputs=[out])
@@ -73,7 +73,7 @@ class BatchedCG:
         return self.dots(v, self.z)
 
     def true_residual(self):
-        apply_operator(self.grid, self.field, self.r, device=self.device, equation=self.equation)
+        apply_operator(self.grid, self.field, self.r, device=self.backend, equation=self.equation)
         if self.rhs is None:
             wp.launch(cg.negate, dim=self.shape, inputs=[self.r], outputs=[self.r])
         else:
@@ -86,7 +86,7 @@ class BatchedCG:
 
     def start(self) -> np.ndarray:
         """The scale ||b_h||_M per handle (b = rhs - A_IK x_K = r0 + A_II x0) and the starting relative residuals."""
-        apply_operator(self.grid, self.field, self.p, n_rows=self.shape[0], device=self.device, equation=self.equation)
+        apply_operator(self.grid, self.field, self.p, n_rows=self.shape[0], device=self.backend, equation=self.equation)
         self.true_residual()
         wp.launch(cg.add_columns, dim=self.shape, inputs=[self.r, self.p], outputs=[self.p])
         squared = self.preconditioned_norms(self.p).numpy()
@@ -113,7 +113,7 @@ class BatchedCG:
         # float64 sums here too: with float32 ones the CG recurrence drifts further from the true residual on
         # fine grids (measured on an H100 at n = 256: 4e-5 instead of 1e-5 identity error after the first
         # round); one application per iteration, against ten in the V-cycle
-        apply_operator(self.grid, self.p, self.ap, n_rows=self.shape[0], device=self.device, equation=self.equation)
+        apply_operator(self.grid, self.p, self.ap, n_rows=self.shape[0], device=self.backend, equation=self.equation)
         pap = self.dots(self.p, self.ap)
         wp.launch(cg.step, dim=self.shape, inputs=[self.x, self.r, self.p, self.ap, self.rz, pap, running])
         rz_next = self.preconditioned_norms(self.r)

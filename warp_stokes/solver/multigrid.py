@@ -46,7 +46,7 @@ from concurrent.futures import Future
 import numpy as np
 import warp as wp
 
-from ..device import in_threads, reduction_threads, resolve_device
+from ..device import Backend
 from ..geometry.grid import Grid
 from ..kernels import cg
 from ..kernels import multigrid as mg_kernels
@@ -90,7 +90,7 @@ class Multigrid:
     Parameters
     ----------
     grid : Grid
-    device : None | str
+    device : None | str | Backend
     coarsest_nodes : int, optional, size at which coarsening stops (default by the device: :func:`coarsest_nodes_for`)
     levels : list of Level, optional
         The output of :func:`coarsen` for this grid and device, when it was computed already (e.g. to plan
@@ -110,8 +110,8 @@ class Multigrid:
     def __init__(self, grid: Grid, device=None, coarsest_nodes: int | None = None, levels=None,
                  equation: str = "biharmonic", threads: int | None = None):
         self.grid = grid
-        self.device = resolve_device(device)
-        self.threads = threads
+        self.backend = Backend.of(device, threads)
+        self.device = self.backend.device
         self.equation = check_equation(equation)
         #: setup time by phase: Galerkin product per coarse level, the coarsest inverse, eigenvalue estimates
         self.seconds = {"galerkin": [], "coarsest": 0.0, "eigenvalues": 0.0}
@@ -124,7 +124,7 @@ class Multigrid:
             wp.launch(table, dim=64, outputs=[self.table])
             # the transfers read it in float32 (exact: halves, quarters, eighths): half the bytes, no conversions
             self.table32 = wp.array(self.table.numpy().astype(np.float32), dtype=wp.mat44f)
-            self.levels = levels if levels is not None else coarsen(grid, self.device, coarsest_nodes)
+            self.levels = levels if levels is not None else coarsen(grid, self.backend, coarsest_nodes)
             self._form_operators()
             self._estimate_eigenvalues()
 
@@ -147,9 +147,9 @@ class Multigrid:
                         int(fine_operator) if finer.blocks is None else int(mg_kernels.BLOCKS),
                         wp.vec3i(*coarse.shift), self.table]
             # on a CPU the rows are shared out between the threads (0.4 s at n = 128 on one thread, the ogre)
-            in_threads(coarse.n, lambda a, b, coarse=coarse, operands=operands: wp.launch(
+            self.backend.in_threads(coarse.n, lambda a, b, coarse=coarse, operands=operands: wp.launch(
                 mg_kernels.galerkin_blocks, dim=(b - a, 14), inputs=[*operands, a], outputs=[coarse.blocks]),
-                self.device, self.threads, modules=("multigrid",))
+                modules=("multigrid",))
             coarse.rows = wp.empty((coarse.n, 27), dtype=wp.int32)
             wp.launch(mg_kernels.neighbour_rows, dim=coarse.rows.shape, inputs=[coarse.ijk_device, coarse.index,
                                                                                coarse.n], outputs=[coarse.rows])
@@ -219,7 +219,7 @@ class Multigrid:
             av = wp.empty_like(v)
             z = wp.empty_like(v)
             squared = wp.zeros(1, dtype=wp.float64)
-            threads = reduction_threads(lev.n, 1, self.device)
+            threads = self.backend.reduction_threads(lev.n, 1)
             # an iteration's launches recorded once for each order of (v, z) and replayed: on one column, launching
             # is most of the cost (a replay skips packing the arguments: 7 against 39 us on the 2-core CPU)
             iterations = [self._power_iteration(depth, a, b, av, squared, threads) for a, b in ((v, z), (z, v))]
@@ -297,7 +297,7 @@ class Multigrid:
     def _apply_A(self, depth: int, x: wp.array, out: wp.array, record_cmd: bool = False) -> "wp.Launch | None":
         lev = self.levels[depth]
         if depth == 0:
-            return apply_operator(self.grid, x, out, n_rows=lev.n, device=self.device, precise=False,
+            return apply_operator(self.grid, x, out, n_rows=lev.n, device=self.backend, precise=False,
                                   equation=self.equation, record_cmd=record_cmd)
         return wp.launch(mg_kernels.stencil_apply, dim=x.shape, inputs=[lev.blocks, lev.rows, x], outputs=[out],
                          device=self.device, record_cmd=record_cmd)  # a recorded launch keeps its device
@@ -364,13 +364,13 @@ class Multigrid:
         level, through a stored residual (in ``spare``) with x updated in place (False)."""
         lev = self.levels[depth]
         if depth > 0:
-            on_cpu = self.device.is_cpu  # a thread per row looping over the handles (see _cycle)
+            on_cpu = self.backend.on_cpu  # a thread per row looping over the handles (see _cycle)
             wp.launch(multigrid_cpu.stencil_chebyshev_step_rows if on_cpu else mg_kernels.stencil_chebyshev_step,
                       dim=lev.n if on_cpu else x.shape,
                       inputs=[lev.blocks, lev.rows, b, x, lev.inv_diag, ca, cb, d], outputs=[spare], device=self.device)
             return True
         if self.equation == "biharmonic":
-            chebyshev_step(self.grid, x, b, d, ca, cb, spare, n_rows=lev.n, device=self.device)
+            chebyshev_step(self.grid, x, b, d, ca, cb, spare, n_rows=lev.n, device=self.backend)
             return True
         self._residual(depth, b, x, spare)
         wp.launch(mg_kernels.chebyshev_step, dim=x.shape, inputs=[spare, lev.inv_diag, ca, cb], outputs=[x, d],
@@ -381,9 +381,9 @@ class Multigrid:
         """r = b - A x, in one pass (the fused kernels: a separate subtraction was 13% of a bind's GPU time)."""
         lev = self.levels[depth]
         if depth == 0:
-            apply_operator(self.grid, x, r, n_rows=lev.n, device=self.device, precise=False, equation=self.equation,
+            apply_operator(self.grid, x, r, n_rows=lev.n, device=self.backend, precise=False, equation=self.equation,
                            rhs=b)
-        elif self.device.is_cpu:  # a thread per row looping over the handles (see _cycle)
+        elif self.backend.on_cpu:  # a thread per row looping over the handles (see _cycle)
             wp.launch(multigrid_cpu.stencil_residual_rows, dim=lev.n, inputs=[lev.blocks, lev.rows, b, x], outputs=[r],
                       device=self.device)
         else:
@@ -404,7 +404,7 @@ class Multigrid:
         shift = wp.vec3i(*coarse_level.shift)
         # a CPU runs a thread per node looping over the handles (a kernel's threads run there one after another):
         # the transfers' look-ups are made once per node instead of once per node and handle
-        on_cpu = self.device.is_cpu
+        on_cpu = self.backend.on_cpu
         wp.launch(multigrid_cpu.restrict_rows if on_cpu else mg_kernels.restrict,
                   dim=coarse_level.n if on_cpu else coarse["b"].shape,
                   inputs=[self.table32, coarse_level.ijk_device, lev.index, lev.n, shift, r], outputs=[coarse["b"]],

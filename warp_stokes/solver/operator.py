@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from ..device import resolve_device
+from ..device import Backend
 from ..geometry.grid import Grid
 from ..errors import WarpStokesError
 from ..kernels import cg, laplace, stencil, stencil_cpu
@@ -38,7 +38,7 @@ def apply_operator(grid: Grid, field: wp.array, out: wp.array, n_rows: int | Non
     field : wp.array2d(vec4f), (rows, handles); rows numbered as ``grid.active_ijk``
     out : wp.array2d(vec4f), (grid.n_interior, handles)
     n_rows : int, rows of ``field`` that are read (others read as zero). Default: all of them.
-    device : None | str
+    device : None | str | Backend
     precise : bool, float64 sums (for residuals); float32 sums otherwise (Krylov and smoothing steps)
     equation : "biharmonic" (the compact 19-point scheme) | "laplace" (7-point, identity gradient rows)
     rhs : wp.array2d(vec4f), optional, (grid.n_interior, handles): write ``rhs - A field`` instead; one pass for the
@@ -56,15 +56,16 @@ def apply_operator(grid: Grid, field: wp.array, out: wp.array, n_rows: int | Non
     >>> out = wp.empty((grid.n_interior, field.shape[1]), dtype=wp.vec4f, device="cpu")  # doctest: +SKIP
     >>> apply_operator(grid, field, out, device="cpu")                                     # doctest: +SKIP
     """
-    device = resolve_device(device)
-    arrays = grid.device_arrays(device)
+    backend = Backend.of(device)
+    device = backend.device
+    arrays = grid.device_arrays(backend)
     n_rows = field.shape[0] if n_rows is None else n_rows
     fused = rhs is not None and equation == "biharmonic" and not precise
     if rhs is not None and not fused and rhs.ptr == out.ptr:
         raise ValueError("apply_operator: out may be rhs only for the biharmonic scheme with precise=False")
     if rhs is not None and not fused and record_cmd:
         raise ValueError("apply_operator: a residual in two passes cannot be recorded as one launch")
-    if equation == "laplace" and device.is_cpu:  # a thread per node looping over the handles
+    if equation == "laplace" and backend.on_cpu:  # a thread per node looping over the handles
         launch = wp.launch(laplace.apply_laplacian_rows if precise else laplace.apply_laplacian_rows_fast,
                            dim=out.shape[0], inputs=[field, arrays["neighbours"], int(n_rows)], outputs=[out],
                            device=device, record_cmd=record_cmd)
@@ -73,10 +74,10 @@ def apply_operator(grid: Grid, field: wp.array, out: wp.array, n_rows: int | Non
                            inputs=[field, arrays["index"], arrays["active_ijk"], int(n_rows)], outputs=[out],
                            device=device, record_cmd=record_cmd)
     else:
-        kernels = stencil_cpu if device.is_cpu else stencil
+        kernels = backend.pick(cpu=stencil_cpu, gpu=stencil)
         kernel = kernels.residual_operator_fast if fused else (
             kernels.apply_operator if precise else kernels.apply_operator_fast)
-        if device.is_cpu:
+        if backend.on_cpu:
             launch = _node_loop(kernel, arrays, field, n_rows, rhs if fused else out, 0.0, 0.0, out, out, device,
                                 record_cmd)
         else:
@@ -103,7 +104,7 @@ def chebyshev_step(grid: Grid, field: wp.array, rhs: wp.array, d: wp.array, ca: 
     out : wp.array2d(vec4f), (grid.n_interior, handles), the next iterate; not ``field`` (its neighbours are read
         after a node's step is written)
     n_rows : int
-    device : None | str
+    device : None | str | Backend
 
     Examples
     --------
@@ -111,9 +112,10 @@ def chebyshev_step(grid: Grid, field: wp.array, rhs: wp.array, d: wp.array, ca: 
     """
     if out.ptr == field.ptr:
         raise ValueError("chebyshev_step: out must not be field")
-    device = resolve_device(device)
-    arrays = grid.device_arrays(device)
-    if device.is_cpu:
+    backend = Backend.of(device)
+    device = backend.device
+    arrays = grid.device_arrays(backend)
+    if backend.on_cpu:
         _node_loop(stencil_cpu.chebyshev_step_fast, arrays, field, n_rows, rhs, ca, cb, d, out, device)
     else:
         _walk(stencil.chebyshev_step_fast, arrays, arrays["step_patches"], field, n_rows,

@@ -51,7 +51,7 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from ..device import resolve_device
+from ..device import Backend
 from ..errors import ConvergenceError
 from ..geometry.boundary import COMPLEMENT_COLUMNS
 from ..geometry.grid import Grid
@@ -147,7 +147,7 @@ def solve_biharmonic(
     preconditioner : "multigrid" | "jacobi" | Multigrid
         The V-cycle of :class:`warp_stokes.solver.multigrid.Multigrid` (built here unless given), or the inverse
         diagonal.
-    device : None | str
+    device : None | str | Backend
     callback : callable, optional
         ``callback(iteration, field)`` is called with the starting field (iteration 0) and after every CG
         iteration, with ``field`` holding the current iterate: to record convergence histories. It must not
@@ -183,11 +183,11 @@ def solve_biharmonic(
     """
     # the stopping rule (rounds, recomputed residual, identity check, restarts) in _attempt; the ladder of
     # preconditioners after faults here
-    device = resolve_device(device)
+    backend = Backend.of(device)
     check_equation(equation)
     start = time.perf_counter()
-    with wp.ScopedDevice(device):
-        deviation = _identity_check(grid, field, handles, device, chunk)  # first: it checks the columns
+    with backend.scope():
+        deviation = _identity_check(grid, field, handles, backend, chunk)  # first: it checks the columns
         # The starting field reproduces constants and linear functions exactly in float64; its deviation once
         # stored in float32 is the rounding floor of the identity check (it grows with the handles and the nodes:
         # 1e-6 is within reach of 100+ handles on 10^6 nodes). Ask for the tolerance or twice it.
@@ -197,13 +197,13 @@ def solve_biharmonic(
         totals = {"iterations": 0, "restarts": 0, "rounds": [], "setup": 0.0}
         recoveries = []
         solver = None
-        for k, (name, precondition, limit, build_seconds) in enumerate(_ladder(grid, preconditioner, device,
+        for k, (name, precondition, limit, build_seconds) in enumerate(_ladder(grid, preconditioner, backend,
                                                                                 equation)):
             totals["setup"] += build_seconds
             if k == 0 and max_iterations is not None:
                 limit = max_iterations
             del solver  # its vectors go before the next ones are allocated (the memory plan counts one set)
-            solver = BatchedCG(grid, field, source, precondition, device, equation)
+            solver = BatchedCG(grid, field, source, precondition, backend, equation)
             rel = solver.start()
             if recoveries:
                 recoveries[-1]["next"] = name
@@ -218,8 +218,8 @@ def solve_biharmonic(
                 break
             recoveries.append({"iteration": totals["iterations"], "fault": fault, "preconditioner": name})
         if equation == "laplace":
-            _gradients_from_values(grid, field, device)
-        wp.synchronize_device(device)
+            _gradients_from_values(grid, field, backend)
+        backend.synchronize()
 
     residual = float(rel.max()) if len(rel) else 0.0
     converged = bool(fault is None and (rel <= tol).all() and identity <= identity_tol)
@@ -244,7 +244,7 @@ def solve_biharmonic(
     # a fault on every preconditioner leaves an iterate that is no solution, whatever its identity deviation (the
     # starting field already reproduces constants and linear functions)
     if fault is not None or (handles is not None and not identity <= ACCEPTABLE * identity_tol):
-        with wp.ScopedDevice(device):
+        with backend.scope():
             data = deviation(known=True)
         error = ConvergenceError(_failure_message(totals, residual, identity, ACCEPTABLE * identity_tol, recoveries,
                                                   fault, limit, data))
@@ -335,25 +335,25 @@ def _failure_message(totals: dict, residual: float, identity: float, acceptable:
     return message + (f"it stopped improving after {MAX_RESTARTS} restarts; please report it with the cage")
 
 
-def _gradients_from_values(grid: Grid, field: wp.array, device) -> None:
+def _gradients_from_values(grid: Grid, field: wp.array, backend: Backend) -> None:
     """The interior rows' G of a Laplace solution: central differences of its values (its G rows solved to 0)."""
-    arrays = grid.device_arrays(device)
+    arrays = grid.device_arrays(backend)
     wp.launch(laplace.gradient_from_values, dim=(grid.n_interior, field.shape[1]),
-              inputs=[field, arrays["index"], arrays["active_ijk"]], device=device)
+              inputs=[field, arrays["index"], arrays["active_ijk"]], device=backend.device)
 
 
-def _ladder(grid: Grid, preconditioner, device, equation: str = "biharmonic"):
+def _ladder(grid: Grid, preconditioner, backend: Backend, equation: str = "biharmonic"):
     """The preconditioners a solve takes in turn, each only after a fault of the one before it, built when reached:
     (name, apply(r, z), default iteration limit, seconds to build it). The multigrid cycle (built here for
     "multigrid"), then the same cycle with guaranteed smoother bounds, then the inverse diagonal; "jacobi" alone
     when asked for."""
     if preconditioner == "jacobi":
-        yield "jacobi", _jacobi(equation, device), 40 * (grid.resolution + 8) ** 2, 0.0
+        yield "jacobi", _jacobi(equation, backend), 40 * (grid.resolution + 8) ** 2, 0.0
         return
     start = time.perf_counter()
     if preconditioner == "multigrid":
-        preconditioner = Multigrid(grid, device=device, equation=equation)
-        wp.synchronize_device(device)
+        preconditioner = Multigrid(grid, device=backend, equation=equation)
+        backend.synchronize()
     if not isinstance(preconditioner, Multigrid):
         raise ValueError(f"unknown preconditioner {preconditioner!r}: use 'multigrid' or 'jacobi'")
     if preconditioner.equation != equation:
@@ -366,7 +366,7 @@ def _ladder(grid: Grid, preconditioner, device, equation: str = "biharmonic"):
         preconditioner.bound_eigenvalues()  # kept: the later chunks of a bind use the cycle that worked
         setup = time.perf_counter() - start
     yield "multigrid with guaranteed smoother bounds", preconditioner.apply, MULTIGRID_ITERATIONS, setup
-    yield "jacobi", _jacobi(equation, device), jacobi_recovery_iterations(grid.resolution), 0.0
+    yield "jacobi", _jacobi(equation, backend), jacobi_recovery_iterations(grid.resolution), 0.0
 
 
 def jacobi_recovery_iterations(resolution: int) -> int:
@@ -383,17 +383,17 @@ def jacobi_recovery_iterations(resolution: int) -> int:
     return (int(resolution) + 8) ** 2
 
 
-def _jacobi(equation: str, device):
+def _jacobi(equation: str, backend: Backend):
     """apply(r, z): z = D^-1 r, the inverse diagonal of the fine operator."""
     kernel = laplace.jacobi if equation == "laplace" else cg.jacobi
 
     def precondition(r, z):
-        wp.launch(kernel, dim=r.shape, inputs=[r], outputs=[z], device=device)
+        wp.launch(kernel, dim=r.shape, inputs=[r], outputs=[z], device=backend.device)
 
     return precondition
 
 
-def _identity_check(grid: Grid, field: wp.array, handles, device, chunk: slice | None = None):
+def _identity_check(grid: Grid, field: wp.array, handles, backend: Backend, chunk: slice | None = None):
     """A function returning the largest deviation from partition of unity and linear precision at the
     interior nodes (0 when ``handles`` is None), over the columns of ``field``: the cage coordinates of all
     ``handles``; or of ``handles[chunk]`` followed by the complement column, and then partition of unity only."""
@@ -414,7 +414,8 @@ def _identity_check(grid: Grid, field: wp.array, handles, device, chunk: slice |
             + (f"({stop - first} handles of the chunk and {COMPLEMENT_COLUMNS} for the rest of the cage)"
                if chunk is not None else "(one per handle)")
         )
-    ijk = grid.device_arrays(device)["active_ijk"]
+    device = backend.device
+    ijk = grid.device_arrays(backend)["active_ijk"]
     columns = wp.array(columns, dtype=wp.vec4d, device=device)
     out = wp.zeros(1, dtype=float, device=device)
 
