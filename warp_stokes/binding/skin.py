@@ -301,26 +301,61 @@ def write_skin(path, binding, poses, influences: int | None = None, non_negative
     from ..io.usd.write import check_animation, check_options
 
     check_options(fps, up_axis, meters_per_unit, with_cage=with_cage)
-    if max_error is not None:
-        number(max_error, "max_error", 0, low_open=True)
-    if influences is not None:
-        integer(influences, "influences", 1)
-    if non_negative is not None:
-        flag(non_negative, "non_negative")
+    _check_skin_options(max_error, influences, non_negative)
     if not isinstance(poses, Poses):
         poses = load_poses(poses, binding.cage_faces, binding.n_handles, binding.cage_source_index)
     ext, positions, frames = check_animation(path, binding, poses, fps,
                                              (".usd", ".usdc", ".usda") + GLTF_EXTENSIONS, asset)
     path = os.fspath(path)
     gltf = ext in GLTF_EXTENSIONS
-    if gltf and non_negative is False:
-        raise WarpStokesError(f"{path}: glTF skins take non-negative weights only (leave non_negative unset)")
-    if gltf and (with_cage or up_axis is not None or meters_per_unit is not None or asset is not None):
-        raise WarpStokesError(f"{path}: a glTF skin takes no cage, up axis, units or asset (glTF is Y-up in metres; "
-                              "a USD asset's own are converted)")
+    if gltf:
+        _check_gltf_request(path, non_negative, with_cage, up_axis, meters_per_unit, asset)
     if influences is None:
         influences = min(8, binding.n_handles) if gltf else binding.n_handles
     non_negative = gltf if non_negative is None else bool(non_negative)
+    skin, error = _measured_skin(path, binding, positions, influences, non_negative, max_error)
+    metadata = {"joints": int(binding.n_handles), "influences": int(skin.influences),
+                "nonNegative": bool(non_negative), "maxError": float(error.max), "rmsError": float(error.rms),
+                "errorOver": "rest mesh bounding-box diagonal"}
+    joints = joint_names(binding.n_handles)
+    if gltf:
+        rate = animation_rate(fps, poses, (binding.asset or {}).get("time_codes_per_second"))
+        write_gltf_skin(path, ext, binding, skin, joints, positions, frames, rate, metadata)
+        form = "glTF skin"
+    else:
+        form = _write_usd_skin(path, ext, binding, skin, error, joints, positions, frames, poses, metadata, fps=fps,
+                               with_cage=with_cage, up_axis=up_axis, meters_per_unit=meters_per_unit, asset=asset)
+    without_negatives = None
+    if np.any(skin.weights < 0):
+        without_negatives = skin_error(binding, skin_weights(binding, skin.influences, True), positions)
+    return SkinReport(path, form, binding.n_handles, skin.influences, non_negative, len(positions), error,
+                      without_negatives)
+
+
+def _check_skin_options(max_error, influences, non_negative) -> None:
+    """Refuse (:class:`WarpStokesError`) a ``max_error`` not above zero, ``influences`` below one or a
+    ``non_negative`` that is no flag."""
+    if max_error is not None:
+        number(max_error, "max_error", 0, low_open=True)
+    if influences is not None:
+        integer(influences, "influences", 1)
+    if non_negative is not None:
+        flag(non_negative, "non_negative")
+
+
+def _check_gltf_request(path: str, non_negative, with_cage, up_axis, meters_per_unit, asset) -> None:
+    """Refuse (:class:`WarpStokesError`) what a glTF skin cannot hold: negative weights, a cage, an up axis, units or
+    an asset."""
+    if non_negative is False:
+        raise WarpStokesError(f"{path}: glTF skins take non-negative weights only (leave non_negative unset)")
+    if with_cage or up_axis is not None or meters_per_unit is not None or asset is not None:
+        raise WarpStokesError(f"{path}: a glTF skin takes no cage, up axis, units or asset (glTF is Y-up in metres; "
+                              "a USD asset's own are converted)")
+
+
+def _measured_skin(path: str, binding, positions, influences: int, non_negative: bool, max_error):
+    """The skin (:func:`skin_weights`) and its distance from the cage deformation over the poses
+    (:func:`skin_error`); refused (:class:`WarpStokesError`) where that is above ``max_error``."""
     skin = skin_weights(binding, influences, non_negative)
     error = skin_error(binding, skin, positions)
     if max_error is not None and error.max > max_error:
@@ -328,18 +363,21 @@ def write_skin(path, binding, poses, influences: int | None = None, non_negative
             f"{path}: with {skin.influences} influences per vertex{' (non-negative)' if non_negative else ''} the skin "
             f"is up to {error.max:.2e} of the diagonal from the cage deformation (pose {error.frame + 1} of "
             f"{len(positions)}), above the allowed {max_error:g}; keep more influences")
-    metadata = {"joints": int(binding.n_handles), "influences": int(skin.influences),
-                "nonNegative": bool(non_negative), "maxError": float(error.max), "rmsError": float(error.rms),
-                "errorOver": "rest mesh bounding-box diagonal"}
-    joints = joint_names(binding.n_handles)
+    return skin, error
+
+
+def _write_usd_skin(path: str, ext: str, binding, skin: SkinWeights, error: SkinError, joints, positions, frames,
+                    poses, metadata: dict, *, fps, with_cage, up_axis, meters_per_unit, asset) -> str:
+    """Write the skin as a UsdSkel rig: a layer over the binding's USD asset, else a stage of its own; see
+    :func:`write_skin`. Returns the form written (:attr:`SkinReport.form`)."""
+    import os
+
+    from ..io.usd.common import animation_rate
+
     diagonal = float(np.linalg.norm(np.ptp(np.asarray(binding.mesh_vertices), axis=0)))
     # the SkelRoot's extent: the deformed points' box widened by how far the skin may be from them
     pad = (error.max + 1e-6) * diagonal
-    if gltf:
-        rate = animation_rate(fps, poses, (binding.asset or {}).get("time_codes_per_second"))
-        write_gltf_skin(path, ext, binding, skin, joints, positions, frames, rate, metadata)
-        form = "glTF skin"
-    elif binding.asset is not None:
+    if binding.asset is not None:
         from ..io.usd.layer import asset_context
         from ..io.usd.skel import write_layer_skeleton
 
@@ -347,18 +385,12 @@ def write_skin(path, binding, poses, influences: int | None = None, non_negative
         rate = animation_rate(fps, poses, asset_metadata["time_codes_per_second"])
         write_layer_skeleton(path, ext, binding, skin, joints, positions, frames, rate, with_cage, asset_path,
                              asset_metadata, pad, metadata)
-        form = f"UsdSkel layer over {os.path.relpath(asset_path, os.path.dirname(os.path.abspath(path)))}"
-    else:
-        from ..io.usd.skel import write_standalone_skeleton
+        return f"UsdSkel layer over {os.path.relpath(asset_path, os.path.dirname(os.path.abspath(path)))}"
+    from ..io.usd.skel import write_standalone_skeleton
 
-        if up_axis not in (None, "Y", "Z"):
-            raise WarpStokesError(f"up axis must be 'Y' or 'Z', got {up_axis!r}")
-        rate = animation_rate(fps, poses)
-        write_standalone_skeleton(path, ext, binding, skin, joints, positions, frames, rate, with_cage,
-                                  up_axis or "Y", 1.0 if meters_per_unit is None else meters_per_unit, pad, metadata)
-        form = "UsdSkel stage"
-    without_negatives = None
-    if np.any(skin.weights < 0):
-        without_negatives = skin_error(binding, skin_weights(binding, skin.influences, True), positions)
-    return SkinReport(path, form, binding.n_handles, skin.influences, non_negative, len(positions), error,
-                      without_negatives)
+    if up_axis not in (None, "Y", "Z"):
+        raise WarpStokesError(f"up axis must be 'Y' or 'Z', got {up_axis!r}")
+    rate = animation_rate(fps, poses)
+    write_standalone_skeleton(path, ext, binding, skin, joints, positions, frames, rate, with_cage,
+                              up_axis or "Y", 1.0 if meters_per_unit is None else meters_per_unit, pad, metadata)
+    return "UsdSkel stage"

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field, replace
+from functools import partial
 
 import numpy as np
 import warp as wp
@@ -194,11 +195,41 @@ def make_cage(mesh, handles: int | None = None, offset: float | None = None, dev
     >>> made.cage.n_handles, made.distance[1] < 0.03
     (60, True)
     """
+    _check_request(handles, offset)
+    surface = load_scene(mesh, mesh_prims=mesh_prims).surface()
+    name = surface.name
+    points, faces, stray, diag = _surface_to_enclose(surface)
+    device = Backend.of(device).device
+    # the default offset is raised where the cage cannot reach the handles asked: a cage of about the count asked
+    # matters more to the user than one that hugs the mesh (an offset given is kept, with a note if it stops short)
+    fractions = [offset] if offset is not None else [DEFAULT_OFFSET * factor for factor in OFFSET_STEPS]
+    centre = 0.5 * (points.min(axis=0) + points.max(axis=0))
+    t = time.perf_counter()
+    body, strays = _mesh_on_device(surface, faces, stray, centre, device)
+    seconds = {"field": time.perf_counter() - t}
+    made_at = partial(_made_at, body, strays, centre, points, name, diag, device=device)
+    tries, k, first_gave_up, handles = _tightest(made_at, fractions, handles, seconds)
+    best = tries[k]
+    notes = list(best.notes)
+    if k > 0:
+        stopped = "the collapses had all but stopped at" if first_gave_up else "the cage stopped at"
+        notes.insert(0, f"{name}: at an offset of {fractions[0]:g} of the diagonal {stopped} "
+                        f"{tries[0].cage.n_handles} handles (asked {handles}); it was made at {fractions[k]:g} "
+                        "instead, which leaves the collapses more room")
+    return replace(best, chosen=tries[0].chosen, seconds=seconds, notes=notes)
+
+
+def _check_request(handles, offset) -> None:
+    """Refuse (:class:`CageError`) a handle count below 8 or an offset outside (0, 0.5]."""
     if handles is not None and (int(handles) != handles or handles < 8):
         raise CageError(f"handles: a made cage needs at least 8 handles, got {handles}")
     if offset is not None and not (np.isfinite(offset) and 0 < offset <= 0.5):
         raise CageError(f"offset: a fraction of the mesh's diagonal in (0, 0.5], got {offset}")
-    surface = load_scene(mesh, mesh_prims=mesh_prims).surface()
+
+
+def _surface_to_enclose(surface):
+    """The mesh's vertices (float64), faces (int64), vertices on no face, and bounding diagonal; refused
+    (:class:`MeshError`) without faces of some area, or with non-finite or coincident vertices."""
     name = surface.name
     points = np.asarray(surface.vertices, dtype=np.float64)
     faces = np.asarray(surface.faces, dtype=np.int64)
@@ -219,45 +250,46 @@ def make_cage(mesh, handles: int | None = None, offset: float | None = None, dev
     if not (areas > 1e-12 * diag ** 2).any():  # a distance field needs a surface: lines have no inside or outside
         raise MeshError(f"{name}: every face has zero area (its vertices lie on lines); a cage is made around a "
                         "surface")
-    device = Backend.of(device).device
-    # the default offset is raised where the cage cannot reach the handles asked: a cage of about the count asked
-    # matters more to the user than one that hugs the mesh (an offset given is kept, with a note if it stops short)
-    fractions = [offset] if offset is not None else [DEFAULT_OFFSET * factor for factor in OFFSET_STEPS]
-    centre = 0.5 * (points.min(axis=0) + points.max(axis=0))
-    t = time.perf_counter()
-    with wp.ScopedDevice(device):  # the mesh's BVH and its stray vertices', built once for every offset tried
+    return points, faces, stray, diag
+
+
+def _mesh_on_device(surface, faces, stray, centre, device):
+    """The mesh's BVH (with winding numbers) and its stray vertices' (positions, BVH), or None, on ``device``,
+    relative to ``centre``: built once for every offset tried."""
+    with wp.ScopedDevice(device):
         body = wp.Mesh(points=wp.array((surface.vertices - centre).astype(np.float32), dtype=wp.vec3),
                        indices=wp.array(faces.astype(np.int32).ravel(), dtype=wp.int32), support_winding_number=True)
         strays = None
         if len(stray):
             rel = wp.array((stray - centre).astype(np.float32), dtype=wp.vec3)
             strays = (rel, wp.Bvh(rel, rel))
-    seconds, tries, gave_up_early = {"field": time.perf_counter() - t}, [], []
+    return body, strays
+
+
+def _tightest(made_at, fractions, handles, seconds):
+    """The cages made by ``made_at(fraction, handles, last)`` (:func:`_made_at`) at the offsets ``fractions`` in
+    turn, up to the first that comes down to about the handles asked. Returns (the cages, the index of the first
+    with the fewest handles: the tightest, whether the first gave up, the handles asked: where none were given, those
+    chosen from the first offset surface, which hold for the larger offsets); ``seconds`` sums their stages' times."""
+    tries, gave_up_early = [], []
 
     def attempt(fraction, last):
-        made, gave_up = _made_at(body, strays, centre, points, name, diag, fraction, handles, device, last=last)
+        made, gave_up = made_at(fraction, handles, last=last)
         for stage, spent in made.seconds.items():
             seconds[stage] = seconds.get(stage, 0.0) + spent
         return made, gave_up
 
     for j, fraction in enumerate(fractions):
         made, gave_up = attempt(fraction, last=j == len(fractions) - 1)
-        handles = made.handles  # the count chosen from the first offset surface holds for the larger offsets
+        handles = made.handles
         tries.append(made)
         gave_up_early.append(gave_up)
         if made.cage.n_handles <= _about(made.handles):
             break
-    k = min(range(len(tries)), key=lambda j: tries[j].cage.n_handles)  # the first of the fewest: the tightest
+    k = min(range(len(tries)), key=lambda j: tries[j].cage.n_handles)
     if gave_up_early[k]:  # every larger offset stopped higher than this one gave up at: this one is finished after all
         tries[k], _ = attempt(fractions[k], last=True)
-    best = tries[k]
-    notes = list(best.notes)
-    if k > 0:
-        stopped = "the collapses had all but stopped at" if gave_up_early[0] else "the cage stopped at"
-        notes.insert(0, f"{name}: at an offset of {fractions[0]:g} of the diagonal {stopped} "
-                        f"{tries[0].cage.n_handles} handles (asked {handles}); it was made at {fractions[k]:g} "
-                        "instead, which leaves the collapses more room")
-    return replace(best, chosen=tries[0].chosen, seconds=seconds, notes=notes)
+    return tries, k, gave_up_early[0], handles
 
 
 def _about(handles: int) -> int:

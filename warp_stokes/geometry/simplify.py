@@ -22,7 +22,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .cage_faults import crossing_faces
-from .topology import face_edges
+from .collapse_candidates import (csr, csr_rows, edge_placements, in_sorted, link_condition, round_candidates,
+                                  unique_edges, vertex_quadrics)
 
 __all__ = ["simplify_enclosing", "Simplified", "MAX_FOLD_DEGREES", "REFUSALS", "STALL_WINDOW", "STALL_ROUNDS"]
 
@@ -69,136 +70,12 @@ class Simplified:
     gave_up: bool = False
 
 
-def _quadrics(v: np.ndarray, f: np.ndarray) -> np.ndarray:
-    """(V, 4, 4) sums of the area-weighted plane quadrics of each vertex's faces."""
-    n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
-    area2 = np.linalg.norm(n, axis=1)
-    unit = n / np.maximum(area2, 1e-300)[:, None]
-    plane = np.column_stack([unit, -np.einsum("ij,ij->i", unit, v[f[:, 0]])])
-    q = 0.5 * area2[:, None, None] * plane[:, :, None] * plane[:, None, :]
-    out = np.zeros((len(v), 4, 4))
-    for k in range(3):
-        np.add.at(out, f[:, k], q)
-    return out
-
-
-def _placements(qa: np.ndarray, qb: np.ndarray, pa: np.ndarray, pb: np.ndarray):
-    """Candidate positions for collapsing edges (a, b), in order of their quadric error: the quadric's minimiser
-    (where it is well conditioned and near the edge), the midpoint, a and b. Returns positions (E, 4, 3) and
-    errors (E, 4)."""
-    q = qa + qb
-    mid = 0.5 * (pa + pb)
-    a3, b3 = q[:, :3, :3], -q[:, :3, 3]
-    det = np.linalg.det(a3)
-    scale = np.maximum(np.einsum("eii->e", a3), 1e-300) ** 3
-    good = np.abs(det) > 1e-6 * scale
-    opt = mid.copy()
-    if good.any():
-        opt[good] = np.linalg.solve(a3[good], b3[good][:, :, None])[:, :, 0]
-    # a minimiser far from the edge (a nearly flat or cylindrical patch) is no placement to trust
-    far = np.linalg.norm(opt - mid, axis=1) > np.linalg.norm(pb - pa, axis=1)
-    opt[far] = mid[far]
-    cand = np.stack([opt, mid, pa, pb], axis=1)
-    h = np.concatenate([cand, np.ones(cand.shape[:2] + (1,))], axis=2)
-    cost = np.einsum("eci,eij,ecj->ec", h, q, h)
-    cost = np.maximum(cost, 0.0)
-    order = np.argsort(cost, axis=1, kind="stable")
-    return np.take_along_axis(cand, order[:, :, None], axis=1), np.take_along_axis(cost, order, axis=1)
-
-
-def _unique_edges(f: np.ndarray, n: int) -> np.ndarray:
-    """(E, 2) the undirected edges of faces f (vertex ids below n), each once, (a < b), sorted."""
-    e = face_edges(f)
-    keys = np.unique(np.minimum(e[:, 0], e[:, 1]) * n + np.maximum(e[:, 0], e[:, 1]))
-    return np.column_stack([keys // n, keys % n])
-
-
-def _csr(source: np.ndarray, target: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """(start (n + 1,), items) listing target[k] under source[k]."""
-    order = np.argsort(source, kind="stable")
-    start = np.zeros(n + 1, dtype=np.int64)
-    np.cumsum(np.bincount(source, minlength=n), out=start[1:])
-    return start, target[order]
-
-
-def _expand(start: np.ndarray, items: np.ndarray, owners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """For each owner o, the items start[o]:start[o+1]: (which owner (by position in owners), item)."""
-    counts = start[owners + 1] - start[owners]
-    which = np.repeat(np.arange(len(owners)), counts)
-    offset = np.arange(len(which)) - np.repeat(np.cumsum(counts) - counts, counts)
-    return which, items[start[owners][which] + offset]
-
-
-def _contains(sorted_keys: np.ndarray, keys: np.ndarray) -> np.ndarray:
-    """Which keys are in the sorted array."""
-    if len(sorted_keys) == 0:
-        return np.zeros(len(keys), dtype=bool)
-    pos = np.minimum(np.searchsorted(sorted_keys, keys), len(sorted_keys) - 1)
-    return sorted_keys[pos] == keys
-
-
-def _link_condition(edges, nbr_start, nbr, n) -> np.ndarray:
-    """Edges whose ends share exactly two neighbours, neither of valence 3: collapsing them keeps the surface a
-    manifold (and never flattens a tetrahedron)."""
-    keys = edges[:, 0] * n + edges[:, 1]
-    valence = np.diff(nbr_start)
-    which, c = _expand(nbr_start, nbr, edges[:, 0])
-    b = edges[which, 1]
-    common = (c != b) & _contains(keys, np.minimum(b, c) * n + np.maximum(b, c))
-    count = np.bincount(which, weights=common, minlength=len(edges))
-    thin = np.bincount(which, weights=common & (valence[c] <= 3), minlength=len(edges))
-    return (count == 2) & (thin == 0)
-
-
-def _cost_bins(cost: np.ndarray) -> np.ndarray:
-    """Costs in bins a quarter of an octave wide (the cheapest hundred-millionth of the largest in one): collapses
-    are taken cheapest bin first, and within a bin in a scrambled order, so that where costs vary smoothly over the
-    surface (or are all zero, on its flat parts) the independent sets are large, not one local minimum per round."""
-    floor = 1e-8 * max(float(cost.max()), 1e-300)
-    return np.floor(4.0 * np.log2(np.maximum(cost, floor) / floor)).astype(np.int64)
-
-
-def _scramble(keys: np.ndarray) -> np.ndarray:
-    """A fixed pseudo-random order of edge keys (Knuth's multiplicative hash): deterministic, spatially uncorrelated."""
-    return (keys.astype(np.uint64) * np.uint64(2654435761)) % np.uint64(2**32)
-
-
-def _first_at_both_ends(edges, priority, n) -> np.ndarray:
-    """Edges that come first (smallest priority) among the edges at each of their two ends: no two share a vertex."""
-    big = np.iinfo(np.int64).max
-    m = np.full(n, big, dtype=np.int64)
-    np.minimum.at(m, edges[:, 0], priority)
-    np.minimum.at(m, edges[:, 1], priority)
-    return (priority < big) & (priority == m[edges[:, 0]]) & (priority == m[edges[:, 1]])
-
-
-def _disjoint_fans(which: np.ndarray, ring: np.ndarray, k: int, n: int, passes: int = 8) -> np.ndarray:
-    """Of k collapses in priority order, whose fans hold vertices ``ring`` (``which`` collapse each), a set whose
-    fans share no vertex, nearly maximal: in each pass a collapse is taken when it comes first at every vertex of
-    its fan among those still open; collapses touching a taken fan close (Luby's rounds, with priorities)."""
-    taken = np.zeros(k, dtype=bool)
-    open_ = np.ones(k, dtype=bool)
-    for _ in range(passes):
-        live = open_[which]
-        owner = np.full(n, k, dtype=np.int64)
-        np.minimum.at(owner, ring[live], which[live])
-        lost = np.bincount(which[live], weights=owner[ring[live]] != which[live], minlength=k) > 0
-        won = open_ & ~lost
-        taken |= won
-        blocked = np.zeros(n, dtype=bool)
-        blocked[ring[won[which]]] = True
-        open_ &= ~won & ~(np.bincount(which, weights=blocked[ring], minlength=k) > 0)
-        if not open_.any():
-            break
-    return taken
-
-
 def _apart(v, f, vf_start, vf, a, b, x, device) -> np.ndarray:
     """Of collapses checked one by one against the surface as it was (fans sharing no vertex, in priority order),
     those to make together: where the new faces of two cross, the later one waits for a later round. Only
     collapses whose new faces' boxes overlap another's are tested."""
     k = len(a)
-    which, face = _expand(vf_start, vf, np.concatenate([a, b]))
+    which, face = csr_rows(vf_start, vf, np.concatenate([a, b]))
     which %= k
     faces = f[face]
     keep = ~((faces == a[which][:, None]).any(axis=1) & (faces == b[which][:, None]).any(axis=1))
@@ -227,27 +104,11 @@ def _apart(v, f, vf_start, vf, a, b, x, device) -> np.ndarray:
     return kept
 
 
-def _round_candidates(edges, keys, cost, eligible, nbr_start, nbr, n, most) -> np.ndarray:
-    """A round's collapses to check, in priority order: the eligible edges first at both ends (by cost bin, then a
-    scrambled order), whose fans share no vertex, at most ``most``."""
-    index = np.flatnonzero(eligible)
-    priority = np.full(len(edges), np.iinfo(np.int64).max, dtype=np.int64)
-    priority[index[np.lexsort((_scramble(keys[index]), _cost_bins(cost[index])))]] = np.arange(len(index))
-    chosen = np.flatnonzero(_first_at_both_ends(edges, priority, n))
-    chosen = chosen[np.argsort(priority[chosen])]
-    if len(chosen) == 0:
-        return chosen
-    # fans that share no vertex: each vertex goes to the first collapse (in priority order) whose fan holds it
-    which, ring = _expand(nbr_start, nbr, np.concatenate([edges[chosen, 0], edges[chosen, 1]]))
-    which %= len(chosen)
-    return chosen[_disjoint_fans(which, ring, len(chosen), n)][:most]
-
-
 def _refuse(refused_keys, refused_at, new_keys, rounds):
     """The sorted refused edge keys and the round of each refusal, with ``new_keys`` refused at ``rounds`` (an
     edge refused again keeps only its latest round)."""
     new_keys = np.unique(new_keys)  # sorted, for the lookup below
-    keep = ~_contains(new_keys, refused_keys)
+    keep = ~in_sorted(new_keys, refused_keys)
     refused_keys = np.concatenate([refused_keys[keep], new_keys])
     refused_at = np.concatenate([refused_at[keep], np.full(len(new_keys), rounds)])
     order = np.argsort(refused_keys)
@@ -260,6 +121,234 @@ def _stalled(left, give_up_above) -> bool:
     to_go = left[-1] - give_up_above
     return len(left) > STALL_WINDOW and to_go > 0 and (
         (left[-1 - STALL_WINDOW] - left[-1]) * STALL_ROUNDS < to_go * STALL_WINDOW)
+
+
+class _Collapses:
+    """The rounds of :func:`simplify_enclosing`: the surface as collapsed so far and what one round leaves the next,
+    with a method per step (:meth:`launch` takes one launch's rounds through them).
+
+    Attributes
+    ----------
+    handles, points, margin, give_up_above : as :func:`simplify_enclosing` takes them
+    centre, pad, device, points_bvh, points_d : the surface's box centre (the device's positions are relative to
+        it) and a tiny pad; the points to keep inside on the device (:meth:`enclose`)
+    v, f, q : (n, 3) positions, (F, 3) faces and (n, 4, 4) quadrics of the surface so far; ``n`` shrinks when the
+        survivors are renumbered
+    alive : (n,) bool, the vertices still on the surface
+    changed_at, moved_at : (n,) int, the round when a vertex's fan last changed, and when it last moved (collapsed to)
+    refused_keys, refused_at : the edges refused (sorted keys) and when: tried again once their fan changes
+    cached_keys, cached_place, cached_costs : last round's placements of its eligible edges, by key
+    rounds, reasons, left, gave_up : the rounds made, the refusals by reason code, the vertices left after each
+        round (with ``give_up_above``) and whether it gave up
+    ahead : how many candidates the next launch works out ahead: none until a round makes no collapse
+    edges, keys, nbr_start, nbr, place, costs, vf_start, vf : of the launch under way: the edges, their keys, each
+        vertex's neighbours (CSR), the edges' placements and their costs, each vertex's faces (CSR)
+    """
+
+    def __init__(self, vertices, faces, handles, points, margin, give_up_above):
+        self.v = np.array(vertices, dtype=np.float64)
+        self.f = np.asarray(faces, dtype=np.int64)
+        self.points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        self.handles, self.margin, self.give_up_above = handles, margin, give_up_above
+        self.n = n = len(self.v)
+        self.q = vertex_quadrics(self.v, self.f)
+        self.alive = np.zeros(n, dtype=bool)
+        self.alive[np.unique(self.f)] = True
+        self.changed_at = np.full(n, -1, dtype=np.int64)
+        self.moved_at = np.full(n, -1, dtype=np.int64)
+        self.cached_keys = np.zeros(0, dtype=np.int64)
+        self.cached_place, self.cached_costs = np.zeros((0, 4, 3)), np.zeros((0, 4))
+        self.refused_keys = np.zeros(0, dtype=np.int64)
+        self.refused_at = np.zeros(0, dtype=np.int64)
+        self.centre = 0.5 * (self.v.min(axis=0) + self.v.max(axis=0))
+        self.pad = 1e-6 * np.linalg.norm(self.v.max(axis=0) - self.v.min(axis=0))
+        self.rounds = 0
+        self.reasons = np.zeros(8, dtype=np.int64)
+        self.left, self.gave_up = [], False
+        self.ahead = 0
+
+    def enclose(self, device) -> None:
+        """The points to keep inside on ``device`` (the current Warp device): their positions, and a BVH of tiny
+        boxes about them relative to the centre."""
+        import warp as wp
+
+        self.device = device
+        rel = (self.points - self.centre).astype(np.float32)
+        self.points_bvh = wp.Bvh(wp.array(rel - self.pad, dtype=wp.vec3), wp.array(rel + self.pad, dtype=wp.vec3))
+        self.points_d = wp.array(self.points, dtype=wp.vec3d)
+
+    def launch(self) -> bool:
+        """One launch of the collapse checks and the rounds it decides; whether there may be more to make."""
+        if self.alive.sum() < self.n // 2:  # the arrays of every round are as long as n
+            self.renumber()
+        eligible = self.eligible_edges()
+        if not eligible.any():
+            return False
+        self.placements(eligible)
+        plan = self.plan(eligible)
+        if not plan:
+            return False
+        choices, reasons = self.check(np.concatenate(plan))
+        walked, made = self.walk(plan, choices, reasons)
+        if self.gave_up:
+            return False
+        # how many candidates the next launch works out ahead: its size only, never its outcome
+        self.ahead = 0 if len(made) else min(max(2 * self.ahead, AHEAD_CANDIDATES), AHEAD_MOST)
+        if walked:  # the placements kept for the next round: of its eligible edges, as one round at a time
+            held = ~in_sorted(np.sort(self.keys[np.concatenate(plan[:walked])]), self.cached_keys)
+            self.cached_keys, self.cached_place = self.cached_keys[held], self.cached_place[held]
+            self.cached_costs = self.cached_costs[held]
+        return True
+
+    def renumber(self) -> None:
+        """Number the surviving vertices 0 to n - 1, in order."""
+        n = self.n
+        keep = np.flatnonzero(self.alive)
+        remap = np.full(n, -1, dtype=np.int64)
+        remap[keep] = np.arange(len(keep))
+        ra, rb = remap[self.refused_keys // n], remap[self.refused_keys % n]
+        live = (ra >= 0) & (rb >= 0)
+        self.n = n = len(keep)
+        refused_keys, refused_at = np.minimum(ra, rb)[live] * n + np.maximum(ra, rb)[live], self.refused_at[live]
+        order = np.argsort(refused_keys)
+        self.refused_keys, self.refused_at = refused_keys[order], refused_at[order]
+        self.v, self.q, self.f = self.v[keep], self.q[keep], remap[self.f]
+        self.changed_at, self.moved_at = self.changed_at[keep], self.moved_at[keep]
+        self.cached_keys = self.cached_keys[:0]  # keys are vertex numbers: renumbered
+        self.alive = np.ones(n, dtype=bool)
+
+    def eligible_edges(self) -> np.ndarray:
+        """The surface's edges now (``edges``, ``keys``, neighbours), and which may collapse: those that keep it a
+        manifold, not refused since their fan last changed."""
+        n, changed_at = self.n, self.changed_at
+        self.edges = edges = unique_edges(self.f, n)
+        self.keys = edges[:, 0] * n + edges[:, 1]
+        src = np.concatenate([edges[:, 0], edges[:, 1]])
+        dst = np.concatenate([edges[:, 1], edges[:, 0]])
+        self.nbr_start, self.nbr = csr(src, dst, n)
+        eligible = link_condition(edges, self.nbr_start, self.nbr, n)
+        seen = in_sorted(self.refused_keys, self.keys)
+        if seen.any():
+            when = self.refused_at[np.searchsorted(self.refused_keys, self.keys[seen])]
+            eligible[seen] &= np.maximum(changed_at[edges[seen, 0]], changed_at[edges[seen, 1]]) > when
+        return eligible
+
+    def placements(self, eligible: np.ndarray) -> None:
+        """``place`` and ``costs`` of the eligible edges (:func:`edge_placements`), kept for the next round."""
+        edges, keys, index = self.edges, self.keys, np.flatnonzero(eligible)
+        place = np.empty((len(edges), 4, 3))
+        costs = np.empty((len(edges), 4))
+        # an edge's placements change only when an end moved (its quadric with it): the others are last round's
+        hit = in_sorted(self.cached_keys, keys[index]) & (self.moved_at[edges[index, 0]] < self.rounds) & (
+            self.moved_at[edges[index, 1]] < self.rounds)
+        at = np.searchsorted(self.cached_keys, keys[index[hit]])
+        place[index[hit]], costs[index[hit]] = self.cached_place[at], self.cached_costs[at]
+        fresh = index[~hit]
+        ea, eb = edges[fresh, 0], edges[fresh, 1]
+        place[fresh], costs[fresh] = edge_placements(self.q[ea], self.q[eb], self.v[ea], self.v[eb])
+        self.cached_keys, self.cached_place, self.cached_costs = keys[index], place[index], costs[index]
+        self.place, self.costs = place, costs
+
+    def plan(self, eligible: np.ndarray) -> list:
+        """This round's candidates, and while nothing is being made (``ahead``), the next rounds' as if all were
+        refused: a list of the rounds' edges."""
+        plan, count = [], 0
+        while eligible.any():
+            chosen = round_candidates(self.edges, self.keys, self.costs[:, 0], eligible, self.nbr_start, self.nbr,
+                                       self.n, int(self.alive.sum()) - self.handles)
+            if len(chosen) == 0:
+                break
+            plan.append(chosen)
+            count += len(chosen)
+            if count >= self.ahead:
+                break
+            eligible[chosen] = False  # a refused edge waits until its fan changes
+        return plan
+
+    def check(self, candidates: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The collapse checks of the candidate edges in one launch: (choice, reason) per candidate, the placement
+        taken or -1 with the reason refused (:data:`REFUSALS`)."""
+        import warp as wp
+
+        from ..kernels import collapse
+
+        edges, v, f = self.edges, self.v, self.f
+        self.vf_start, self.vf = csr(f.ravel(), np.repeat(np.arange(len(f)), 3), self.n)
+        cos_flip, cos_fold = np.cos(np.radians(FLIP_DEGREES)), np.cos(np.radians(MAX_FOLD_DEGREES))
+        sin_angle = np.sin(np.radians(MIN_ANGLE_DEGREES))
+        rel_v = (v - self.centre).astype(np.float32)
+        surface = wp.Mesh(points=wp.array(rel_v, dtype=wp.vec3), indices=wp.array(f.astype(np.int32).ravel(),
+                                                                                   dtype=wp.int32))
+        choice_out = wp.empty(len(candidates), dtype=wp.int32)
+        reason_out = wp.empty(len(candidates), dtype=wp.int32)
+        wp.launch(collapse.collapse_choice, dim=len(candidates),
+                  inputs=[wp.array(v, dtype=wp.vec3d), wp.array(f.astype(np.int32), dtype=wp.vec3i),
+                          wp.array(self.vf_start.astype(np.int32), dtype=wp.int32),
+                          wp.array(self.vf.astype(np.int32), dtype=wp.int32),
+                          wp.array(edges[candidates, 0].astype(np.int32), dtype=wp.int32),
+                          wp.array(edges[candidates, 1].astype(np.int32), dtype=wp.int32),
+                          wp.array(np.ascontiguousarray(self.place[candidates]), dtype=wp.vec3d), surface.id,
+                          wp.vec3d(*self.centre), self.points_bvh.id, self.points_d, float(self.margin),
+                          float(cos_flip), float(cos_fold), float(sin_angle)],
+                  outputs=[choice_out, reason_out], block_dim=COLLAPSE_BLOCK)
+        return choice_out.numpy(), reason_out.numpy()
+
+    def walk(self, plan: list, choices: np.ndarray, reasons: np.ndarray) -> tuple[int, np.ndarray]:
+        """The planned rounds in order, up to the first where a collapse passed (or it gave up): (the index of the
+        last round walked, the collapses it made, by position in its edges)."""
+        start = 0
+        for walked, chosen in enumerate(plan):
+            choice, reason = choices[start:start + len(chosen)], reasons[start:start + len(chosen)]
+            start += len(chosen)
+            self.rounds += 1
+            self.reasons += np.bincount(reason[choice < 0], minlength=8)
+            made = self.settle(chosen, choice)
+            if self.give_up_above is not None:
+                self.left.append(int(self.alive.sum()))
+                self.gave_up = _stalled(self.left, self.give_up_above)
+            if self.gave_up or (choice >= 0).any():
+                break
+        return walked, made
+
+    def settle(self, chosen: np.ndarray, choice: np.ndarray) -> np.ndarray:
+        """One round's outcome: the refused edges noted, the passed collapses whose new faces cross none of the
+        others' made (:func:`_apart`). Returns those made, by position in ``chosen``."""
+        a, b = self.edges[chosen, 0], self.edges[chosen, 1]
+        passed = np.flatnonzero(choice >= 0)
+        made = passed[:0]
+        if len(passed):
+            made = passed[_apart(self.v, self.f, self.vf_start, self.vf, a[passed], b[passed],
+                                 self.place[chosen[passed], choice[passed]], self.device)]
+        no = choice < 0
+        if no.any():
+            self.refused_keys, self.refused_at = _refuse(self.refused_keys, self.refused_at, self.keys[chosen[no]],
+                                                         self.rounds)
+        if len(made):
+            self.collapse(a[made], b[made], self.place[chosen[made], choice[made]])
+        return made
+
+    def collapse(self, a: np.ndarray, b: np.ndarray, x: np.ndarray) -> None:
+        """Collapse edges (a, b) (fans sharing no vertex) to a, moved to x."""
+        self.v[a] = x
+        self.q[a] += self.q[b]
+        relabel = np.arange(self.n)
+        relabel[b] = a
+        f = relabel[self.f]
+        self.f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 2] != f[:, 0])]
+        self.alive[b] = False
+        _, touched = csr_rows(self.nbr_start, self.nbr, np.concatenate([a, b]))
+        self.changed_at[touched] = self.rounds
+        self.changed_at[a] = self.rounds
+        self.moved_at[a] = self.rounds  # the next round recomputes the placements of the edges at a
+
+    def simplified(self) -> Simplified:
+        """The surface as it is now, its vertices renumbered."""
+        keep = np.flatnonzero(self.alive)
+        remap = np.full(self.n, -1, dtype=np.int64)
+        remap[keep] = np.arange(len(keep))
+        refusals = {why: int(self.reasons[code]) for code, why in REFUSALS.items() if self.reasons[code]}
+        return Simplified(vertices=self.v[keep], faces=remap[self.f], rounds=self.rounds, refusals=refusals,
+                          gave_up=self.gave_up)
 
 
 def simplify_enclosing(vertices: np.ndarray, faces: np.ndarray, handles: int, points: np.ndarray, margin: float,
@@ -297,146 +386,12 @@ def simplify_enclosing(vertices: np.ndarray, faces: np.ndarray, handles: int, po
     import warp as wp
 
     from ..device import Backend
-    from ..kernels import collapse
 
-    v = np.array(vertices, dtype=np.float64)
-    f = np.asarray(faces, dtype=np.int64)
-    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    n = len(v)
-    q = _quadrics(v, f)
-    alive = np.zeros(n, dtype=bool)
-    alive[np.unique(f)] = True
-    changed_at = np.full(n, -1, dtype=np.int64)   # the round when a vertex's fan last changed
-    moved_at = np.full(n, -1, dtype=np.int64)     # the round when a vertex last moved (collapsed to)
-    cached_keys = np.zeros(0, dtype=np.int64)      # last round's placements of its eligible edges, by key
-    cached_place, cached_costs = np.zeros((0, 4, 3)), np.zeros((0, 4))
-    refused_keys = np.zeros(0, dtype=np.int64)     # edges refused, and when: tried again once their fan changes
-    refused_at = np.zeros(0, dtype=np.int64)
-    centre = 0.5 * (v.min(axis=0) + v.max(axis=0))
-    pad = 1e-6 * np.linalg.norm(v.max(axis=0) - v.min(axis=0))
+    collapses = _Collapses(vertices, faces, handles, points, margin, give_up_above)
     device = Backend.of(device).device
-    rounds = 0
-    reasons = np.zeros(8, dtype=np.int64)
-    left, gave_up = [], False  # the surviving vertices after each round
-    ahead = 0  # candidates to check ahead: none until a round makes no collapse
-    cos_flip, cos_fold = np.cos(np.radians(FLIP_DEGREES)), np.cos(np.radians(MAX_FOLD_DEGREES))
-    sin_angle = np.sin(np.radians(MIN_ANGLE_DEGREES))
     with wp.ScopedDevice(device):
-        rel = (points - centre).astype(np.float32)
-        points_bvh = wp.Bvh(wp.array(rel - pad, dtype=wp.vec3), wp.array(rel + pad, dtype=wp.vec3))
-        points_d = wp.array(points, dtype=wp.vec3d)
-        while alive.sum() > handles:
-            if alive.sum() < n // 2:  # renumber the survivors: the arrays of every round are as long as n
-                keep = np.flatnonzero(alive)
-                remap = np.full(n, -1, dtype=np.int64)
-                remap[keep] = np.arange(len(keep))
-                ra, rb = remap[refused_keys // n], remap[refused_keys % n]
-                live = (ra >= 0) & (rb >= 0)
-                n = len(keep)
-                refused_keys, refused_at = np.minimum(ra, rb)[live] * n + np.maximum(ra, rb)[live], refused_at[live]
-                order = np.argsort(refused_keys)
-                refused_keys, refused_at = refused_keys[order], refused_at[order]
-                v, q, changed_at, moved_at, f = v[keep], q[keep], changed_at[keep], moved_at[keep], remap[f]
-                cached_keys = cached_keys[:0]  # keys are vertex numbers: renumbered
-                alive = np.ones(n, dtype=bool)
-            edges = _unique_edges(f, n)
-            keys = edges[:, 0] * n + edges[:, 1]
-            src = np.concatenate([edges[:, 0], edges[:, 1]])
-            dst = np.concatenate([edges[:, 1], edges[:, 0]])
-            nbr_start, nbr = _csr(src, dst, n)
-            eligible = _link_condition(edges, nbr_start, nbr, n)
-            seen = _contains(refused_keys, keys)
-            if seen.any():
-                when = refused_at[np.searchsorted(refused_keys, keys[seen])]
-                eligible[seen] &= np.maximum(changed_at[edges[seen, 0]], changed_at[edges[seen, 1]]) > when
-            if not eligible.any():
+        collapses.enclose(device)
+        while collapses.alive.sum() > handles:
+            if not collapses.launch():
                 break
-            index = np.flatnonzero(eligible)
-            place = np.empty((len(edges), 4, 3))
-            costs = np.empty((len(edges), 4))
-            # an edge's placements change only when an end moved (its quadric with it): the others are last round's
-            hit = _contains(cached_keys, keys[index]) & (moved_at[edges[index, 0]] < rounds) & (
-                moved_at[edges[index, 1]] < rounds)
-            at = np.searchsorted(cached_keys, keys[index[hit]])
-            place[index[hit]], costs[index[hit]] = cached_place[at], cached_costs[at]
-            fresh = index[~hit]
-            ea, eb = edges[fresh, 0], edges[fresh, 1]
-            place[fresh], costs[fresh] = _placements(q[ea], q[eb], v[ea], v[eb])
-            cached_keys, cached_place, cached_costs = keys[index], place[index], costs[index]
-            # this round's candidates, and while nothing is being made, the next rounds' as if all were refused
-            plan, count = [], 0
-            while eligible.any():
-                chosen = _round_candidates(edges, keys, costs[:, 0], eligible, nbr_start, nbr, n,
-                                           int(alive.sum()) - handles)
-                if len(chosen) == 0:
-                    break
-                plan.append(chosen)
-                count += len(chosen)
-                if count >= ahead:
-                    break
-                eligible[chosen] = False  # a refused edge waits until its fan changes
-            if not plan:
-                break
-            candidates = np.concatenate(plan)
-            vf_start, vf = _csr(f.ravel(), np.repeat(np.arange(len(f)), 3), n)
-            rel_v = (v - centre).astype(np.float32)
-            surface = wp.Mesh(points=wp.array(rel_v, dtype=wp.vec3), indices=wp.array(f.astype(np.int32).ravel(),
-                                                                                       dtype=wp.int32))
-            choice_out = wp.empty(len(candidates), dtype=wp.int32)
-            reason_out = wp.empty(len(candidates), dtype=wp.int32)
-            wp.launch(collapse.collapse_choice, dim=len(candidates),
-                      inputs=[wp.array(v, dtype=wp.vec3d), wp.array(f.astype(np.int32), dtype=wp.vec3i),
-                              wp.array(vf_start.astype(np.int32), dtype=wp.int32),
-                              wp.array(vf.astype(np.int32), dtype=wp.int32),
-                              wp.array(edges[candidates, 0].astype(np.int32), dtype=wp.int32),
-                              wp.array(edges[candidates, 1].astype(np.int32), dtype=wp.int32),
-                              wp.array(np.ascontiguousarray(place[candidates]), dtype=wp.vec3d), surface.id,
-                              wp.vec3d(*centre), points_bvh.id, points_d, float(margin), float(cos_flip),
-                              float(cos_fold), float(sin_angle)],
-                      outputs=[choice_out, reason_out], block_dim=COLLAPSE_BLOCK)
-            all_choices, all_reasons = choice_out.numpy(), reason_out.numpy()
-            start = 0
-            for walked, chosen in enumerate(plan):  # in order, up to the first round where a collapse passed
-                choice, reason = all_choices[start:start + len(chosen)], all_reasons[start:start + len(chosen)]
-                start += len(chosen)
-                rounds += 1
-                reasons += np.bincount(reason[choice < 0], minlength=8)
-                a, b = edges[chosen, 0], edges[chosen, 1]
-                passed = np.flatnonzero(choice >= 0)
-                made = passed[:0]
-                if len(passed):
-                    made = passed[_apart(v, f, vf_start, vf, a[passed], b[passed],
-                                         place[chosen[passed], choice[passed]], device)]
-                no = choice < 0
-                if no.any():
-                    refused_keys, refused_at = _refuse(refused_keys, refused_at, keys[chosen[no]], rounds)
-                if len(made):
-                    a, b, x = a[made], b[made], place[chosen[made], choice[made]]
-                    v[a] = x
-                    q[a] += q[b]
-                    relabel = np.arange(n)
-                    relabel[b] = a
-                    f = relabel[f]
-                    f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 2] != f[:, 0])]
-                    alive[b] = False
-                    _, touched = _expand(nbr_start, nbr, np.concatenate([a, b]))
-                    changed_at[touched] = rounds
-                    changed_at[a] = rounds
-                    moved_at[a] = rounds  # the next round recomputes the placements of the edges at a
-                if give_up_above is not None:
-                    left.append(int(alive.sum()))
-                    gave_up = _stalled(left, give_up_above)
-                if gave_up or len(passed):
-                    break
-            if gave_up:
-                break
-            # how many candidates the next launch works out ahead: its size only, never its outcome
-            ahead = 0 if len(made) else min(max(2 * ahead, AHEAD_CANDIDATES), AHEAD_MOST)
-            if walked:  # the placements kept for the next round: of its eligible edges, as one round at a time
-                held = ~_contains(np.sort(keys[np.concatenate(plan[:walked])]), cached_keys)
-                cached_keys, cached_place, cached_costs = cached_keys[held], cached_place[held], cached_costs[held]
-    keep = np.flatnonzero(alive)
-    remap = np.full(n, -1, dtype=np.int64)
-    remap[keep] = np.arange(len(keep))
-    refusals = {why: int(reasons[code]) for code, why in REFUSALS.items() if reasons[code]}
-    return Simplified(vertices=v[keep], faces=remap[f], rounds=rounds, refusals=refusals, gave_up=gave_up)
+    return collapses.simplified()

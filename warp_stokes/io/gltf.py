@@ -118,27 +118,14 @@ def write_gltf_skin(path, ext, binding, skin, joints, positions, frames, rate, m
         import pygltflib
     except ImportError:
         raise WarpStokesError(f"{path}: writing glTF needs pygltflib: pip install 'warp-stokes[gltf]'") from None
-    from pygltflib import (GLTF2, Animation, AnimationChannel, AnimationChannelTarget, AnimationSampler, Asset,
-                           Attributes, Buffer, Mesh, Node, Primitive, Scene, Skin)
+    from pygltflib import GLTF2, Asset, Attributes, Buffer, Mesh, Node, Primitive, Scene
 
     if np.any(skin.weights < 0):
         raise WarpStokesError(f"{path}: glTF skins take non-negative weights only")
     n_handles = binding.n_handles
     gltf = GLTF2(asset=Asset(generator="warp-stokes", version="2.0", extras=metadata))
     buffer = _Buffer(gltf)
-    rest_cage = np.asarray(binding.cage_vertices, dtype=np.float64)
-
-    root = Node(name="CageSkeleton", children=list(range(1, n_handles + 1)))
-    conversion = _to_gltf_space(binding.asset)
-    if conversion is not None:
-        root.matrix = conversion.T.ravel().tolist()  # column-major
-    gltf.nodes.append(root)
-    for name, position in zip(joints, rest_cage.astype(np.float32)):
-        gltf.nodes.append(Node(name=name, translation=position.tolist()))
-    inverse_bind = np.broadcast_to(np.eye(4, dtype=np.float32), (n_handles, 4, 4)).copy()
-    inverse_bind[:, 3, :3] = -rest_cage  # column-major storage of translate(-c): the translation is elements 12-14
-    gltf.skins.append(Skin(name="CageSkin", joints=list(range(1, n_handles + 1)), skeleton=0,
-                           inverseBindMatrices=buffer.accessor(inverse_bind.reshape(n_handles, 16))))
+    _add_skeleton(gltf, buffer, binding, joints)
 
     k = skin.influences
     sets = -(-k // 4)
@@ -175,16 +162,7 @@ def write_gltf_skin(path, ext, binding, skin, joints, positions, frames, rate, m
         gltf.nodes.append(Node(name=name, mesh=len(gltf.meshes) - 1, skin=0))
         mesh_nodes.append(len(gltf.nodes) - 1)
 
-    times = buffer.accessor(_seconds(path, frames, rate), bounds=True)
-    translations = np.ascontiguousarray(np.asarray(positions, dtype=np.float32).transpose(1, 0, 2))  # (L, F, 3)
-    view = buffer.view(translations)
-    animation = Animation(name="CageAnimation")
-    for joint in range(n_handles):
-        output = buffer.accessor(translations[joint], view=view, offset=joint * translations[joint].nbytes)
-        animation.samplers.append(AnimationSampler(input=times, output=output, interpolation="LINEAR"))
-        animation.channels.append(AnimationChannel(sampler=joint, target=AnimationChannelTarget(node=joint + 1,
-                                                                                                 path="translation")))
-    gltf.animations.append(animation)
+    _add_animation(gltf, buffer, path, positions, frames, rate)
     gltf.scenes.append(Scene(name="Scene", nodes=[0] + mesh_nodes))
     gltf.scene = 0
 
@@ -198,3 +176,40 @@ def write_gltf_skin(path, ext, binding, skin, joints, positions, frames, rate, m
             gltf.convert_buffers(pygltflib.BufferFormat.DATAURI)
             gltf.save_json(tmp)
     return path
+
+
+def _add_skeleton(gltf, buffer: _Buffer, binding, joints) -> None:
+    """The ``CageSkeleton`` node (node 0, carrying the conversion to glTF's space), a joint node per handle at its
+    rest position (nodes 1 to L) and the skin over them, with inverse bind matrices ``translate(-c_l)``."""
+    from pygltflib import Node, Skin
+
+    n_handles = binding.n_handles
+    rest_cage = np.asarray(binding.cage_vertices, dtype=np.float64)
+    root = Node(name="CageSkeleton", children=list(range(1, n_handles + 1)))
+    conversion = _to_gltf_space(binding.asset)
+    if conversion is not None:
+        root.matrix = conversion.T.ravel().tolist()  # column-major
+    gltf.nodes.append(root)
+    for name, position in zip(joints, rest_cage.astype(np.float32)):
+        gltf.nodes.append(Node(name=name, translation=position.tolist()))
+    inverse_bind = np.broadcast_to(np.eye(4, dtype=np.float32), (n_handles, 4, 4)).copy()
+    inverse_bind[:, 3, :3] = -rest_cage  # column-major storage of translate(-c): the translation is elements 12-14
+    gltf.skins.append(Skin(name="CageSkin", joints=list(range(1, n_handles + 1)), skeleton=0,
+                           inverseBindMatrices=buffer.accessor(inverse_bind.reshape(n_handles, 16))))
+
+
+def _add_animation(gltf, buffer: _Buffer, path, positions, frames, rate: float) -> None:
+    """The joints' translations over the frames (``positions`` (F, L, 3)), one sampler and channel per joint, their
+    outputs in one buffer view."""
+    from pygltflib import Animation, AnimationChannel, AnimationChannelTarget, AnimationSampler
+
+    times = buffer.accessor(_seconds(path, frames, rate), bounds=True)
+    translations = np.ascontiguousarray(np.asarray(positions, dtype=np.float32).transpose(1, 0, 2))  # (L, F, 3)
+    view = buffer.view(translations)
+    animation = Animation(name="CageAnimation")
+    for joint in range(len(translations)):
+        output = buffer.accessor(translations[joint], view=view, offset=joint * translations[joint].nbytes)
+        animation.samplers.append(AnimationSampler(input=times, output=output, interpolation="LINEAR"))
+        animation.channels.append(AnimationChannel(sampler=joint, target=AnimationChannelTarget(node=joint + 1,
+                                                                                                 path="translation")))
+    gltf.animations.append(animation)

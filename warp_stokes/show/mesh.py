@@ -167,8 +167,6 @@ def show_mesh(binding, path, pose=None, reference=None, view: str = "front", tit
     from matplotlib.collections import PolyCollection
     from matplotlib.colors import Normalize
 
-    from matplotlib.collections import LineCollection
-
     frame = view_frame(view, (binding.asset or {}).get("up_axis", "Y"))
     m = mesh_colours(binding, pose, reference)
     plain = with_cage and pose is None and reference is None
@@ -178,15 +176,7 @@ def show_mesh(binding, path, pose=None, reference=None, view: str = "front", tit
     high = max(high, low + 1e-6 * max(abs(low), 1.0))
     norm, cmap = Normalize(low, high, clip=True), colormaps["viridis"]
     triangles = (m.vertices @ frame.T)[binding.mesh_faces]  # (F, 3 corners, [right, up, towards the viewer])
-    normals = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
-    length = np.linalg.norm(normals, axis=1)
-    facing = np.abs(normals[:, 2]) / np.where(length > 0, length, 1.0)
-    colours = cmap(norm(np.where(np.isnan(m.values), low, m.values)))
-    colours[:, :3] *= (0.6 + 0.4 * np.where(length > 0, facing, 1.0))[:, None]
-    colours[np.isnan(m.values)] = (0.7, 0.7, 0.7, 1.0)
-    if plain:
-        colours[:] = (0.78, 0.78, 0.78, 1.0)
-        colours[:, :3] *= (0.55 + 0.45 * np.where(length > 0, facing, 1.0))[:, None]
+    colours = _shaded_colours(triangles, m.values, cmap, norm, low, plain)
     order = np.argsort(triangles[:, :, 2].mean(axis=1), kind="stable")  # the farthest first
     with plt.rc_context(RC):
         figure, axes = plt.subplots(figsize=(6.4, 6.0))
@@ -195,18 +185,10 @@ def show_mesh(binding, path, pose=None, reference=None, view: str = "front", tit
         corners = triangles[..., :2].reshape(-1, 2)
         edges = 0
         if with_cage:
-            segments, front = cage_edges(binding, pose, frame)
+            segments = _draw_cage(axes, binding, pose, frame)
             edges = len(segments)
-            axes.add_collection(LineCollection(segments[~front, :, :2], colors="#1f3b73", linewidths=0.6,
-                                               linestyles=(0, (3, 3)), alpha=0.45))
-            axes.add_collection(LineCollection(segments[front, :, :2], colors="#1f3b73", linewidths=0.9))
             corners = np.concatenate([corners, segments[..., :2].reshape(-1, 2)])
-        lo, hi = corners.min(axis=0), corners.max(axis=0)
-        pad = 0.04 * float((hi - lo).max())
-        axes.set_xlim(lo[0] - pad, hi[0] + pad)
-        axes.set_ylim(lo[1] - pad, hi[1] + pad)
-        axes.set_aspect("equal")
-        axes.set_axis_off()
+        _fit_view(axes, corners)
         shape = "rest" if pose is None else "deformed"
         if plain:
             label = f"the mesh ({len(binding.mesh_vertices)} vertices) in its cage ({binding.n_handles} handles)"
@@ -220,3 +202,40 @@ def show_mesh(binding, path, pose=None, reference=None, view: str = "front", tit
         figure.tight_layout()
         save_picture(figure, path)
     return {"values": m.values, "range": None if plain else (low, high), "label": label, "cage_edges": edges}
+
+
+def _shaded_colours(triangles: np.ndarray, values: np.ndarray, cmap, norm, low: float, plain: bool) -> np.ndarray:
+    """(F, 4) RGBA per triangle (in view coordinates): its value's colour, darkened where it is seen at a slant (a
+    head light), grey for NaN; a ``plain`` mesh all light grey, shaded more."""
+    normals = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
+    length = np.linalg.norm(normals, axis=1)
+    facing = np.abs(normals[:, 2]) / np.where(length > 0, length, 1.0)
+    colours = cmap(norm(np.where(np.isnan(values), low, values)))
+    colours[:, :3] *= (0.6 + 0.4 * np.where(length > 0, facing, 1.0))[:, None]
+    colours[np.isnan(values)] = (0.7, 0.7, 0.7, 1.0)
+    if plain:
+        colours[:] = (0.78, 0.78, 0.78, 1.0)
+        colours[:, :3] *= (0.55 + 0.45 * np.where(length > 0, facing, 1.0))[:, None]
+    return colours
+
+
+def _draw_cage(axes, binding, pose, frame: np.ndarray) -> np.ndarray:
+    """Draw the cage's edges (:func:`cage_edges`): those on the viewer's side solid, the others dashed and faint.
+    Returns their segments (E, 2, 3) in the view."""
+    from matplotlib.collections import LineCollection
+
+    segments, front = cage_edges(binding, pose, frame)
+    axes.add_collection(LineCollection(segments[~front, :, :2], colors="#1f3b73", linewidths=0.6,
+                                       linestyles=(0, (3, 3)), alpha=0.45))
+    axes.add_collection(LineCollection(segments[front, :, :2], colors="#1f3b73", linewidths=0.9))
+    return segments
+
+
+def _fit_view(axes, corners: np.ndarray) -> None:
+    """Axes that show the points ``corners`` (N, 2) with a margin, at equal scale, without axis lines."""
+    lo, hi = corners.min(axis=0), corners.max(axis=0)
+    pad = 0.04 * float((hi - lo).max())
+    axes.set_xlim(lo[0] - pad, hi[0] + pad)
+    axes.set_ylim(lo[1] - pad, hi[1] + pad)
+    axes.set_aspect("equal")
+    axes.set_axis_off()
