@@ -57,6 +57,7 @@ import numpy as np
 import warp_stokes as ws
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(1, str(Path(__file__).resolve().parents[1] / "tests"))  # the synthetic cages: tests/shapes.py
 from common import ARM, PAIRS, SMPL, markdown_table, select_device  # noqa: E402
 
 
@@ -187,7 +188,7 @@ def meshes(paths, handles, device, resolution: int) -> list[dict]:
 
 
 def synthetic(seeds, handles: int, device) -> list[dict]:
-    from warp_stokes.geometry.shapes import stress_pairs
+    from shapes import stress_pairs
 
     rows = []
     for seed in seeds:
@@ -224,7 +225,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     device, device_label = select_device(args.device)
     warnings.simplefilter("ignore")
-    from warp_stokes.geometry.shapes import latitude_longitude_sphere
+    from shapes import latitude_longitude_sphere
 
     ws.make_cage(latitude_longitude_sphere(12, 16), handles=60, device=device)  # compile the kernels
     offsets = [float(x) for x in args.offsets.split(",")] if args.offsets else [None]

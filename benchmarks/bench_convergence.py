@@ -29,9 +29,11 @@ from pathlib import Path
 import numpy as np
 
 import warp_stokes as ws
-from warp_stokes.geometry.shapes import stress_pairs
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(1, str(Path(__file__).resolve().parents[1] / "tests"))  # the synthetic cages: tests/shapes.py
+
+from shapes import stress_pairs  # noqa: E402
 from common import ARM, OGRE, SMPL, markdown_table, select_device, warm_up  # noqa: E402
 
 ITERATIONS = 20

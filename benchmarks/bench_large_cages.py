@@ -18,6 +18,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(1, str(Path(__file__).resolve().parents[1] / "tests"))  # the synthetic cages: tests/shapes.py
 from common import WORK, HostPeak, markdown_table, warm_up  # noqa: E402
 
 
@@ -25,7 +26,7 @@ def sphere_files(rings: int, sections: int, folder: Path) -> tuple[Path, Path]:
     """The cage and mesh OBJ files of one case (written once)."""
     import trimesh
 
-    from warp_stokes.geometry.shapes import latitude_longitude_sphere
+    from shapes import latitude_longitude_sphere
 
     cage = folder / f"sphere_{rings}x{sections}.obj"
     mesh = folder / "icosphere3.obj"

@@ -11,7 +11,7 @@ import pytest
 
 import warp_stokes as ws
 from conftest import EXAMPLE
-from warp_stokes.geometry.shapes import latitude_longitude_sphere
+from shapes import latitude_longitude_sphere
 
 MEASURE = textwrap.dedent(
     """

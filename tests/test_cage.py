@@ -3,7 +3,7 @@ import pytest
 
 import warp_stokes as ws
 from conftest import EXAMPLE, PAIRS, box_cage, float32_rounding, pair
-from warp_stokes.geometry.shapes import latitude_longitude_sphere
+from shapes import latitude_longitude_sphere
 
 
 @pytest.mark.parametrize("name", sorted(PAIRS))

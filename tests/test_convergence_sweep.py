@@ -12,7 +12,7 @@ import warnings
 import pytest
 
 import warp_stokes as ws
-from warp_stokes.geometry.shapes import stress_pairs
+from shapes import stress_pairs
 from conftest import EXAMPLE
 
 ITERATIONS = 20

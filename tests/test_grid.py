@@ -179,7 +179,7 @@ def test_a_grid_travels_with_its_host_arrays(arm_cage, device):
 
 
 def _synthetic_cages():
-    from warp_stokes.geometry import shapes
+    import shapes
 
     made = [shapes.box_pair(extents=(2.0, 1.0, 0.5), rotation=np.eye(3)), shapes.box_pair(rotation=None),
             shapes.slab_pair(thickness=0.05, seed=1), shapes.star_pair(seed=3), shapes.ellipsoid_pair(noise=0.3)]

@@ -38,7 +38,8 @@ def test_graph_distances_match_scipys_dijkstra_in_groups(name, device, monkeypat
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import shortest_path
 
-    from warp_stokes.geometry import local_data, shapes
+    import shapes
+    from warp_stokes.geometry import local_data
     from warp_stokes.geometry.cage import face_edges
 
     if name == "two_boxes":

@@ -15,7 +15,7 @@ import warp_stokes as ws
 from conftest import EXAMPLE
 from warp_stokes.geometry.cage import check_cage, crossing_faces
 from warp_stokes.geometry.make_cage import default_handles, make_cage
-from warp_stokes.geometry.shapes import box_pair, dumbbell_pair, latitude_longitude_sphere, slab_pair, torus_pair
+from shapes import box_pair, dumbbell_pair, latitude_longitude_sphere, slab_pair, torus_pair
 from warp_stokes.geometry.simplify import simplify_enclosing
 from warp_stokes.geometry.topology import bounding_diagonal
 

@@ -110,7 +110,7 @@ def test_the_command_line_takes_auto_or_a_number(tmp_path):
 def test_auto_goes_finer_for_a_cage_too_thin_and_for_the_meshs_thin_parts(monkeypatch):
     """Within the cap: a slab with no node inside at the least resolution, and a dumbbell whose neck's vertices
     fall in cells without an inside node, are bound at a resolution that resolves them, without a warning."""
-    from warp_stokes.geometry import shapes
+    import shapes
 
     monkeypatch.setattr(resolution_module, "AUTO_RESOLUTION", 16)
     monkeypatch.setattr(resolution_module, "AUTO_RESOLUTION_CAP", {"cpu": 64, "cuda": 64})

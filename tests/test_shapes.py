@@ -1,4 +1,4 @@
-"""The synthetic cages of warp_stokes.geometry.shapes: valid cages (closed, outward, not self-intersecting: the
+"""The synthetic cages of tests/shapes.py: valid cages (closed, outward, not self-intersecting: the
 package's own check), points inside them (the package's winding numbers and trimesh's ray test), deterministic."""
 
 import warnings
@@ -8,7 +8,7 @@ import pytest
 import trimesh
 
 import warp_stokes as ws
-from warp_stokes.geometry import shapes
+import shapes
 
 FAMILY = shapes.stress_pairs(detail=2) + shapes.stress_pairs(detail=1)
 

@@ -190,8 +190,9 @@ def make_cage(mesh, handles: int | None = None, offset: float | None = None, dev
 
     Examples
     --------
-    >>> from warp_stokes.geometry.shapes import latitude_longitude_sphere
-    >>> made = make_cage(latitude_longitude_sphere(16, 24), handles=60, device="cpu")
+    >>> import trimesh
+    >>> sphere = trimesh.creation.icosphere(subdivisions=3)
+    >>> made = make_cage((sphere.vertices, sphere.faces), handles=60, device="cpu")
     >>> made.cage.n_handles, made.distance[1] < 0.03
     (60, True)
     """
@@ -419,8 +420,9 @@ def made_cage_record(made: MadeCage) -> dict:
 
     Examples
     --------
-    >>> from warp_stokes.geometry.shapes import latitude_longitude_sphere
-    >>> sorted(made_cage_record(make_cage(latitude_longitude_sphere(12, 16), handles=60, device="cpu")))
+    >>> import trimesh
+    >>> sphere = trimesh.creation.icosphere(subdivisions=2)
+    >>> sorted(made_cage_record(make_cage((sphere.vertices, sphere.faces), handles=60, device="cpu")))
     ['chosen', 'distance_max', 'distance_mean', 'handles', 'handles_asked', 'margin', 'notes', 'offset', 'seconds']
     """
     return {"handles": made.cage.n_handles, "handles_asked": made.handles, "chosen": made.chosen,

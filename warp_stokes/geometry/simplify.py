@@ -377,9 +377,9 @@ def simplify_enclosing(vertices: np.ndarray, faces: np.ndarray, handles: int, po
 
     Examples
     --------
-    >>> from warp_stokes.geometry.shapes import latitude_longitude_sphere
-    >>> v, f = latitude_longitude_sphere(12, 16, radius=1.0)
-    >>> s = simplify_enclosing(v, f, 40, np.zeros((1, 3)), margin=0.5)
+    >>> import trimesh
+    >>> sphere = trimesh.creation.icosphere(subdivisions=2)
+    >>> s = simplify_enclosing(sphere.vertices, sphere.faces, 40, np.zeros((1, 3)), margin=0.5)
     >>> len(s.vertices), len(s.faces)
     (40, 76)
     """

@@ -47,6 +47,7 @@ from __future__ import annotations
 import time
 import warnings
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 import warp as wp
@@ -182,7 +183,7 @@ def solve_biharmonic(
     True
     """
     # the stopping rule (rounds, recomputed residual, identity check, restarts) in _attempt; the ladder of
-    # preconditioners after faults here
+    # preconditioners after faults in _climb_ladder
     backend = Backend.of(device)
     check_equation(equation)
     start = time.perf_counter()
@@ -194,60 +195,81 @@ def solve_biharmonic(
         identity_tol = max(tol, 2.0 * deviation())
         if callback is not None:
             callback(0, field)
-        totals = {"iterations": 0, "restarts": 0, "rounds": [], "setup": 0.0}
-        recoveries = []
-        solver = None
-        for k, (name, precondition, limit, build_seconds) in enumerate(_ladder(grid, preconditioner, backend,
-                                                                                equation)):
-            totals["setup"] += build_seconds
-            if k == 0 and max_iterations is not None:
-                limit = max_iterations
-            del solver  # its vectors go before the next ones are allocated (the memory plan counts one set)
-            solver = BatchedCG(grid, field, source, precondition, backend, equation)
-            rel = solver.start()
-            if recoveries:
-                recoveries[-1]["next"] = name
-                # from the iterate the fault left; a handle worse off than from zero (or not finite) from zero
-                worse = ~np.isfinite(rel) | (rel > 1.0)
-                if worse.any():
-                    solver.clear(worse)
-                    rel = solver.start()
-            rel, identity, fault = _attempt(solver, rel, tol, identity_tol, deviation, totals, limit, callback,
-                                            field, stagnation=name != "jacobi", progress=progress)
-            if fault is None:
-                break
-            recoveries.append({"iteration": totals["iterations"], "fault": fault, "preconditioner": name})
+        climb = _climb_ladder(grid, field, source, preconditioner, backend, equation, tol, identity_tol, deviation,
+                              max_iterations, callback, progress)
         if equation == "laplace":
             _gradients_from_values(grid, field, backend)
         backend.synchronize()
 
+    return _reported(climb, tol, identity_tol, deviation, backend, handles is not None, time.perf_counter() - start)
+
+
+class _Climb(NamedTuple):
+    """Where the ladder of preconditioners ended: the last one's name and iteration limit, the handles' relative
+    residuals and identity deviation, the fault that stopped it (None: none), the totals and the recoveries."""
+
+    name: str
+    limit: int
+    rel: np.ndarray
+    identity: float
+    fault: str | None
+    totals: dict
+    recoveries: list
+
+
+def _climb_ladder(grid: Grid, field: wp.array, source, preconditioner, backend: Backend, equation: str, tol: float,
+                  identity_tol: float, deviation, max_iterations, callback, progress) -> _Climb:
+    """CG with each preconditioner of the ladder in turn (:func:`_ladder`), the next only after a fault of the one
+    before it, from the iterate the fault left."""
+    totals = {"iterations": 0, "restarts": 0, "rounds": [], "setup": 0.0}
+    recoveries = []
+    solver = None
+    for k, (name, precondition, limit, build_seconds) in enumerate(_ladder(grid, preconditioner, backend, equation)):
+        totals["setup"] += build_seconds
+        if k == 0 and max_iterations is not None:
+            limit = max_iterations
+        del solver  # its vectors go before the next ones are allocated (the memory plan counts one set)
+        solver = BatchedCG(grid, field, source, precondition, backend, equation)
+        rel = solver.start()
+        if recoveries:
+            recoveries[-1]["next"] = name
+            # from the iterate the fault left; a handle worse off than from zero (or not finite) from zero
+            worse = ~np.isfinite(rel) | (rel > 1.0)
+            if worse.any():
+                solver.clear(worse)
+                rel = solver.start()
+        rel, identity, fault = _attempt(solver, rel, tol, identity_tol, deviation, totals, limit, callback, field,
+                                        stagnation=name != "jacobi", progress=progress)
+        if fault is None:
+            break
+        recoveries.append({"iteration": totals["iterations"], "fault": fault, "preconditioner": name})
+    return _Climb(name, limit, rel, identity, fault, totals, recoveries)
+
+
+def _reported(climb: _Climb, tol: float, identity_tol: float, deviation, backend: Backend, checked: bool,
+              seconds: float) -> SolveReport:
+    """The solve's report, after its warnings (each recovery; a stop short of the tolerance); a ConvergenceError
+    when every preconditioner failed or (``checked``: the columns are cage coordinates) the identity deviation ends
+    beyond what is acceptable."""
+    rel, identity, fault, totals, recoveries = climb.rel, climb.identity, climb.fault, climb.totals, climb.recoveries
     residual = float(rel.max()) if len(rel) else 0.0
     converged = bool(fault is None and (rel <= tol).all() and identity <= identity_tol)
     for event in recoveries:
         warnings.warn(
             f"the solver's {event['preconditioner']} preconditioner failed after {event['iteration']} iterations "
             f"({event['fault']}); " + (f"it went on with {event['next']}" if "next" in event else
-                                       "nothing else was left to try"), stacklevel=2)
-    report = SolveReport(
-        iterations=totals["iterations"],
-        residual=residual,
-        identity_error=identity,
-        converged=converged,
-        restarts=totals["restarts"],
-        seconds=time.perf_counter() - start,
-        setup_seconds=totals["setup"],
-        rounds=totals["rounds"],
-        identity_tolerance=identity_tol,
-        preconditioner=name,
-        recoveries=recoveries,
-    )
+                                       "nothing else was left to try"), stacklevel=3)
+    report = SolveReport(iterations=totals["iterations"], residual=residual, identity_error=identity,
+                         converged=converged, restarts=totals["restarts"], seconds=seconds,
+                         setup_seconds=totals["setup"], rounds=totals["rounds"], identity_tolerance=identity_tol,
+                         preconditioner=climb.name, recoveries=recoveries)
     # a fault on every preconditioner leaves an iterate that is no solution, whatever its identity deviation (the
     # starting field already reproduces constants and linear functions)
-    if fault is not None or (handles is not None and not identity <= ACCEPTABLE * identity_tol):
+    if fault is not None or (checked and not identity <= ACCEPTABLE * identity_tol):
         with backend.scope():
             data = deviation(known=True)
         error = ConvergenceError(_failure_message(totals, residual, identity, ACCEPTABLE * identity_tol, recoveries,
-                                                  fault, limit, data))
+                                                  fault, climb.limit, data))
         error.report = report
         raise error
     if not converged:
@@ -255,7 +277,7 @@ def solve_biharmonic(
             f"the solver stopped after {totals['iterations']} iterations with relative residual {residual:.3g} and "
             f"identity deviation {identity:.3g} (tol {tol:g}, identity tol {identity_tol:.3g})"
             + (": iteration limit reached" if totals["limit_reached"] else ": float32 accuracy limit"),
-            stacklevel=2,
+            stacklevel=3,
         )
     return report
 
