@@ -1,3 +1,4 @@
+import dataclasses
 import json
 import warnings
 
@@ -234,3 +235,46 @@ def test_thin_features_are_detected_with_a_suggested_resolution(device):
         b = ws.bind(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", resolution=32, device=device)
     assert not any("parts of the cage thinner" in str(w.message) for w in caught)  # (folded edges are still named)
     assert b.stats.vertices_in_thin_features == 0
+
+
+def _first_format(stats) -> dict:
+    """The flat stats a binding of format 1 (warp-stokes 0.2) recorded for ``stats`` (a BindStats)."""
+    grid, solver = stats.grid, stats.solver
+    flat = {"device": stats.device, "method": stats.method, "handles": stats.handles, "vertices": stats.vertices,
+            "vertices_outside_cage": stats.vertices_outside_cage, "vertices_beyond_band": stats.vertices_beyond_band,
+            "vertices_in_thin_features": stats.vertices_in_thin_features, "converged": stats.converged,
+            "memory_estimate_bytes": stats.memory_estimate_bytes, "seconds": stats.seconds,
+            "partition_of_unity_error": stats.partition_of_unity_error, "warnings": stats.warnings,
+            "linear_precision_error": stats.linear_precision_error, "grid_shape": grid.shape, "spacing": grid.spacing,
+            "interior_nodes": grid.interior_nodes, "ring_nodes": grid.ring_nodes, "band_nodes": grid.band_nodes,
+            "cut_off_nodes": grid.cut_off_nodes, "solver": solver.preconditioner, "levels": solver.levels,
+            "multigrid_seconds": solver.multigrid_seconds, "chunks": solver.chunks, "threads": solver.threads,
+            "coarsest_operator": solver.coarsest_operator, "preconditioners": solver.preconditioners,
+            "recoveries": solver.recoveries, "iterations": solver.iterations, "restarts": solver.restarts,
+            "solver_rounds": solver.rounds, "chunk_iterations": solver.chunk_iterations,
+            "chunk_rounds": solver.chunk_rounds, "residual": solver.residual, "identity_error": solver.identity_error,
+            "resolution": {"requested": stats.resolution.requested}}
+    return json.loads(json.dumps(flat))
+
+
+def test_a_binding_reads_back_its_typed_report_and_one_of_the_first_format_too(bindings, tmp_path):
+    """The stats are written as a typed record (format 2) and read back equal; a binding of format 1 (flat stats)
+    still loads, into the same types; stats of a later format are one error naming it."""
+    b = bindings("arm")
+    b.save(tmp_path / "b.npz")
+    assert ws.load_binding(tmp_path / "b.npz", device="cpu").stats == b.stats
+    with np.load(tmp_path / "b.npz") as data:
+        arrays = dict(data)
+    meta = json.loads(str(arrays["meta"]))
+    assert meta["stats"]["format"] == 2 and meta["stats"]["solver"]["iterations"] == b.stats.solver.iterations
+    meta["stats"] = _first_format(b.stats)
+    arrays["meta"] = np.array(json.dumps(meta))
+    np.savez(tmp_path / "old.npz", **arrays)
+    old = ws.load_binding(tmp_path / "old.npz", device="cpu")
+    assert old.stats == dataclasses.replace(b.stats, resolution=dataclasses.replace(
+        b.stats.resolution, chosen=None, needed=None, cap=None))
+    meta["stats"] = {**b.stats.record(), "format": 3}
+    arrays["meta"] = np.array(json.dumps(meta))
+    np.savez(tmp_path / "later.npz", **arrays)
+    with pytest.raises(ws.BindingError, match=r"later.npz: the binding's stats are of format 3; this version"):
+        ws.load_binding(tmp_path / "later.npz")

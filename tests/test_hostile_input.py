@@ -714,7 +714,11 @@ def test_an_output_never_replaces_an_input(scratch, meeting, way):
 
 FIELDS = [("settings", k) for k in ("method", "resolution", "tol", "solver", "sampling", "mesh", "cage",
                                      "cage_prim", "rest_time", "boundary_settings", "max_iterations")] + \
-         [("stats", k) for k in ("device", "handles", "vertices", "converged", "seconds", "warnings", "grid_shape")] + \
+         [("stats", k) for k in ("format", "device", "handles", "vertices", "method", "seconds", "warnings", "grid",
+                                 "solver", "resolution", "made_cage", "converged", "grid_shape")] + \
+         [("stats.grid", k) for k in ("shape", "spacing", "interior_nodes")] + \
+         [("stats.solver", k) for k in ("preconditioner", "converged", "iterations", "rounds", "levels", "devices")] + \
+         [("stats.resolution", k) for k in ("requested", "chosen", "cap")] + \
          [("asset", k) for k in ("path", "up_axis", "meters_per_unit", "time_codes_per_second", "rest_time",
                                  "default_prim")] + \
          [("parts", k) for k in ("path", "vertices", "normals", "to_world")] + \
@@ -739,8 +743,11 @@ def test_a_binding_edited_by_hand_is_refused_in_one_line_or_read_whole(scratch, 
         assume(isinstance(meta.get("parts"), list) and meta["parts"])
         meta["parts"][0][key] = value
     else:
-        assume(isinstance(meta.get(section), dict))
-        meta[section][key] = value
+        record = meta
+        for name in section.split("."):  # "stats.solver": a record inside the stats
+            record = record.get(name) if isinstance(record, dict) else None
+        assume(isinstance(record, dict))
+        record[key] = value
     arrays["meta"] = np.array(json.dumps(meta))
     np.savez(folder / "e.npz", **arrays)
     argv, output = {"deform": (["deform", "e.npz", "bent.npy", "-o", "o.obj"], "o.obj"),

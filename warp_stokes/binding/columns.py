@@ -25,7 +25,7 @@ from ..geometry.grid import voxelize
 from ..kernel_cache import BIND_MODULES, compile_kernels
 from ..solver.budget import chunk_columns, estimate_memory, plan_lanes
 from ..solver.multigrid import Multigrid, coarsen
-from ..solver.solve import solve_biharmonic
+from ..solver.solve import Jacobi, solve_biharmonic
 from .plan import GridPlan
 from .sample import sample_weights
 
@@ -119,7 +119,7 @@ def grid_columns(checked: Cage, points: np.ndarray, resolution: int, plan: GridP
     if plan.multigrid:
         tell("multigrid", levels=len(layout.levels))
     preconditioner = (Multigrid(grid, device=plan.backend, levels=layout.levels, equation=plan.equation)
-                      if plan.multigrid else "jacobi")
+                      if plan.multigrid else Jacobi(grid, plan.equation, plan.backend))
     plan.backend.synchronize()
     seconds["setup"] = time.perf_counter() - t
 
@@ -133,9 +133,8 @@ def grid_columns(checked: Cage, points: np.ndarray, resolution: int, plan: GridP
                           grid.n_cut_off, grid.n_inside)
     return GridColumns(
         weights=weights, corners=corners, reports=reports, grid=summary,
-        levels=preconditioner.level_sizes if plan.multigrid else [grid.n_interior],
-        multigrid_seconds=preconditioner.seconds if plan.multigrid else {},
-        coarsest=preconditioner.coarsest if plan.multigrid else None, chunks=len(layout.chunks),
+        levels=preconditioner.level_sizes, multigrid_seconds=preconditioner.seconds,
+        coarsest=preconditioner.coarsest, chunks=len(layout.chunks),
         threads=layout.lanes, memory_estimate=layout.memory_estimate, seconds=seconds)
 
 
@@ -224,10 +223,10 @@ class _Rounds:
     def solve(self, k: int, field_):
         """Chunk k's solve, on this thread's view of the multigrid; its report."""
         mine = self.preconditioner
-        if self.layout.lanes > 1 and self.plan.multigrid:
-            if getattr(self.own, "multigrid", None) is None:
-                self.own.multigrid = self.preconditioner.lane()
-            mine = self.own.multigrid
+        if self.layout.lanes > 1:
+            if getattr(self.own, "preconditioner", None) is None:
+                self.own.preconditioner = self.preconditioner.lane()
+            mine = self.own.preconditioner
         plan, chunk = self.plan, self.layout.chunks[k]
         return solve_biharmonic(
             self.grid, field_, tol=plan.tol, max_iterations=plan.max_iterations, handles=self.checked.vertices,

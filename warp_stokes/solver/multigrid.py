@@ -85,7 +85,8 @@ LMAX_SAFETY = 1.2
 FINE_ROW_SUM_BOUND = {"biharmonic": 3.0, "laplace": 2.0}
 
 class Multigrid:
-    """A V-cycle preconditioner for the interior block A_II of a grid, shared by all handles.
+    """A V-cycle preconditioner for the interior block A_II of a grid, shared by all handles (a
+    :class:`warp_stokes.solver.solve.Preconditioner`).
 
     Parameters
     ----------
@@ -106,6 +107,8 @@ class Multigrid:
     >>> mg = Multigrid(grid, device="cpu")          # doctest: +SKIP
     >>> mg.apply(residual, correction)                      # doctest: +SKIP
     """
+
+    name = "multigrid"
 
     def __init__(self, grid: Grid, device=None, coarsest_nodes: int | None = None, levels=None,
                  equation: str = "biharmonic", threads: int | None = None):

@@ -47,7 +47,7 @@ from __future__ import annotations
 import time
 import warnings
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import NamedTuple, Protocol
 
 import numpy as np
 import warp as wp
@@ -62,7 +62,8 @@ from .krylov import GROWTH, BatchedCG, Watchdog, cg_round
 from .multigrid import Multigrid
 from .operator import apply_operator, check_equation
 
-__all__ = ["SolveReport", "solve_biharmonic", "apply_operator", "jacobi_recovery_iterations", "ACCEPTABLE"]
+__all__ = ["SolveReport", "solve_biharmonic", "apply_operator", "jacobi_recovery_iterations", "ACCEPTABLE",
+           "Preconditioner", "Jacobi"]
 
 #: true-residual checks (restarts) before giving up on reaching `tol`
 MAX_RESTARTS = 8
@@ -145,9 +146,9 @@ def solve_biharmonic(
     handles : (handles, 3) array, optional
         Cage vertices (absolute positions) when the columns are the cage coordinates: enables the identity
         check.
-    preconditioner : "multigrid" | "jacobi" | Multigrid
+    preconditioner : "multigrid" | "jacobi" | Multigrid | Jacobi
         The V-cycle of :class:`warp_stokes.solver.multigrid.Multigrid` (built here unless given), or the inverse
-        diagonal.
+        diagonal (:class:`Jacobi`).
     device : None | str | Backend
     callback : callable, optional
         ``callback(iteration, field)`` is called with the starting field (iteration 0) and after every CG
@@ -369,7 +370,7 @@ def _ladder(grid: Grid, preconditioner, backend: Backend, equation: str = "bihar
     (name, apply(r, z), default iteration limit, seconds to build it). The multigrid cycle (built here for
     "multigrid"), then the same cycle with guaranteed smoother bounds, then the inverse diagonal; "jacobi" alone
     when asked for."""
-    if preconditioner == "jacobi":
+    if preconditioner == "jacobi" or isinstance(preconditioner, Jacobi):
         yield "jacobi", _jacobi(equation, backend), 40 * (grid.resolution + 8) ** 2, 0.0
         return
     start = time.perf_counter()
@@ -403,6 +404,48 @@ def jacobi_recovery_iterations(resolution: int) -> int:
     5184
     """
     return (int(resolution) + 8) ** 2
+
+
+class Preconditioner(Protocol):
+    """What a solve and a bind's report need of a preconditioner (:class:`Multigrid` and :class:`Jacobi`): its
+    name; ``apply(r, z)``, z = M^-1 r for every column; its levels' sizes, setup seconds by phase and coarsest
+    operator (None without one); and ``lane()``, its view for one of the threads that solve chunks at once."""
+
+    name: str
+    level_sizes: list
+    seconds: dict
+    coarsest: "dict | None"
+
+    def apply(self, r: wp.array, z: wp.array) -> None: ...
+
+    def lane(self) -> "Preconditioner": ...
+
+
+class Jacobi:
+    """The inverse diagonal of the fine operator: the preconditioner for comparisons (and the last one a solve takes
+    after faults of the multigrid's). Nothing to set up, nothing per thread.
+
+    Examples
+    --------
+    >>> mask = np.zeros((12, 12, 12), bool); mask[5:7, 5:7, 5:7] = True
+    >>> from warp_stokes.geometry.grid import grid_from_mask
+    >>> jacobi = Jacobi(grid_from_mask(mask, device="cpu"), device="cpu")
+    >>> jacobi.name, jacobi.level_sizes, jacobi.lane() is jacobi
+    ('jacobi', [8], True)
+    """
+
+    name = "jacobi"
+    coarsest = None
+
+    def __init__(self, grid: Grid, equation: str = "biharmonic", device=None):
+        self.backend, self.equation = Backend.of(device), check_equation(equation)
+        self.level_sizes, self.seconds = [grid.n_interior], {}
+
+    def apply(self, r: wp.array, z: wp.array) -> None:
+        _jacobi(self.equation, self.backend)(r, z)
+
+    def lane(self) -> "Jacobi":
+        return self
 
 
 def _jacobi(equation: str, backend: Backend):
