@@ -35,8 +35,8 @@ def signed_distance_between_even_nodes(mesh: wp.uint64, origin: wp.vec3, spacing
     around the node (2, 4 or 8, at most sqrt(3) spacings away) where they agree and the mesh is farther than the
     farthest of them (a ball free of the mesh joins them: the same side); elsewhere :func:`signed_distance_at`.
     Distances beyond ``cap`` (at least 2 spacings) may be written as 1.01 ``cap``: the sign is all that is needed
-    there (but see :func:`uncap_at_side_changes`). The winding numbers are most of the field's cost (the shared ogre
-    at 128 cells on a CPU: 4.9 of 5.2 s)."""
+    there (but see :func:`uncap_at_side_changes`). The winding numbers are most of the field's cost (on a CPU, nearly
+    all of it on a fine grid)."""
     i, j, k = wp.tid()
     odd = wp.vec3i(i % 2, j % 2, k % 2)
     if odd[0] + odd[1] + odd[2] == 0:

@@ -2,8 +2,8 @@
 
 ``cg.column_dots`` gives each (chunk, handle) thread one handle's entries of every chunk-th row: on a GPU the
 threads of a warp read neighbouring handles at once, but a CPU runs the threads one after another (NVIDIA/warp#1309),
-so each walks the whole array reading 16 bytes of every row it touches (the ogre at n = 128, one thread: 125 ms a
-product, a fifth of the solve). Here a thread sums a block of consecutive rows for 64 handles at a time, reading
+so each walks the whole array reading 16 bytes of every row it touches (on one thread the products were then a large
+part of the solve). Here a thread sums a block of consecutive rows for 64 handles at a time, reading
 each row's entries in order. Each handle's sum runs over the rows in order, then over the blocks in order: the same
 numbers whatever the other handles (threads solving chunks of handles at once give the bits of one thread).
 """

@@ -196,8 +196,7 @@ def write_handles(field: wp.array2d(dtype=wp.vec4f), n: int, x: wp.vec3d, spacin
 
 # about 75 lines: one thread per (node, handle) assembles the local data of its closest face and the faces blended
 # with it; the steps share the per-face values held in registers. The same arithmetic as blend_at and write_handles
-# written out: through their struct an H100 took about twice as long (ogre: 0.007 -> 0.019 s at 128, 0.025 -> 0.045 s
-# at 256)
+# written out: through their struct a GPU took about twice as long
 @wp.kernel
 def local_field(
     ijk: wp.array(dtype=wp.vec3i),

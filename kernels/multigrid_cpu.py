@@ -5,9 +5,9 @@ row's handles takes them one at a time. Here a thread finds its row's neighbours
 coarse node's fine rows, a fine node's parents) once, then applies each block to all handles' columns in a loop a
 compiler vectorises (:func:`block_sum_source`): every row's handles are consecutive vec4s. The sums are those of
 ``multigrid``'s kernels for a GPU (a thread per row and handle) term for term, in their order and without fused
-multiply-adds (Warp's CPU code has none), so they give the same bits (tests/test_multigrid.py). The ogre at n = 64
-(coarse levels of 1,238 and 162 rows, 118 handles, 2-core Xeon, one thread): a coarse Chebyshev step 8.2 -> 2.5-2.8 ms
-on average, a restriction 15.9 -> 4.1 ms, a prolongation 17.8 -> 4.5 ms.
+multiply-adds (Warp's CPU code has none), so they give the same bits (tests/test_multigrid.py). On a cage of about a
+hundred handles a coarse Chebyshev step, a restriction and a prolongation each take a quarter to a third of the time
+of Warp's loop.
 """
 
 import warp as wp

@@ -34,9 +34,8 @@ PATCH_J = 2
 #: threads per block: four warps, i.e. four patches of the same 32 handles
 BLOCK_DIM = 128
 #: columns (i, j) of the patches the one-pass Chebyshev step walks: it keeps more per node than the plain walk (the
-#: right-hand side, d and the step), and smaller patches ran faster on an H100 (ogre, 118 handles: 3.18 against 3.82 ms
-#: at n = 256 and 11.9 against 13.8 ms at 384 for 2 x 2; 2 x 4, 4 x 2, 1 x 4 and 4 x 4 slower; blocks of 64, 128 and
-#: 256 threads alike)
+#: right-hand side, d and the step), and smaller patches ran faster (1 x 2 took a sixth less time than 2 x 2; every
+#: larger patch was slower; the block size made no difference)
 STEP_PATCH = (1, 2)
 #: what a walk writes (see ``operator_kernel``): A x, b - A x, or a Chebyshev step from b - A x
 APPLY = wp.constant(0)
@@ -64,9 +63,7 @@ def operator_kernel(scalar, patch=(PATCH_I, PATCH_J), residual: bool = False, ch
     own equations, and for the nodes above and below, q, G_z and the sum of q over the four face neighbours
     (their edge terms): six values per column and plane, three planes in registers. Against one thread per
     column keeping three whole planes (the form before, bound by L2 bandwidth) this more than halves the rows
-    loaded per interior node (4.4-4.9 against 9.3-10.1 on the real cages, runs included), and the loads that
-    miss L1 are what limited it (benchmarks/HISTORY.md: 60-65% of the copy bandwidth at n = 256 on an H100,
-    against 54-55%)."""
+    loaded per interior node, and the loads that miss L1 are what limited it (measured: benchmarks/HISTORY.md)."""
     PI, PJ = patch
     W = PJ + 2
     RING = (PI + 2) * W

@@ -5,9 +5,8 @@ Warp runs a CPU kernel's threads one after another on one core (NVIDIA/warp#1309
 plane reductions for every handle. Here a thread takes its node's 18 neighbour rows from a table formed once per grid
 (:func:`neighbour_rows`) and applies the stencil to every handle's column in turn; a row's handles are consecutive in
 memory, so the 19 rows a node reads are 19 streams. The loop over the handles is C++ (:func:`node_operator_source`),
-which the compiler vectorises: Warp's code for the same loop takes one handle at a time. The ogre at n = 64 (118
-handles, 2-core Xeon, one thread): 53 ms per application with the walk, 16-35 ms with Warp's loop (the machine's
-speed varies), 10-14 ms with the C++ loop.
+which the compiler vectorises: Warp's code for the same loop takes one handle at a time. On one thread, with a
+hundred-odd handles, the node loop takes a fraction of the walk's time per application, and the C++ loop less again.
 
 The sums are the walk's, term for term and in its order, in the same precision (float32 for Krylov and smoothing
 steps, float64 for residuals), without fused multiply-adds: both kernels give the same bits (tests/test_solve.py).
@@ -159,8 +158,8 @@ def node_operator_kernel(scalar, mode):
     out = x + d. Launch: one thread per interior node.
 
     A thread applies the stencil to its node's handles in C++ (:func:`node_operator_source`): Warp's CPU code for
-    the same loop ran one handle at a time (the ogre at n = 64, 118 handles, 2-core Xeon: 23 against 13 ms per
-    application, the same bits), while a compiler vectorises this loop over the handles."""
+    the same loop ran one handle at a time (nearly twice as slow, the same bits), while a compiler vectorises this
+    loop over the handles."""
 
     @wp.func_native(node_operator_source(scalar, mode))
     def node_loop(field: wp.array2d(dtype=wp.vec4f), rows: wp.array2d(dtype=wp.int32), n_rows: int,

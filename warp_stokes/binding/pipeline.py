@@ -289,8 +289,8 @@ def _vertices_off_the_grid(surface, checked: Cage, grid, resolution: int, weight
                            inside: np.ndarray, distance: np.ndarray, plan: GridPlan, choice: ResolutionChoice):
     """Vertices beyond the grid's band get the boundary data at their own position (in ``weights``): the data
     their neighbours within the band are interpolated from, so that a vertex's weights do not jump when a finer
-    grid's band no longer reaches it (MVC there against the local data within the band changed a weight of the
-    ogre by 0.12 from n = 256 to 384, H100). Vertices in features thinner than the grid resolves are counted; both
+    grid's band no longer reaches it (MVC there, against the local data within the band, made such weights jump by
+    more than refinement changes them elsewhere). Vertices in features thinner than the grid resolves are counted; both
     are warned of, and a resolution too coarse for the cage's folded edges (:func:`wedge_resolution`). Returns
     (notes, beyond, thin): the cage's notes and these warnings, and the two vertex masks."""
     sampled = (corners >= 0).all(axis=1)

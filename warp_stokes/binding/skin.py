@@ -93,8 +93,8 @@ def skin_weights(binding, influences: int | None = None, non_negative: bool = Fa
     non_negative : bool, drop negative weights first (for consumers that ignore them, and glTF, which forbids them)
 
     The kept weights are scaled to sum to one. (Fitting them instead to keep linear precision, the nearest weights
-    with ``sum_k w_k c_k = p``, was measured on the arm's bend and the ogre's pose: better at some K, worse at
-    others, so it is not offered.)
+    with ``sum_k w_k c_k = p``, was measured on posed test pairs: better at some K, worse at others, so it is not
+    offered.)
 
     Returns
     -------

@@ -36,7 +36,7 @@ VOXELIZE_NODE_BYTES = 14
 #: (labels, and the row index once read); the memory plan (warp_stokes.solver.budget) counts these
 DEVICE_NODE_BYTES, HOST_NODE_BYTES = 4, 5
 #: the stencil kernel walks patches of columns along z in pieces of at most this many planes, so that short
-#: and long runs balance across threads (64 was the most even of 32, 64 and 128 on an H100, benchmarks/HISTORY.md)
+#: and long runs balance across threads (of the lengths tried, 64 was the most even across cages and resolutions)
 PATCH_LENGTH = 64
 #: two cage faces are the walls of one thin wedge of outside space when their normals' dot product is below this
 #: (more than 120 degrees apart) and they are near along the cage (kernels.voxel.near_along_the_cage)

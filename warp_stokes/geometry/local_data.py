@@ -53,7 +53,7 @@ class LocalData:
     fold_radius : float, mean edge lengths: faces within this distance along the cage of a folded edge (its faces'
         normals more than ``fold_degrees`` apart) take the least-norm normal derivatives, fading out linearly over
         the next ``fold_radius`` (MVC's normal derivatives are large there, and the weights near the fold with
-        them: ``benchmarks/RESULTS.md``); 0 = none
+        them); 0 = none
     fold_degrees : float
     """
 

@@ -35,15 +35,15 @@ __all__ = ["make_cage", "MadeCage", "default_handles", "made_cage_record", "DEFA
 
 #: the offset surface's distance from the mesh, as a fraction of the mesh's bounding diagonal
 DEFAULT_OFFSET = 0.02
-#: the default offset's steps (times DEFAULT_OFFSET) where the handles asked are not reached: 14 public meshes nobody
-#: here had seen, asked for 30 handles, 11 stopped at 31-58 at 0.02; with the steps every one has 30 or 31
-#: (benchmarks/RESULTS.md, section 19); asked for 8 they stopped at 9-16 with steps up to 0.08 (so coarse a cage needs
-#: room around limbs and ears), at 8-11 with 0.16; asked for 12, at 12-16 and at 12-13
+#: the default offset's steps (times DEFAULT_OFFSET) where the handles asked are not reached: at the default offset
+#: the collapses on most unseen meshes stop well above a count of a few dozen handles; with the steps nearly every
+#: one reaches about the count, and a very coarse cage needs the largest steps (room around limbs and ears)
+#: (measured: benchmarks/RESULTS.md)
 OFFSET_STEPS = (1.0, 2.0, 4.0, 8.0)
 #: every mesh vertex stays at least this fraction of the offset inside the cage
-#: (less room for the collapses made the pairs' cages express their artists' deformations worse: at 0.25 / 0.4 / 0.5,
-#: SMPL's RMS error 0.269 / 0.278 / 0.350 % and the arm's 0.104 / 0.107 / 0.112 %, against 0.239 % and 0.088 % at
-#: 0.15; and the offset surface that starts the collapses holds every vertex at a smaller margin more often)
+#: (a margin of a quarter of the offset or more leaves the collapses less room, and the cages then expressed their
+#: artists' deformations worse; and the offset surface that starts the collapses holds every vertex at a smaller
+#: margin more often)
 MARGIN = 0.15
 #: grid cells per offset: marching cubes places the level set well within a cell of the offset, so one cell per
 #: offset keeps every vertex at the margin (checked); finer grids start the collapses from more vertices (1.5 cells:
@@ -355,8 +355,7 @@ def _made_at(body: wp.Mesh, strays, centre, points, name, diag, fraction, handle
     margin = MARGIN * distance
     _check_start(v, f, points, margin, name, device)
     # the collapse checks run on the CPU whatever the device: a round holds a few hundred candidates, too few for a
-    # GPU, whose copies and launches per round then cost more than the checks (ogre on an H100: 3.7 s on CUDA,
-    # 1.6 s on the host's CPU)
+    # GPU, whose copies and launches per round then cost more than the checks (on CUDA a make took over twice as long)
     simplified = simplify_enclosing(v, f, handles, points, margin, device="cpu",
                                     give_up_above=None if last else _about(handles))
     seconds["simplify"] = time.perf_counter() - t

@@ -15,7 +15,9 @@ __all__ = ["AUTO_RESOLUTION", "AUTO_RESOLUTION_CAP", "CUT_OFF_MAX_CHANGE", "chec
            "wedge_resolution"]
 
 #: an interior node cut off by such a wedge takes the boundary data only where that data, extended to it over a
-#: diagonal link, changes by at most this much (in weight units); measured on the shared pairs: benchmarks/RESULTS.md
+#: diagonal link, changes by at most this much (in weight units): beyond it the grid does not resolve the faces and
+#: the extension means nothing; a smaller gate switches sharp folds on late, itself a jump in the weights from one
+#: resolution to the next (measured: benchmarks/RESULTS.md)
 CUT_OFF_MAX_CHANGE = 1.0
 
 #: ``resolution="auto"`` picks at least this many cells, more where the cage's folded edges need them

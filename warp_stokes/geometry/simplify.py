@@ -37,19 +37,17 @@ FLIP_DEGREES = 120.0
 #: which 256 threads would overflow (66 KB of the 48 KB a block may have)
 COLLAPSE_BLOCK = 64
 #: with ``give_up_above``: the rounds over which the pace of the collapses is measured, and the most rounds it may
-#: still need. Near its end a surface makes a collapse every 10-100 rounds, or none, for thousands of rounds: on 33
-#: meshes and counts (the shared pairs, 14 public test meshes, six QMVC pairs; 8 to 126 handles) no try that reached
-#: the count would have given up (with 500 two would have); 30 meshes and counts made again came out bit for bit the
-#: same; asked for 8, the QMVC SpikyBox and WireSphere (61k, 49k vertices) took 5.6 and 6.5 s instead of 10.0 and
-#: 14.2 on 2 cores
+#: still need. Near its end a surface makes a collapse every 10-100 rounds, or none, for thousands of rounds. The
+#: limits are wide enough that no try that reached the count, over the test meshes and counts, would have given up
+#: (at half STALL_ROUNDS some would have), so the cages made are the same; a try that cannot reach the count stops
+#: early, which roughly halves the time of the coarsest cages
 STALL_WINDOW = 128
 STALL_ROUNDS = 1000
 #: after a round that made no collapse, the next rounds are worked out ahead as if each refused all it tried (as
 #: nearly all do there), and their candidates checked in one launch: at least AHEAD_CANDIDATES, twice as many after
 #: each launch where none passed, up to AHEAD_MOST. The rounds are then taken in order up to the first where one
 #: passed: the same collapses, refusals and rounds as one round at a time, without each round's edges, placements
-#: and BVH (the shared ogre made at an offset of 0.5 %: 2,532 rounds and 12-15 s before, 383 rounds and 7 s on 2
-#: cores, with the refusals' fix of the same commit)
+#: and BVH (at a small offset, thousands of rounds that make almost nothing were most of a make's time)
 AHEAD_CANDIDATES = 16
 AHEAD_MOST = 256
 #: why collapses were refused (the kernel's codes, in ``Simplified.refusals``)

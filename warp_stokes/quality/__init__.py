@@ -24,7 +24,7 @@ value coordinates evaluated at the vertices, :func:`mean_value_quality`) on the 
 
 :func:`deformation_quality` computes all of them by region (vertex subsets: a region's triangles and edges are those
 with every vertex in it). Weights are read in chunks of rows and all sums are float64, so meshes of 500k vertices
-need no (V, L) float64 copy. Regions specific to a data set (SMPL's hands) belong to the caller, e.g.
+need no (V, L) float64 copy. Regions specific to a data set (a body's hands, say) belong to the caller, e.g.
 ``benchmarks/bench_quality.py``.
 """
 

@@ -11,8 +11,8 @@ __all__ = ["conformal_distortion", "dihedral_angles", "dihedral_change", "percen
 
 
 #: weights in [-NEGATIVE_TOLERANCE, 0) count as zero, not negative: a float32 solve (its partition-of-unity check is
-#: 1e-5) leaves the weights of handles far away at +-1e-7..1e-5 (on SMPL at n = 32 with the local data, a third of
-#: the weights are within 1e-6 of zero and half of those below it)
+#: 1e-5) leaves the weights of handles far away at +-1e-7..1e-5, as often below zero as above: counted as negative,
+#: that noise would hide the negative weights that matter
 NEGATIVE_TOLERANCE = 1e-5
 
 #: entries of a (V, L) weight matrix read at once (rows per chunk = this / L)

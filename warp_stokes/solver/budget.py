@@ -48,9 +48,9 @@ from .multigrid import coarsest_nodes_for, hierarchy_bytes
 __all__ = ["MemoryEstimate", "estimate_memory", "available_memory", "plan_chunks", "plan_lanes", "chunk_columns"]
 
 VEC4 = 16
-#: coarse level size over the next finer one, used when the levels are not given (measured 0.15-0.19 on the
-#: real cages at n = 64-96 and 0.13 on a bulky cage at n = 256 with the earlier coarsening; about 0.125
-#: with the present one on the real cages, benchmarks/RESULTS.md section 12: the figure stays an upper bound there)
+#: coarse level size over the next finer one, used when the levels are not given: the largest ratio measured with
+#: the earlier coarsening, whose levels shrank by 5-7; the present one's shrink by about 8, so the figure stays an
+#: upper bound
 COARSENING_RATIO = 0.19
 #: bytes per coarse node held by the hierarchy and its lattice index (4 B per lattice node, about 8 lattice nodes
 #: per coarse node for a bulky cage; less for a thin one), when the levels are not given
@@ -58,8 +58,8 @@ COARSE_NODE_BYTES = multigrid.COARSE_NODE_BYTES + 4 * 8
 
 
 #: what each thread beyond the first adds whatever its chunk (its stack's and its malloc arena's pages, its
-#: launches' arguments, its solve's small arrays): measured 2-3 MB a thread beyond the plan without it (the ogre at
-#: n = 64 on 8 and 16 threads: 235 / 249 MiB for 214 / 236 planned; the arm at 16-20 on 16 threads: 0.4 MB)
+#: launches' arguments, its solve's small arrays): without it, binds on many threads peaked up to 2-3 MB a thread
+#: beyond the plan (small grids less)
 LANE_BYTES = 3 * 2**20
 
 

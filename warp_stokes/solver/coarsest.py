@@ -13,9 +13,9 @@ __all__ = ["coarsest_inverse", "inverts_beside", "HOST", "COARSEST_CUTOFF"]
 
 #: eigenvalues of the coarsest operator (scaled to a unit diagonal) at most this fraction of its largest are left out
 #: of its inverse: the cycle's float32 right-hand sides carry relative errors near 6e-8, which 1 / lambda would
-#: amplify beyond the correction itself. The scaled coarsest levels of the sweeps' cages are far from it (the bound
-#: of lambda_min / lambda_max at least 6.6e-4 on the box at n = 16-96, 4.3e-4 on a star-shaped cage at 16-80, 1.8e-3
-#: on the arm at 16-128, CPU); a singular one (a fault) loses its null space instead of blowing up
+#: amplify beyond the correction itself. The scaled coarsest levels of the convergence sweeps' cages are far from
+#: it (their bound of lambda_min / lambda_max stays thousands of times above it); a singular one (a fault) loses
+#: its null space instead of blowing up
 COARSEST_CUTOFF = 1e-7
 
 #: inverts the coarsest operators on the host (LAPACK releases the GIL), beside the device's work. One worker:

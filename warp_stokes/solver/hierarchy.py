@@ -20,9 +20,9 @@ __all__ = ["Level", "coarsen", "coarsest_nodes_for", "lattice_shift", "hierarchy
 #: a bulky cage, measured)
 COARSEST_NODES = 400
 #: on a CPU the inverse's host work (float64 copies, 32 (4m)^2 bytes: 82 MB at 400 nodes) is the bind's own memory,
-#: more than a small grid's solve: at 400 a bind's peak fell from n = 16 to 24 (the arm: 45 -> 15 MiB) and rose
-#: again (47 at 32). At 100 it grows with n (7.6, 13.6, 25.4, 66.6, 141 MiB at n = 16-64), with the same iterations
-#: from n = 24 on (the arm and the ogre to 64) and weights within 2.4e-7 (RESULTS.md, section 15)
+#: more than a small grid's solve: at 400 a bind's peak did not grow with n but zig-zagged. At 100 it grows with n,
+#: with the same iterations beyond the smallest grids and the same weights to float32 rounding
+#: (measured: benchmarks/RESULTS.md)
 COARSEST_NODES_CPU = 100
 
 

@@ -19,8 +19,8 @@ __all__ = ["BatchedCG", "Watchdog", "cg_round"]
 #: M-norm residual is not monotone, but does not swing by orders of magnitude)
 GROWTH = 1e3
 #: a multigrid round that has not reduced its largest residual this many times over STAGNATION_WINDOW iterations is
-#: stagnating (a healthy cycle took it from about 1 below 1e-7 in 6-11 iterations on every bind of
-#: benchmarks/bench_convergence.py: benchmarks/RESULTS.md, section 12)
+#: stagnating (a healthy cycle takes it from about 1 below 1e-7 in a dozen iterations or fewer on every bind of
+#: benchmarks/bench_convergence.py: benchmarks/RESULTS.md)
 STAGNATION_FACTOR = 10.0
 STAGNATION_WINDOW = 10
 #: ... judged only above this relative residual: below it, slow progress is the float32 floor, not a fault
@@ -111,8 +111,8 @@ class BatchedCG:
     def step(self, running: wp.array) -> np.ndarray:
         """One CG iteration of the running handles; their relative residuals by the recurrence."""
         # float64 sums here too: with float32 ones the CG recurrence drifts further from the true residual on
-        # fine grids (measured on an H100 at n = 256: 4e-5 instead of 1e-5 identity error after the first
-        # round); one application per iteration, against ten in the V-cycle
+        # fine grids (several times the identity error after the first round); one application per iteration,
+        # against ten in the V-cycle
         apply_operator(self.grid, self.p, self.ap, n_rows=self.shape[0], device=self.backend, equation=self.equation)
         pap = self.dots(self.p, self.ap)
         wp.launch(cg.step, dim=self.shape, inputs=[self.x, self.r, self.p, self.ap, self.rz, pap, running])

@@ -13,10 +13,11 @@ One V-cycle for all handles at once (every handle a column of the level arrays):
   27-point block stencils: formed by one kernel per level straight from the finer stencil (the fine operator is
   never assembled) and stored as (nodes, 27) 4x4 blocks;
 - smoother: Chebyshev polynomial in D^-1 A (D the 4x4 diagonal blocks) on [lmax/30, lmax], of degree 3 on the
-  two finest levels and 8 below (4, 4 and 12 in hierarchies of 8 levels or more) (cheap there; the deep levels' corrections limited convergence: the icosphere
-  pair at n = 512 took 27 CG iterations with degree 3 everywhere, 19 with this, in 21% less time, H100), lmax 1.2
-  times the estimate of 40 power iterations (12 underestimated it by 20% at n = 512, and higher degrees then
-  diverged); it is a fixed polynomial, so the V-cycle is a symmetric preconditioner;
+  two finest levels and 8 below (4, 4 and 12 in hierarchies of 8 levels or more): cheap there, and the deep levels'
+  corrections limited convergence (the higher degrees below cut a deep hierarchy's CG iterations by nearly a third
+  and its time by a fifth), lmax 1.2 times the estimate of 40 power iterations (12 underestimated it by a fifth on
+  a deep hierarchy, and higher degrees then diverged); it is a fixed polynomial, so the V-cycle is a symmetric
+  preconditioner;
 - coarsest level: its inverse in float64, checked (:func:`coarsest_inverse`: scaled to a unit diagonal, a Cholesky
   factorisation and a bound of the condition number, else an eigendecomposition that leaves out eigenvalues below
   COARSEST_CUTOFF of the largest: a mode the float32 cycle cannot resolve is dropped, not amplified), its
@@ -64,13 +65,12 @@ __all__ = ["Multigrid", "coarsen", "coarsest_inverse", "hierarchy_bytes", "Level
            "COARSE_NODE_BYTES", "COARSEST_CUTOFF"]
 
 #: Chebyshev degree on the fine level, the first coarse level, ...; the last entry holds for every deeper level
-#: (measured with benchmarks/bench_smoother.py: RESULTS.md)
+#: (measured with benchmarks/bench_smoother.py: benchmarks/RESULTS.md)
 SMOOTHER_DEGREES = (3, 3, 8)
 #: hierarchies of at least DEEP_LEVELS levels smooth with DEEP_SMOOTHER_DEGREES: the CG iterations grew with the
-#: depth. Measured with the earlier coarsening, whose levels shrank by 5-7 (the present one's by about 8: the ogre at
-#: n = 512 has 6 levels, the sphere at 256 6; 8 come only beyond n = 512, not measured since) (the icosphere pair at
-#: n = 512, 8 levels, H100: 17-20 iterations per chunk and a restart of 2 with
-#: (3, 3, 8); 16 and a restart of 1 with (4, 4, 12), 12% more time per chunk)
+#: depth, and on a hierarchy of 8 levels the higher degrees brought a chunk back within 20 CG iterations, for about
+#: a tenth more time. Measured with the earlier coarsening, whose levels shrank by 5-7; the present one's shrink by
+#: about 8, so hierarchies of 8 levels come only beyond n = 512 (not measured since)
 DEEP_LEVELS = 8
 DEEP_SMOOTHER_DEGREES = (4, 4, 12)
 #: the Chebyshev interval is [lmax / SMOOTHING_RANGE, lmax]: the upper part of the spectrum is smoothed
@@ -149,7 +149,7 @@ class Multigrid:
                         empty if finer.blocks is None else finer.blocks,
                         int(fine_operator) if finer.blocks is None else int(mg_kernels.BLOCKS),
                         wp.vec3i(*coarse.shift), self.table]
-            # on a CPU the rows are shared out between the threads (0.4 s at n = 128 on one thread, the ogre)
+            # on a CPU the rows are shared out between the threads (on one, a fine grid takes a good part of a second)
             self.backend.in_threads(coarse.n, lambda a, b, coarse=coarse, operands=operands: wp.launch(
                 mg_kernels.galerkin_blocks, dim=(b - a, 14), inputs=[*operands, a], outputs=[coarse.blocks]),
                 modules=("multigrid",))
@@ -224,7 +224,7 @@ class Multigrid:
             squared = wp.zeros(1, dtype=wp.float64)
             threads = self.backend.reduction_threads(lev.n, 1)
             # an iteration's launches recorded once for each order of (v, z) and replayed: on one column, launching
-            # is most of the cost (a replay skips packing the arguments: 7 against 39 us on the 2-core CPU)
+            # is most of the cost (a replay skips packing the arguments: on a CPU about a fifth of a launch's time)
             iterations = [self._power_iteration(depth, a, b, av, squared, threads) for a, b in ((v, z), (z, v))]
             for k in range(POWER_ITERATIONS):
                 squared.zero_()

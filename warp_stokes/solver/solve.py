@@ -394,9 +394,9 @@ def _ladder(grid: Grid, preconditioner, backend: Backend, equation: str = "bihar
 
 def jacobi_recovery_iterations(resolution: int) -> int:
     """The iteration limit of the inverse diagonal taken after the multigrid failed: (n + 8)^2, about three times what
-    Jacobi-preconditioned CG needs (322, 804, 1,514 iterations to a 1e-6 weight error at n = 32, 48, 64 on an
-    ellipsoid cage). Beyond it the solve ends in a ConvergenceError rather than in hours of iterations: 5,184 at n =
-    64, 69,696 at n = 256 (about 9 minutes of an H100 for the ogre's 118 handles).
+    Jacobi-preconditioned CG needs to a 1e-6 weight error on a smooth cage (its iterations grow like n^2). Beyond it
+    the solve ends in a ConvergenceError rather than in hours of iterations: 5,184 at n = 64, 69,696 at n = 256
+    (minutes of a GPU for a cage of a hundred handles).
 
     Examples
     --------
