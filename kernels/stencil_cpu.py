@@ -17,7 +17,7 @@ import warp as wp
 # no kernel of the package is differentiated: without adjoints a first run compiles in half the time
 wp.set_module_options({"enable_backward": False})
 
-from .stencil import APPLY, INVERSE_DIAGONAL, RESIDUAL, STEP
+from .stencil import APPLY, RESIDUAL, STEP
 
 #: this module's kernels run on a CPU only (a GPU runs the patch walks of ``stencil``): what a first run compiles
 DEVICE_KINDS = ("cpu",)

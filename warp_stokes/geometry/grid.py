@@ -14,7 +14,6 @@ from .resolution import CUT_OFF_MAX_CHANGE, check_resolution
 from ..device import Backend
 from ..memory import memory_size
 from ..errors import ResolutionError
-from ..kernels import labels as node_labels
 from ..kernels import stencil, stencil_cpu
 from ..kernels import voxel
 
