@@ -203,7 +203,7 @@ def test_the_cpus_inside_test_by_even_nodes_gives_every_nodes_labels(resolution,
         counts = np.ceil((hi - lo) / spacing - 1e-9).astype(int) + 1 + 2 * MARGIN
         origin = -0.5 * spacing * (counts - 1)
         mesh = cage_mesh(cage, 0.5 * (lo + hi), "cpu")
-        got = classify_grid_nodes(mesh, tuple(counts), origin, spacing, "cpu", threads=2).numpy()
+        got = classify_grid_nodes(mesh, tuple(counts), origin, spacing, ws.Backend.of("cpu", 2)).numpy()
         every = wp.empty(tuple(counts), dtype=wp.int8, device="cpu")
         wp.launch(voxel.classify_nodes, dim=tuple(counts), device="cpu", outputs=[every],
                   inputs=[mesh.id, wp.vec3(*origin.astype(np.float32)), spacing, WINDING_ACCURACY, 1e-5 * spacing,

@@ -197,7 +197,7 @@ class _Rounds:
         several threads at once)."""
         plan, grid, backend = self.plan, self.grid, self.backend
         self.tell("boundary data", threads=self.layout.lanes)
-        compile_kernels(backend.device, modules=BIND_MODULES + (("laplace",) if plan.equation == "laplace" else ()))
+        compile_kernels(backend.device, modules=BIND_MODULES + plan.equation.kernel_modules)
         self.starts = start_values(grid, self.checked, device=backend, data=plan.boundary)
         if plan.local_data:
             blend_table(grid, self.checked, slice(grid.n_interior, grid.n_active), backend)

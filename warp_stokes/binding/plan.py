@@ -11,7 +11,8 @@ from dataclasses import dataclass
 from ..arguments import integer, number
 from ..device import Backend
 from ..errors import WarpStokesError
-from ..geometry.local_data import LocalData, boundary_settings
+from ..geometry.local_data import LocalData, MeanValueData, boundary_settings
+from ..solver.equation import Equation, equation_of
 from .sample import SAMPLINGS
 
 __all__ = ["GridPlan", "METHODS", "PRECONDITIONERS", "SAMPLINGS"]
@@ -30,7 +31,7 @@ class GridPlan:
     ----------
     backend : Backend, the device (and a CPU's threads) the grid, solve and sampling run on
     method : "stokes" | "harmonic" | "mvc"
-    boundary : LocalData | "mvc", the data at ring and band nodes
+    boundary : LocalData | MeanValueData, the data at ring and band nodes
     preconditioner : "multigrid" | "jacobi"
     tol : float
     max_iterations : int or None
@@ -40,13 +41,13 @@ class GridPlan:
     Examples
     --------
     >>> plan = GridPlan.of("cpu", boundary="local", threads=1)
-    >>> plan.equation, plan.multigrid, plan.local_data, plan.backend.threads
+    >>> plan.equation.name, plan.multigrid, plan.local_data, plan.backend.threads
     ('biharmonic', True, True, 1)
     """
 
     backend: Backend
     method: str = "stokes"
-    boundary: "LocalData | str" = LocalData()
+    boundary: "LocalData | MeanValueData" = LocalData()
     preconditioner: str = "multigrid"
     tol: float = 1e-6
     max_iterations: int | None = None
@@ -75,9 +76,9 @@ class GridPlan:
                    max_iterations, sampling, memory_budget)
 
     @property
-    def equation(self) -> str | None:
-        """"biharmonic" (Stokes), "laplace" (harmonic), or None (MVC: no grid)."""
-        return METHODS[self.method]
+    def equation(self) -> Equation | None:
+        """The biharmonic equation (Stokes), Laplace's (harmonic), or None (MVC: no grid)."""
+        return None if METHODS[self.method] is None else equation_of(METHODS[self.method])
 
     @property
     def multigrid(self) -> bool:
@@ -86,7 +87,7 @@ class GridPlan:
     @property
     def local_data(self) -> bool:
         """Whether the ring and band take the local data (else mean value coordinates)."""
-        return self.boundary != "mvc"
+        return self.boundary.local
 
     def budget(self) -> int:
         """Bytes the bind may allocate on its device."""

@@ -217,7 +217,7 @@ def settings_record(resolution, plan, surface, checked: Cage, scene: Scene, cage
         "tol": plan.tol if grid else None,
         "max_iterations": plan.max_iterations if grid else None,
         "solver": plan.preconditioner if grid else None,
-        "boundary": None if not grid else str(plan.boundary) if local else "mvc-central-difference",
+        "boundary": str(plan.boundary) if grid else None,
         "sampling": plan.sampling if grid else None,
         # the local data's parameters, to rebuild it (warp_stokes.show solves a handle again)
         "boundary_settings": dataclasses.asdict(plan.boundary) if local else None,

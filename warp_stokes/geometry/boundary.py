@@ -19,7 +19,7 @@ from ..kernels import mvc, stencil
 from .cage import Cage
 from .grid import Grid
 from .local_boundary import local_field
-from .local_data import boundary_settings
+from .local_data import MVC_DATA, boundary_settings
 from .mean_value import mean_value_coordinates, mvc_on_device
 
 __all__ = ["mean_value_coordinates", "boundary_field", "COMPLEMENT_COLUMNS"]
@@ -65,9 +65,9 @@ def start_lattice_nodes(grid: Grid, data, device=None) -> int:
     """How many nodes of even coordinates a starting guess interpolated from them takes mean value coordinates at
     (with the local data on a CPU: :func:`boundary_field`), 0 where it takes them at its rows themselves: what the
     memory plan counts for their values (8 bytes per node and handle)."""
-    data = (getattr(grid, "boundary", None) or "mvc") if data is None else boundary_settings(data)
+    data = (getattr(grid, "boundary", None) or MVC_DATA) if data is None else boundary_settings(data)
     backend = Backend.of(device)
-    if data == "mvc" or not backend.on_cpu:
+    if not data.local or not backend.on_cpu:
         return 0
     return len(_even_nodes(grid, start_rows(grid, data), backend))
 
@@ -107,7 +107,7 @@ def _start_on_lattice(grid: Grid, cage: Cage, rows: int, handles: slice, backend
 def start_rows(grid: Grid, data) -> int:
     """The active rows whose mean value coordinates a boundary field needs: all of them for the MVC data, else the
     interior's (the starting guess) and the ring's (the interior's gradients are differences with them)."""
-    return grid.n_active if boundary_settings(data) == "mvc" else grid.n_interior + grid.n_ring
+    return grid.n_interior + grid.n_ring if boundary_settings(data).local else grid.n_active
 
 
 def start_values(grid: Grid, cage: Cage, device=None, threads: int | None = None, data=None) -> wp.array:
@@ -130,7 +130,7 @@ def _start_into(grid: Grid, cage: Cage, rows: int, handles: slice, backend: Back
     data (the boundary data itself) and on a GPU (where the search over the faces costs a small fraction of the
     lattice's numbering on the host), else interpolated from the nodes of even coordinates
     (:func:`_start_on_lattice`)."""
-    if data != "mvc" and backend.on_cpu:
+    if data.local and backend.on_cpu:
         _start_on_lattice(grid, cage, rows, handles, backend, out)
         return
     positions = _node_positions(grid, rows, backend)
@@ -207,7 +207,7 @@ def boundary_field(grid: Grid, cage: Cage, device=None, handles: slice = slice(N
         outputs=[field],
         device=device,
     )
-    if data != "mvc":
+    if data.local:
         # ring and band rows take the local data; the interior keeps the MVC field as its starting guess (exact
         # too, and smooth: starting from the local data's Taylor extension took twice the iterations)
         local_field(grid, cage, field, slice(grid.n_interior, grid.n_active), handles, complement, data, backend)
@@ -215,14 +215,15 @@ def boundary_field(grid: Grid, cage: Cage, device=None, handles: slice = slice(N
 
 
 def _data_for(grid: Grid, data):
-    """``data`` as "mvc" or a LocalData, the grid's own by default; a warning when the grid cut nodes off for other
-    data."""
+    """``data`` as a LocalData or MVC_DATA, the grid's own by default; a warning when the grid cut nodes off for
+    other data."""
     grid_data = getattr(grid, "boundary", None)
     if data is None:
-        return "mvc" if grid_data is None else grid_data
+        return MVC_DATA if grid_data is None else grid_data
     data = boundary_settings(data)
     if grid_data is not None and data != grid_data and grid.n_cut_off:
         warnings.warn(f"the grid was voxelised for the boundary data {grid_data} and cut {grid.n_cut_off} nodes off "
-                      f"for it; they take the data {data} here (voxelize with boundary={data!r} to match)",
+                      f"for it; they take the data {data} here (voxelize with boundary="
+                      f"{repr(data) if data.local else repr('mvc')} to match)",
                       stacklevel=3)
     return data

@@ -63,7 +63,7 @@ class Grid:
     n_interior, n_ring, n_band : int
     n_cut_off : int, nodes inside the cage cut off by a thin wedge of outside space: known data, counted in the ring
         and numbered first in it (rows ``n_interior`` to ``n_inside``)
-    boundary : "mvc" | LocalData | None, the boundary data the grid was voxelised for (which nodes are cut off
+    boundary : LocalData | MeanValueData | None, the boundary data the grid was voxelised for (which nodes are cut off
         depends on it); :func:`warp_stokes.boundary_field` uses it by default. None for :func:`grid_from_mask`.
     """
 
@@ -257,7 +257,7 @@ def voxelize(cage: Cage, resolution: int = 64, device=None, max_rows: int = MAX_
     with backend.scope():
         mesh = cage_mesh(cage, centre, backend.device)
         inside = classify_grid_nodes(mesh, shape, origin, spacing, backend)
-        cut_off = None if boundary == "mvc" else _wedge_cut_off(cage, mesh, inside, origin, spacing, boundary, backend)
+        cut_off = _wedge_cut_off(cage, mesh, inside, origin, spacing, boundary, backend) if boundary.local else None
     grid = _number_nodes(inside, centre, origin, spacing, resolution, backend, max_rows, cage.name, cut_off)
     grid.boundary = boundary
     if grid.n_interior == 0:

@@ -23,6 +23,7 @@ import dataclasses
 import hashlib
 import threading
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 import warp as wp
@@ -33,7 +34,7 @@ from ..kernels import local_boundary
 from .cage import FOLD_DEGREES, Cage, face_edges, folded_edges, unit_normals
 from .mean_value import mean_value_coordinates
 
-__all__ = ["LocalData", "boundary_settings", "cage_graph_distances", "cage_key", "local_data_bytes",
+__all__ = ["LocalData", "MeanValueData", "MVC_DATA", "boundary_settings", "cage_graph_distances", "cage_key", "local_data_bytes",
            "normal_derivatives", "data_slopes", "tangent_gradients"]
 
 
@@ -57,6 +58,9 @@ class LocalData:
     fold_degrees : float
     """
 
+    #: the data is local: near each node's closest faces (cut off by thin wedges of outside space)
+    local: ClassVar[bool] = True
+
     model: str = "mvc-cut"
     radius: float = 2.0
     falloff: float = 0.5
@@ -76,8 +80,24 @@ class LocalData:
         return f"local({self.model}, radius {self.radius:g}, falloff {self.falloff:g}{share}{folds})"
 
 
-def boundary_settings(boundary) -> "str | LocalData":
-    """The boundary data named by ``boundary``: "mvc", or the local data's settings ("local" is ``LocalData()``).
+@dataclass(frozen=True)
+class MeanValueData:
+    """The boundary data by mean value coordinates at the ring and band nodes, their gradients by central differences
+    (the seed's): global, the same on both sides of a thin wedge, so no node is cut off for it."""
+
+    local: ClassVar[bool] = False
+
+    def __str__(self) -> str:
+        return "mvc-central-difference"
+
+
+#: the mean value coordinates' boundary data
+MVC_DATA = MeanValueData()
+
+
+def boundary_settings(boundary) -> "LocalData | MeanValueData":
+    """The boundary data named by ``boundary``: :data:`MVC_DATA` ("mvc"), or the local data's settings ("local" is
+    ``LocalData()``); its ``local`` says which.
 
     Raises
     ------
@@ -88,13 +108,13 @@ def boundary_settings(boundary) -> "str | LocalData":
     --------
     >>> boundary_settings("local") == LocalData()
     True
-    >>> boundary_settings("mvc")
-    'mvc'
+    >>> boundary_settings("mvc").local
+    False
     """
-    if isinstance(boundary, LocalData):
+    if isinstance(boundary, (LocalData, MeanValueData)):
         return boundary
     if isinstance(boundary, str) and boundary in ("mvc", "local"):
-        return LocalData() if boundary == "local" else "mvc"
+        return LocalData() if boundary == "local" else MVC_DATA
     raise WarpStokesError(f"boundary must be 'mvc', 'local' or a LocalData, got {boundary!r}")
 
 

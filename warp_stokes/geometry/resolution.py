@@ -101,7 +101,7 @@ def wedge_resolution(cage: Cage, boundary="local", device=None) -> int | None:
     """
     boundary = boundary_settings(boundary)
     folds = folded_edges(cage)
-    if boundary == "mvc" or not len(folds):
+    if not boundary.local or not len(folds):
         return None
     slopes = data_slopes(cage, boundary, Backend.of(device))
     at_fold = cage.faces[np.isin(cage.faces, np.unique(folds)).any(axis=1)]  # the faces around folded edges

@@ -11,6 +11,7 @@ import warp as wp
 from ..device import Backend
 from ..geometry.grid import Grid
 from ..kernels import cg, cg_cpu
+from .equation import equation_of
 from .operator import apply_operator
 
 __all__ = ["BatchedCG", "Watchdog", "cg_round"]
@@ -45,7 +46,7 @@ class BatchedCG:
         if source is not None:
             src = np.zeros((n, n_cols, 4), dtype=np.float32)
             # the value equation's right-hand side: (h^4 / 2) f for the compact scheme, h^2 f for -Laplace(q) = f
-            scale = grid.spacing**2 if equation == "laplace" else 0.5 * grid.spacing**4
+            scale = equation_of(equation).source_scale(grid.spacing)
             src[..., 0] = scale * np.asarray(source, dtype=np.float64).reshape(n, n_cols)
             self.rhs = wp.array(src, dtype=wp.vec4f)
         self.x = field[0:n]  # interior rows come first

@@ -57,7 +57,8 @@ from .coarsest import HOST as _HOST
 from .coarsest import inverts_beside as _inverts_beside
 from .hierarchy import (COARSE_NODE_BYTES, COARSEST_NODES, COARSEST_NODES_CPU, Level, coarsen, coarsest_nodes_for,
                         hierarchy_bytes)
-from .operator import apply_operator, chebyshev_step, check_equation
+from .equation import equation_of
+from .operator import apply_operator, chebyshev_step
 
 # the levels' sizes are planned before the hierarchy is formed (solver.hierarchy); offered here too
 __all__ = ["Multigrid", "coarsen", "coarsest_inverse", "hierarchy_bytes", "Level", "SMOOTHER_DEGREES",
@@ -78,11 +79,6 @@ SMOOTHING_RANGE = 30.0
 POWER_ITERATIONS = 40
 #: the power iteration's estimate approaches lmax from below: the smoother's upper end is this much above it
 LMAX_SAFETY = 1.2
-
-#: a guaranteed bound of the largest eigenvalue of D^-1 A on the fine level: its largest absolute row sum, the same
-#: on every row that has all its neighbours (the compact scheme: value rows (48 + 6 * 10 + 12 + 6 * 3) / 48, gradient
-#: rows (4 + 2 + 2 * 3) / 4; Laplace: (6 + 6) / 6)
-FINE_ROW_SUM_BOUND = {"biharmonic": 3.0, "laplace": 2.0}
 
 class Multigrid:
     """A V-cycle preconditioner for the interior block A_II of a grid, shared by all handles (a
@@ -115,7 +111,7 @@ class Multigrid:
         self.grid = grid
         self.backend = Backend.of(device, threads)
         self.device = self.backend.device
-        self.equation = check_equation(equation)
+        self.equation = equation_of(equation)
         #: setup time by phase: Galerkin product per coarse level, the coarsest inverse, eigenvalue estimates
         self.seconds = {"galerkin": [], "coarsest": 0.0, "eigenvalues": 0.0}
         #: where the smoothers' upper ends come from: "power iteration" estimates, or guaranteed "row sums"
@@ -123,8 +119,7 @@ class Multigrid:
         self._coarsest = None
         with wp.ScopedDevice(self.device):
             self.table = wp.empty(64, dtype=wp.mat44d)
-            table = mg_kernels.trilinear_table if equation == "laplace" else mg_kernels.hermite_table
-            wp.launch(table, dim=64, outputs=[self.table])
+            wp.launch(self.equation.prolongation_table, dim=64, outputs=[self.table])
             # the transfers read it in float32 (exact: halves, quarters, eighths): half the bytes, no conversions
             self.table32 = wp.array(self.table.numpy().astype(np.float32), dtype=wp.mat44f)
             self.levels = levels if levels is not None else coarsen(grid, self.backend, coarsest_nodes)
@@ -136,9 +131,8 @@ class Multigrid:
     def _form_operators(self) -> None:
         fine = self.levels[0]
         # the stencil's constant diagonal
-        inv = np.diag([1.0 / 6.0, 1.0, 1.0, 1.0] if self.equation == "laplace" else [1.0 / 48.0, 0.25, 0.25, 0.25])
-        inv = inv.astype(np.float32)
-        fine_operator = mg_kernels.LAPLACE if self.equation == "laplace" else mg_kernels.BIHARMONIC
+        inv = np.diag(list(self.equation.inverse_diagonal)).astype(np.float32)
+        fine_operator = self.equation.multigrid_operator
         fine.inv_diag = wp.array(inv[None], dtype=wp.mat44f)
         empty = wp.empty((0, 27), dtype=wp.mat44f)
         for finer, coarse in zip(self.levels, self.levels[1:]):
@@ -200,7 +194,7 @@ class Multigrid:
                           outputs=[bounds])
             bounds = bounds.numpy()
         for depth, lev in enumerate(self.levels[:-1]):
-            lev.lmax = FINE_ROW_SUM_BOUND[self.equation] if depth == 0 else float(bounds[depth])
+            lev.lmax = self.equation.row_sum_bound if depth == 0 else float(bounds[depth])
         self.smoother_bounds = "row sums"
 
     def _dense(self, depth: int) -> np.ndarray:
@@ -251,9 +245,8 @@ class Multigrid:
         lev = self.levels[depth]
         if lev.blocks is None:  # the fine level: its stencil, formed as blocks on demand
             blocks = wp.empty((lev.n, 27), dtype=wp.mat44f, device=self.device)
-            equation = mg_kernels.LAPLACE if self.equation == "laplace" else mg_kernels.BIHARMONIC
             wp.launch(mg_kernels.stencil_blocks, dim=blocks.shape, inputs=[lev.ijk_device, lev.index, lev.n,
-                                                                              int(equation)],
+                                                                              self.equation.multigrid_operator],
                       outputs=[blocks], device=self.device)
             blocks = blocks.numpy()
         else:
@@ -372,7 +365,7 @@ class Multigrid:
                       dim=lev.n if on_cpu else x.shape,
                       inputs=[lev.blocks, lev.rows, b, x, lev.inv_diag, ca, cb, d], outputs=[spare], device=self.device)
             return True
-        if self.equation == "biharmonic":
+        if self.equation.compact:  # the residual and the step in one pass
             chebyshev_step(self.grid, x, b, d, ca, cb, spare, n_rows=lev.n, device=self.backend)
             return True
         self._residual(depth, b, x, spare)

@@ -12,19 +12,10 @@ import warp as wp
 
 from ..device import Backend
 from ..geometry.grid import Grid
-from ..errors import WarpStokesError
 from ..kernels import cg, laplace, stencil, stencil_cpu
+from .equation import equation_of
 
-__all__ = ["apply_operator", "chebyshev_step", "EQUATIONS", "check_equation"]
-
-#: the equations the weights may solve: Stokes coordinates (biharmonic) or harmonic coordinates (Laplace)
-EQUATIONS = ("biharmonic", "laplace")
-
-
-def check_equation(equation: str) -> str:
-    if equation not in EQUATIONS:
-        raise WarpStokesError(f"equation must be 'biharmonic' or 'laplace', got {equation!r}")
-    return equation
+__all__ = ["apply_operator", "chebyshev_step"]
 
 
 def apply_operator(grid: Grid, field: wp.array, out: wp.array, n_rows: int | None = None, device=None,
@@ -40,7 +31,7 @@ def apply_operator(grid: Grid, field: wp.array, out: wp.array, n_rows: int | Non
     n_rows : int, rows of ``field`` that are read (others read as zero). Default: all of them.
     device : None | str | Backend
     precise : bool, float64 sums (for residuals); float32 sums otherwise (Krylov and smoothing steps)
-    equation : "biharmonic" (the compact 19-point scheme) | "laplace" (7-point, identity gradient rows)
+    equation : "biharmonic" (the compact 19-point scheme) | "laplace" (7-point, identity gradient rows) | Equation
     rhs : wp.array2d(vec4f), optional, (grid.n_interior, handles): write ``rhs - A field`` instead; one pass for the
         biharmonic scheme with float32 sums (the smoother's residuals), where ``out`` may be ``rhs``; otherwise two
         passes, and ``out`` must not be ``rhs``
@@ -59,17 +50,18 @@ def apply_operator(grid: Grid, field: wp.array, out: wp.array, n_rows: int | Non
     backend = Backend.of(device)
     device = backend.device
     arrays = grid.device_arrays(backend)
+    equation = equation_of(equation)
     n_rows = field.shape[0] if n_rows is None else n_rows
-    fused = rhs is not None and equation == "biharmonic" and not precise
+    fused = rhs is not None and equation.compact and not precise
     if rhs is not None and not fused and rhs.ptr == out.ptr:
         raise ValueError("apply_operator: out may be rhs only for the biharmonic scheme with precise=False")
     if rhs is not None and not fused and record_cmd:
         raise ValueError("apply_operator: a residual in two passes cannot be recorded as one launch")
-    if equation == "laplace" and backend.on_cpu:  # a thread per node looping over the handles
+    if not equation.compact and backend.on_cpu:  # a thread per node looping over the handles
         launch = wp.launch(laplace.apply_laplacian_rows if precise else laplace.apply_laplacian_rows_fast,
                            dim=out.shape[0], inputs=[field, arrays["neighbours"], int(n_rows)], outputs=[out],
                            device=device, record_cmd=record_cmd)
-    elif equation == "laplace":
+    elif not equation.compact:
         launch = wp.launch(laplace.apply_laplacian if precise else laplace.apply_laplacian_fast, dim=out.shape,
                            inputs=[field, arrays["index"], arrays["active_ijk"], int(n_rows)], outputs=[out],
                            device=device, record_cmd=record_cmd)

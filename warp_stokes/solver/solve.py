@@ -57,10 +57,11 @@ from ..errors import ConvergenceError
 from ..geometry.boundary import COMPLEMENT_COLUMNS
 from ..geometry.grid import Grid
 from ..geometry.topology import bounding_diagonal
-from ..kernels import cg, checks, laplace
+from ..kernels import checks, laplace
 from .krylov import GROWTH, BatchedCG, Watchdog, cg_round
 from .multigrid import Multigrid
-from .operator import apply_operator, check_equation
+from .equation import equation_of
+from .operator import apply_operator
 
 __all__ = ["SolveReport", "solve_biharmonic", "apply_operator", "jacobi_recovery_iterations", "ACCEPTABLE",
            "Preconditioner", "Jacobi"]
@@ -186,7 +187,7 @@ def solve_biharmonic(
     # the stopping rule (rounds, recomputed residual, identity check, restarts) in _attempt; the ladder of
     # preconditioners after faults in _climb_ladder
     backend = Backend.of(device)
-    check_equation(equation)
+    equation = equation_of(equation)
     start = time.perf_counter()
     with backend.scope():
         deviation = _identity_check(grid, field, handles, backend, chunk)  # first: it checks the columns
@@ -198,7 +199,7 @@ def solve_biharmonic(
             callback(0, field)
         climb = _climb_ladder(grid, field, source, preconditioner, backend, equation, tol, identity_tol, deviation,
                               max_iterations, callback, progress)
-        if equation == "laplace":
+        if not equation.compact:
             _gradients_from_values(grid, field, backend)
         backend.synchronize()
 
@@ -438,7 +439,7 @@ class Jacobi:
     coarsest = None
 
     def __init__(self, grid: Grid, equation: str = "biharmonic", device=None):
-        self.backend, self.equation = Backend.of(device), check_equation(equation)
+        self.backend, self.equation = Backend.of(device), equation_of(equation)
         self.level_sizes, self.seconds = [grid.n_interior], {}
 
     def apply(self, r: wp.array, z: wp.array) -> None:
@@ -450,7 +451,7 @@ class Jacobi:
 
 def _jacobi(equation: str, backend: Backend):
     """apply(r, z): z = D^-1 r, the inverse diagonal of the fine operator."""
-    kernel = laplace.jacobi if equation == "laplace" else cg.jacobi
+    kernel = equation_of(equation).jacobi
 
     def precondition(r, z):
         wp.launch(kernel, dim=r.shape, inputs=[r], outputs=[z], device=backend.device)
