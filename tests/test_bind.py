@@ -278,3 +278,19 @@ def test_a_binding_reads_back_its_typed_report_and_one_of_the_first_format_too(b
     np.savez(tmp_path / "later.npz", **arrays)
     with pytest.raises(ws.BindingError, match=r"later.npz: the binding's stats are of format 3; this version"):
         ws.load_binding(tmp_path / "later.npz")
+
+
+def test_a_mesh_and_cage_the_other_way_round_are_refused_with_the_same_hint_whichever_check_refuses_them():
+    """The cage taken as the mesh lies outside a closed mesh taken as the cage: refused as outside, with the hint that
+    the arguments may be swapped (as when the mesh taken as a cage is refused for not being closed); no cage at all
+    points to 'auto' and `warp-stokes cage`."""
+    import trimesh
+
+    sphere = trimesh.creation.icosphere(subdivisions=3)  # the "cage": closed, dense
+    box = trimesh.creation.box(extents=[3.0, 3.0, 3.0])  # the "mesh": the coarse cage around it
+    with pytest.raises(ws.MeshError, match=r"8 of 8 vertices .* lie outside .*; the cage has more vertices \(642\) "
+                                           r"than the mesh \(8\): are the mesh and the cage the other way round"):
+        ws.bind((box.vertices, box.faces), (sphere.vertices, sphere.faces), resolution=16, device="cpu")
+    with pytest.raises(ws.CageError, match=r"no cage: give a cage file, 'auto' for a cage made for the mesh "
+                                           r"\(`warp-stokes cage MESH -o CAGE.obj`"):
+        ws.bind((box.vertices, box.faces), device="cpu")

@@ -86,16 +86,23 @@ def load_inputs(mesh, cage, cage_prim, mesh_prims, rest_time, backend: Backend, 
 
 
 def _swapped_hint(error: CageError, cage, surface) -> CageError:
-    """``error`` with a hint where the cage has more vertices than the mesh: the arguments may be the wrong way
-    round (the mesh, open or dense, is refused as a cage first)."""
+    """``error`` with :func:`_order_hint` where the cage has more vertices than the mesh (the mesh, open or dense, is
+    refused as a cage first)."""
     try:
         n_cage = len(load_surface(cage).vertices) if not hasattr(cage, "vertices") else len(cage.vertices)
     except Exception:  # the error says what is wrong with the cage; the hint is only a guess
         return error
-    if n_cage <= len(surface.vertices):
-        return error
-    return CageError(f"{error}; the cage has more vertices ({n_cage}) than the mesh ({len(surface.vertices)}): are "
-                     "the mesh and the cage the other way round? (bind MESH CAGE)")
+    hint = _order_hint(len(surface.vertices), n_cage)
+    return CageError(f"{error}{hint}") if hint else error
+
+
+def _order_hint(n_mesh: int, n_cage: int) -> str:
+    """Where a bind's inputs are refused and the cage has more vertices than the mesh, the arguments may be the
+    wrong way round: the one place that says so, whichever check refused them (the cage's or the mesh's)."""
+    if n_cage <= n_mesh:
+        return ""
+    return (f"; the cage has more vertices ({n_cage}) than the mesh ({n_mesh}): are the mesh and the cage the other "
+            "way round? (bind MESH CAGE)")
 
 
 def _cage_source(mesh, cage, cage_prim, rest_time):
@@ -110,8 +117,9 @@ def _cage_source(mesh, cage, cage_prim, rest_time):
             raise CageError(f"{stage_file}: a cage prim ({cage_prim}) is named, but it is not a USD file")
         return read_cage_prim(str(stage_file), cage_prim, rest_time)
     if cage is None:
-        raise CageError(f"{getattr(mesh, 'name', mesh)}: no cage: give a cage file, or the cage's prim in the USD "
-                        "asset (cage_prim, --cage-prim)")
+        raise CageError(f"{getattr(mesh, 'name', mesh)}: no cage: give a cage file, 'auto' for a cage made for the "
+                        "mesh (`warp-stokes cage MESH -o CAGE.obj` makes one to look at or edit first), or the cage's "
+                        "prim in the USD asset (cage_prim, --cage-prim)")
     if cage_prim is not None and isinstance(cage, (str, os.PathLike)):
         raise CageError(f"{cage}: a cage prim ({cage_prim}) is named, but the cage is not a USD file")
     if is_usd(cage):
@@ -137,7 +145,9 @@ def _refuse_mesh_outside(surface, checked: Cage, inside: np.ndarray, distance: n
             "itself; a cage must enclose the mesh with room around it (is the cage the mesh itself? `warp-stokes "
             "cage MESH -o CAGE.obj` makes one)")
     if outside > 0.5 * len(inside):
+        hint = _order_hint(len(surface.vertices), len(checked.source_index if checked.source_index is not None
+                                                      else checked.vertices))
         raise MeshError(
             f"{surface.name}: {outside} of {len(inside)} vertices ({100 * outside / len(inside):.0f}%) lie outside "
-            f"{checked.name}, up to {distance[~inside].max() / checked.diagonal:.3g} cage diagonals away; is the mesh "
-            "in the cage's units and place?")
+            f"{checked.name}, up to {distance[~inside].max() / checked.diagonal:.3g} cage diagonals away"
+            + (hint or "; is the mesh in the cage's units and place?"))

@@ -6,7 +6,7 @@ from __future__ import annotations
 import os
 import sys
 
-__all__ = ["format_stats", "announce_compilation", "cage_command", "bind_command",
+__all__ = ["format_stats", "listed", "announce_compilation", "cage_command", "bind_command",
            "deform_command", "animate_command", "encode_command", "sweep_command", "show_command", "batch_command"]
 
 
@@ -55,6 +55,18 @@ def format_stats(stats) -> str:
         ]
     width = max(len(k) for k, _ in rows)
     return "\n".join(f"{k:<{width}}  {v}" for k, v in rows)
+
+
+def listed(items: list, most: int = 6) -> str:
+    """``items`` joined by commas, the first ``most`` of a longer list and how many more: one short line.
+
+    Examples
+    --------
+    >>> listed(["a", "b"]), listed([str(k) for k in range(9)], most=3)
+    ('a, b', '0, 1, 2 and 6 more')
+    """
+    shown = ", ".join(items[:most])
+    return shown if len(items) <= most else f"{shown} and {len(items) - most} more"
 
 
 def announce_compilation(device, harmonic: bool = False) -> None:
@@ -150,7 +162,7 @@ def bind_command(args) -> int:
         record = binding.stats.made_cage
         print(f"made a cage of {record['handles']} handles: {made_cage}")
     if len(binding.parts) > 1:
-        print(f"{len(binding.parts)} meshes: " + ", ".join(f"{p['path']} ({p['vertices']})" for p in binding.parts))
+        print(f"{len(binding.parts)} meshes: " + listed([f"{p['path']} ({p['vertices']})" for p in binding.parts]))
     print(f"wrote {args.output}")
     if not binding.stats.converged:
         stats = binding.stats
