@@ -241,7 +241,7 @@ def test_the_compile_notice_comes_once_the_folder_is_ours(manifest, tmp_path, mo
 
     import warp_stokes.kernel_cache as device
 
-    monkeypatch.setattr(device, "kernels_compiled", lambda d=None, modules=None: False)  # as on a fresh machine
+    monkeypatch.setattr(device, "missing_kernels", lambda d=None, modules=(): list(modules))  # as on a fresh machine
     out = tmp_path / "out"
     out.mkdir()
     holder = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])

@@ -184,8 +184,23 @@ class FakeCuda:
 def test_the_command_says_so_before_it_compiles(tmp_path, monkeypatch, capsys):
     import warp_stokes.kernel_cache as device
 
-    monkeypatch.setattr(device, "kernels_compiled", lambda d=None, modules=None: False)  # as on a fresh machine
+    monkeypatch.setattr(device, "missing_kernels", lambda d=None, modules=(): list(modules))  # as on a fresh machine
     rc = main(["bind", str(EXAMPLE / "arm.obj"), str(EXAMPLE / "arm_cage.obj"), "-o", str(tmp_path / "a.npz"),
                "--resolution", "8", "--device", "cpu"])
     err = capsys.readouterr().err
     assert rc == 0 and "compiling the kernels for cpu (first run on this machine" in err
+
+
+def test_a_compile_notice_names_the_modules_it_compiles_where_it_is_not_the_first_run(monkeypatch):
+    """Where a bind's kernels are in the cache and only others are not (the Laplace kernels of a first harmonic bind),
+    the notice names those and says why, instead of "first run on this machine"."""
+    import io
+
+    import warp_stokes.kernel_cache as cache
+
+    monkeypatch.setattr(cache, "missing_kernels", lambda d=None, modules=(): [m for m in modules if m == "laplace"])
+    monkeypatch.setattr(cache, "compile_kernels", lambda d, modules: None)
+    said = io.StringIO()
+    cache.announce_compilation("cpu", harmonic=True, stream=said)
+    assert "not yet in Warp's cache on this machine: laplace (harmonic coordinates)" in said.getvalue()
+    assert "first run" not in said.getvalue()

@@ -8,7 +8,8 @@ import sys
 
 import warp as wp
 
-__all__ = ["KERNEL_MODULES", "BIND_MODULES", "kernels_compiled", "compile_kernels", "announce_compilation"]
+__all__ = ["KERNEL_MODULES", "BIND_MODULES", "missing_kernels", "kernels_compiled", "compile_kernels",
+           "announce_compilation"]
 
 
 #: the package's kernel modules (warp_stokes.kernels.*): what a first run on a machine compiles (laplace is left out:
@@ -44,27 +45,38 @@ def _warp_modules(modules, device) -> list[tuple]:
     return found
 
 
+def missing_kernels(device=None, modules=KERNEL_MODULES) -> list[str]:
+    """The package's kernel modules among ``modules`` that Warp's kernel cache on this machine does not hold yet for
+    the device's kind (CPU object files, or CUDA binaries), in the order given; modules for the other kind are left
+    out.
+
+    Examples
+    --------
+    >>> isinstance(missing_kernels("cpu", ("cg",)), list)
+    True
+    """
+    d = wp.get_device(device)
+    cache = wp.config.kernel_cache_dir
+    entries = os.listdir(cache) if cache and os.path.isdir(cache) else []
+    suffixes = (".cubin", ".ptx") if d.is_cuda else (".o",)
+
+    def cached(module) -> bool:
+        folders = [os.path.join(cache, e) for e in entries if e.startswith(f"wp_{module.name}_")]
+        return any(f.endswith(suffixes) for folder in folders if os.path.isdir(folder) for f in os.listdir(folder))
+
+    return [name for name in modules if not all(cached(m) for m, _ in _warp_modules((name,), d))]
+
+
 def kernels_compiled(device=None, modules=KERNEL_MODULES) -> bool:
-    """Whether Warp's kernel cache on this machine holds the package's kernels for the device's kind (CPU object
-    files, or CUDA binaries). A first run compiles them; commands say so before they start.
+    """Whether Warp's kernel cache on this machine holds all of the package's kernels ``modules`` for the device's
+    kind (:func:`missing_kernels`). A first run compiles them; commands say so before they start.
 
     Examples
     --------
     >>> isinstance(kernels_compiled("cpu"), bool)
     True
     """
-    d = wp.get_device(device)
-    cache = wp.config.kernel_cache_dir
-    if not cache or not os.path.isdir(cache):
-        return False
-    suffixes = (".cubin", ".ptx") if d.is_cuda else (".o",)
-    entries = os.listdir(cache)
-    for module, _ in _warp_modules(modules, d):
-        prefix = f"wp_{module.name}_"
-        folders = [os.path.join(cache, e) for e in entries if e.startswith(prefix)]
-        if not any(f.endswith(suffixes) for folder in folders if os.path.isdir(folder) for f in os.listdir(folder)):
-            return False
-    return True
+    return not missing_kernels(device, modules)
 
 
 def compile_kernels(device=None, modules=KERNEL_MODULES, workers: int | None = None) -> None:
@@ -84,14 +96,26 @@ def compile_kernels(device=None, modules=KERNEL_MODULES, workers: int | None = N
         wp.force_load(d, modules=group, block_dim=block_dim, max_workers=workers)
 
 
+#: what the kernel modules a bind does not always need are for, as the compile notice says
+PURPOSES = {"laplace": "harmonic coordinates", "deform": "deforming on a GPU", "sample": "sampling the weights"}
+
+
 def announce_compilation(device=None, harmonic: bool = False, stream=None, modules=BIND_MODULES) -> None:
-    """Before a first run's kernel compilation: one line on ``stream`` (default stderr), so that a wait is not taken
-    for a hang, then the compilation itself, all modules at once (:func:`compile_kernels`). Nothing when the cache
-    holds all of ``modules`` (a bind's, by default; ``harmonic``: the Laplace kernels count too)."""
+    """Before a kernel compilation: one line on ``stream`` (default stderr), so that a wait is not taken for a hang,
+    then the compilation itself, all modules at once (:func:`compile_kernels`). Nothing when the cache holds all of
+    ``modules`` (a bind's, by default; ``harmonic``: the Laplace kernels count too). The line says "first run on this
+    machine" only where none of a bind's kernels is there yet; otherwise it names the modules it compiles and why."""
     resolved = wp.get_device(device)
     modules = tuple(modules) + (("laplace",) if harmonic else ())
-    if not kernels_compiled(resolved, modules):
-        took = "5-10 s" if resolved.is_cuda else "about 10 s on a 2-core CPU"
-        print(f"warp-stokes: compiling the kernels for {resolved.alias} (first run on this machine, {took}; "
-              "later runs load them from Warp's cache)", file=stream or sys.stderr, flush=True)
-        compile_kernels(resolved, modules)
+    missing = missing_kernels(resolved, modules)
+    if not missing:
+        return
+    took = "5-10 s" if resolved.is_cuda else "about 10 s on a 2-core CPU"
+    compiled_here = [m for m in BIND_MODULES if _warp_modules((m,), resolved)]  # a bind's, for this device's kind
+    if set(compiled_here) <= set(missing_kernels(resolved, BIND_MODULES)):
+        why = f"first run on this machine, {took}; later runs load them from Warp's cache"
+    else:
+        named = [f"{m} ({PURPOSES[m]})" if m in PURPOSES else m for m in missing]
+        why = f"not yet in Warp's cache on this machine: {', '.join(named)}; up to {took}, once"
+    print(f"warp-stokes: compiling the kernels for {resolved.alias} ({why})", file=stream or sys.stderr, flush=True)
+    compile_kernels(resolved, missing)

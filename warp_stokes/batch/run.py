@@ -113,7 +113,9 @@ def _run_assets(assets, outdir, force, device, progress, inputs: dict, unreadabl
     todo = [asset for asset, done in zip(assets, up_to_date) if done is None]
     if progress and todo:  # once the folder is ours (Ray workers compile in their own processes)
         announce_compilation(device, harmonic=any(a.method == "harmonic" for a in todo), stream=progress,
-                             modules=KERNEL_MODULES if any(a.poses for a in todo) else BIND_MODULES)
+                             # a CPU deforms with BLAS: the deform kernels are a GPU's only
+                             modules=KERNEL_MODULES if any(a.poses for a in todo) and getattr(device, "is_cuda", False)
+                             else BIND_MODULES)
     for k, asset in enumerate(assets):
         result = up_to_date[k]
         if result is None:
