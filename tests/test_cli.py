@@ -204,3 +204,22 @@ def test_a_compile_notice_names_the_modules_it_compiles_where_it_is_not_the_firs
     cache.announce_compilation("cpu", harmonic=True, stream=said)
     assert "not yet in Warp's cache on this machine: laplace (harmonic coordinates)" in said.getvalue()
     assert "first run" not in said.getvalue()
+
+
+def test_deform_on_a_cpu_imports_none_of_the_binds_kernels(arm_npz, tmp_path):
+    """A deform on the CPU (BLAS) loads the binding and writes the mesh without importing the grid's, the solver's or
+    the boundary data's kernel modules, nor the bind's stages: its start-up is the binding's reading and numpy's."""
+    import subprocess
+    import sys
+
+    np.save(tmp_path / "pose.npy", ws.load_binding(arm_npz, device="cpu").cage_vertices * 1.1)
+    script = ("import sys\nfrom warp_stokes.cli import main\n"
+              f"rc = main(['deform', {str(arm_npz)!r}, {str(tmp_path / 'pose.npy')!r}, '-o', "
+              f"{str(tmp_path / 'out.obj')!r}, '--device', 'cpu'])\n"
+              "print('modules', rc, sorted(m for m in sys.modules if m.startswith('warp_stokes.')))")
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    _, rc, modules = proc.stdout.strip().splitlines()[-1].split(" ", 2)
+    assert rc == "0" and (tmp_path / "out.obj").is_file(), proc.stderr
+    heavy = ["kernels.stencil", "kernels.voxel", "kernels.multigrid", "kernels.cg", "binding.pipeline",
+             "binding.skin", "solver", "geometry.grid", "geometry.make_cage"]
+    assert not [m for m in heavy if f"'warp_stokes.{m}" in modules], modules

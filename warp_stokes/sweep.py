@@ -24,7 +24,7 @@ import warnings
 
 import numpy as np
 
-from .binding import bind
+from .binding.pipeline import bind
 from .binding.stats import identity_errors
 from .device import Backend
 from .kernel_cache import BIND_MODULES, compile_kernels

@@ -190,7 +190,7 @@ def _bind_asset(asset, outputs: list, device, progress, k: int, total: int, resu
                 threads: int | None = None, digest: str | None = None) -> None:
     """Check, bind and (with poses) animate one asset, writing ``outputs`` (:func:`outputs_of`: the binding first)
     within the asset's group of outputs; the binding records ``digest``."""
-    from ..binding import bind
+    from ..binding.pipeline import bind
     from ..geometry.cage import check_cage
     from ..io.poses import load_poses
     from ..io.mesh_out import write_cage_file

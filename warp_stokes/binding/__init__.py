@@ -1,14 +1,17 @@
 """A mesh bound to a cage: :func:`bind` (load -> grid -> solve -> sample), the :class:`Binding` it returns (weights
 that deform the mesh, saved as ``.npz``), the sampling and deformation kernels' launch code, and
-:func:`inbetween` (frames between key cage poses), and :func:`write_skin` (the binding as a UsdSkel or glTF skin)."""
+:func:`inbetween` (frames between key cage poses), and :func:`write_skin` (the binding as a UsdSkel or glTF skin).
 
-from .deform import deform_vertices
-from .inbetween import inbetween
-from .pipeline import bind
-from .stats import identity_errors
-from .sample import sample_weights
-from .skin import SkinError, SkinReport, SkinWeights, skin_error, skin_weights, write_skin
-from .store import FORMAT, Binding, load_binding
+The names below are imported when first used (PEP 562): a command that loads a binding and deforms it on a CPU
+imports neither the bind's stages nor the skin writers."""
 
-__all__ = ["bind", "identity_errors", "Binding", "load_binding", "FORMAT", "sample_weights", "deform_vertices",
-           "inbetween", "write_skin", "skin_weights", "skin_error", "SkinWeights", "SkinError", "SkinReport"]
+from ..lazy import lazy_names
+
+_HOME = {"bind": ".pipeline", "identity_errors": ".stats", "Binding": ".store", "load_binding": ".store",
+         "FORMAT": ".store", "sample_weights": ".sample", "deform_vertices": ".deform", "inbetween": ".inbetween",
+         "write_skin": ".skin", "skin_weights": ".skin", "skin_error": ".skin", "SkinWeights": ".skin",
+         "SkinError": ".skin", "SkinReport": ".skin"}
+
+__all__ = list(_HOME)
+
+__getattr__ = lazy_names(__name__, _HOME)

@@ -1,14 +1,17 @@
 """The geometry of a bind: the checked cage, the voxel grid inside it, and the boundary data on its ring and band
-(mean value coordinates, local data)."""
+(mean value coordinates, local data).
 
-from .boundary import COMPLEMENT_COLUMNS, boundary_field, mean_value_coordinates
-from .cage import Cage, check_cage, crossing_faces, folded_edges, signed_volume
-from .grid import Grid, grid_from_mask, voxelize
-from .resolution import wedge_resolution
-from .inside import classify_points
-from .local_data import LocalData, MeanValueData
-from .make_cage import MadeCage, make_cage
+The names below are imported when first used (PEP 562): a module that needs one small part (a cage's diagonal, its
+topology) does not load every kernel of the grid and the boundary data."""
 
-__all__ = ["COMPLEMENT_COLUMNS", "boundary_field", "mean_value_coordinates", "Cage", "check_cage", "crossing_faces",
-           "folded_edges", "signed_volume", "Grid", "classify_points", "grid_from_mask", "voxelize", "wedge_resolution",
-           "LocalData", "MeanValueData", "MadeCage", "make_cage"]
+from ..lazy import lazy_names
+
+_HOME = {"COMPLEMENT_COLUMNS": ".boundary", "boundary_field": ".boundary", "mean_value_coordinates": ".boundary",
+         "Cage": ".cage", "check_cage": ".cage", "crossing_faces": ".cage", "folded_edges": ".cage",
+         "signed_volume": ".cage", "Grid": ".grid", "grid_from_mask": ".grid", "voxelize": ".grid",
+         "wedge_resolution": ".resolution", "classify_points": ".inside", "LocalData": ".local_data",
+         "MeanValueData": ".local_data", "MadeCage": ".make_cage", "make_cage": ".make_cage"}
+
+__all__ = list(_HOME)
+
+__getattr__ = lazy_names(__name__, _HOME)
