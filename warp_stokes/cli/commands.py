@@ -415,8 +415,11 @@ def show_command(args) -> int:
     if drawn["range"] is None:
         print(f"wrote {args.output}: {len(drawn['values'])} triangles{cage}")
     else:
-        print(f"wrote {args.output}: {len(drawn['values'])} triangles{cage}, {drawn['label']} from "
-              f"{drawn['range'][0]:.6g} to {drawn['range'][1]:.6g}")
+        from warp_stokes.show.mesh import COLOUR_PERCENTILE
+
+        print(f"wrote {args.output}: {len(drawn['values'])} triangles{cage}, {drawn['label']} coloured from "
+              f"{drawn['range'][0]:.6g} to {drawn['range'][1]:.6g} (the {COLOUR_PERCENTILE}th percentile; the largest "
+              f"{drawn['max']:.6g})")
     return 0
 
 

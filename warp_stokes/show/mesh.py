@@ -36,6 +36,10 @@ class MeshColours(NamedTuple):
     label: str
 
 
+#: the colour scale of a mesh's distortion or error ends at this percentile of its triangles' values
+COLOUR_PERCENTILE = 99
+
+
 def mesh_colours(binding, pose=None, reference=None) -> MeshColours:
     """The bound mesh, deformed by ``pose`` (rest without one), and a value per triangle: its conformal distortion
     (sigma1 / sigma2 of the rest-to-deformed map, 1 = conformal, inf for a collapsed triangle), or with ``reference``
@@ -152,7 +156,8 @@ def show_mesh(binding, path, pose=None, reference=None, view: str = "front", tit
 
     Returns
     -------
-    dict: ``values`` (per triangle), ``range`` (the colour bar's low and high end; None for a plain mesh),
+    dict: ``values`` (per triangle), ``range`` (the colour bar's low and high end, the high one the
+    :data:`COLOUR_PERCENTILE` th percentile of the values; None for a plain mesh), ``max`` (the largest finite value),
     ``label``, ``cage_edges`` (drawn; 0 without the cage)
 
     Examples
@@ -172,7 +177,10 @@ def show_mesh(binding, path, pose=None, reference=None, view: str = "front", tit
     plain = with_cage and pose is None and reference is None
     finite = m.values[np.isfinite(m.values)]
     low = 0.0 if reference is not None else 1.0
-    high = float(finite.max()) if finite.size else low
+    # a few extreme triangles (slivers, a pinched pose) would paint the rest one colour: the scale ends at a
+    # percentile, the colour bar says values go beyond it, and the maximum is returned (the CLI prints it)
+    largest = float(finite.max()) if finite.size else low
+    high = float(np.percentile(finite, COLOUR_PERCENTILE)) if finite.size else low
     high = max(high, low + 1e-6 * max(abs(low), 1.0))
     norm, cmap = Normalize(low, high, clip=True), colormaps["viridis"]
     triangles = (m.vertices @ frame.T)[binding.mesh_faces]  # (F, 3 corners, [right, up, towards the viewer])
@@ -194,14 +202,15 @@ def show_mesh(binding, path, pose=None, reference=None, view: str = "front", tit
             label = f"the mesh ({len(binding.mesh_vertices)} vertices) in its cage ({binding.n_handles} handles)"
             axes.set_title(title or f"{label}, {view} view", fontsize=9)
         else:
-            clipped = bool(np.isinf(m.values).any())
+            clipped = bool(np.isinf(m.values).any()) or largest > high
             figure.colorbar(ScalarMappable(norm, cmap), ax=axes, label=m.label,
                             extend="max" if clipped else "neither", shrink=0.8)
             label = m.label
             axes.set_title(title or f"{m.label.split(' (')[0]} of the {shape} mesh, {view} view", fontsize=9)
         figure.tight_layout()
         save_picture(figure, path)
-    return {"values": m.values, "range": None if plain else (low, high), "label": label, "cage_edges": edges}
+    return {"values": m.values, "range": None if plain else (low, high), "max": None if plain else largest,
+            "label": label, "cage_edges": edges}
 
 
 def _shaded_colours(triangles: np.ndarray, values: np.ndarray, cmap, norm, low: float, plain: bool) -> np.ndarray:
