@@ -509,7 +509,7 @@ def test_when_every_preconditioner_fails_no_weights_are_returned(device, monkeyp
         wp.launch(ws.kernels.cg.negate, dim=r.shape, inputs=[r], outputs=[z])
 
     monkeypatch.setattr(multigrid.Multigrid, "apply", lambda self, r, z: broken(r, z))
-    monkeypatch.setattr(solve, "_jacobi", lambda equation, device: broken)
+    monkeypatch.setattr(solve, "jacobi_step", lambda equation, device: broken)
     with pytest.raises(ws.ConvergenceError) as failure:
         bind_arm(device)
     message = str(failure.value)
@@ -529,12 +529,12 @@ def test_a_column_that_is_not_finite_is_restarted_alone(arm_cage, device):
     grid = ws.voxelize(arm_cage, 16, device=device)
     field = ws.boundary_field(grid, arm_cage, device=device)
     with wp.ScopedDevice(device):  # as the solve runs it (its vectors on its device, not the default one)
-        clean = BatchedCG(grid, wp.clone(field), None, ws.solver.solve._jacobi("biharmonic", ws.Backend.of(device)),
+        clean = BatchedCG(grid, wp.clone(field), None, ws.solver.preconditioner.jacobi_step("biharmonic", ws.Backend.of(device)),
                           ws.Backend.of(device)).start()
         data = field.numpy()
         data[: grid.n_interior, 7] = np.nan
         broken = BatchedCG(grid, wp.array(data, dtype=wp.vec4f, device=device), None,
-                           ws.solver.solve._jacobi("biharmonic", ws.Backend.of(device)), ws.Backend.of(device))
+                           ws.solver.preconditioner.jacobi_step("biharmonic", ws.Backend.of(device)), ws.Backend.of(device))
         rel = broken.start()
         assert np.isnan(rel[7]) and np.isfinite(np.delete(rel, 7)).all()
         np.testing.assert_allclose(np.delete(rel, 7), np.delete(clean, 7), rtol=1e-6)

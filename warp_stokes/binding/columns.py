@@ -25,7 +25,8 @@ from ..geometry.grid import voxelize
 from ..kernel_cache import BIND_MODULES, compile_kernels
 from ..solver.budget import chunk_columns, estimate_memory, plan_lanes
 from ..solver.multigrid import Multigrid, coarsen
-from ..solver.solve import Jacobi, solve_biharmonic
+from ..solver.preconditioner import Jacobi
+from ..solver.solve import solve_biharmonic
 from .plan import GridPlan
 from .sample import sample_weights
 

@@ -82,7 +82,7 @@ LMAX_SAFETY = 1.2
 
 class Multigrid:
     """A V-cycle preconditioner for the interior block A_II of a grid, shared by all handles (a
-    :class:`warp_stokes.solver.solve.Preconditioner`).
+    :class:`warp_stokes.solver.preconditioner.Preconditioner`).
 
     Parameters
     ----------

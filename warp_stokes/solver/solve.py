@@ -47,7 +47,7 @@ from __future__ import annotations
 import time
 import warnings
 from dataclasses import dataclass
-from typing import NamedTuple, Protocol
+from typing import NamedTuple
 
 import numpy as np
 import warp as wp
@@ -62,9 +62,9 @@ from .krylov import GROWTH, BatchedCG, Watchdog, cg_round
 from .multigrid import Multigrid
 from .equation import equation_of
 from .operator import apply_operator
+from .preconditioner import Jacobi, jacobi_step
 
-__all__ = ["SolveReport", "solve_biharmonic", "apply_operator", "jacobi_recovery_iterations", "ACCEPTABLE",
-           "Preconditioner", "Jacobi"]
+__all__ = ["SolveReport", "solve_biharmonic", "apply_operator", "jacobi_recovery_iterations", "ACCEPTABLE"]
 
 #: true-residual checks (restarts) before giving up on reaching `tol`
 MAX_RESTARTS = 8
@@ -372,7 +372,7 @@ def _ladder(grid: Grid, preconditioner, backend: Backend, equation: str = "bihar
     "multigrid"), then the same cycle with guaranteed smoother bounds, then the inverse diagonal; "jacobi" alone
     when asked for."""
     if preconditioner == "jacobi" or isinstance(preconditioner, Jacobi):
-        yield "jacobi", _jacobi(equation, backend), 40 * (grid.resolution + 8) ** 2, 0.0
+        yield "jacobi", jacobi_step(equation, backend), 40 * (grid.resolution + 8) ** 2, 0.0
         return
     start = time.perf_counter()
     if preconditioner == "multigrid":
@@ -390,7 +390,7 @@ def _ladder(grid: Grid, preconditioner, backend: Backend, equation: str = "bihar
         preconditioner.bound_eigenvalues()  # kept: the later chunks of a bind use the cycle that worked
         setup = time.perf_counter() - start
     yield "multigrid with guaranteed smoother bounds", preconditioner.apply, MULTIGRID_ITERATIONS, setup
-    yield "jacobi", _jacobi(equation, backend), jacobi_recovery_iterations(grid.resolution), 0.0
+    yield "jacobi", jacobi_step(equation, backend), jacobi_recovery_iterations(grid.resolution), 0.0
 
 
 def jacobi_recovery_iterations(resolution: int) -> int:
@@ -405,58 +405,6 @@ def jacobi_recovery_iterations(resolution: int) -> int:
     5184
     """
     return (int(resolution) + 8) ** 2
-
-
-class Preconditioner(Protocol):
-    """What a solve and a bind's report need of a preconditioner (:class:`Multigrid` and :class:`Jacobi`): its
-    name; ``apply(r, z)``, z = M^-1 r for every column; its levels' sizes, setup seconds by phase and coarsest
-    operator (None without one); and ``lane()``, its view for one of the threads that solve chunks at once."""
-
-    name: str
-    level_sizes: list
-    seconds: dict
-    coarsest: "dict | None"
-
-    def apply(self, r: wp.array, z: wp.array) -> None: ...
-
-    def lane(self) -> "Preconditioner": ...
-
-
-class Jacobi:
-    """The inverse diagonal of the fine operator: the preconditioner for comparisons (and the last one a solve takes
-    after faults of the multigrid's). Nothing to set up, nothing per thread.
-
-    Examples
-    --------
-    >>> mask = np.zeros((12, 12, 12), bool); mask[5:7, 5:7, 5:7] = True
-    >>> from warp_stokes.geometry.grid import grid_from_mask
-    >>> jacobi = Jacobi(grid_from_mask(mask, device="cpu"), device="cpu")
-    >>> jacobi.name, jacobi.level_sizes, jacobi.lane() is jacobi
-    ('jacobi', [8], True)
-    """
-
-    name = "jacobi"
-    coarsest = None
-
-    def __init__(self, grid: Grid, equation: str = "biharmonic", device=None):
-        self.backend, self.equation = Backend.of(device), equation_of(equation)
-        self.level_sizes, self.seconds = [grid.n_interior], {}
-
-    def apply(self, r: wp.array, z: wp.array) -> None:
-        _jacobi(self.equation, self.backend)(r, z)
-
-    def lane(self) -> "Jacobi":
-        return self
-
-
-def _jacobi(equation: str, backend: Backend):
-    """apply(r, z): z = D^-1 r, the inverse diagonal of the fine operator."""
-    kernel = equation_of(equation).jacobi
-
-    def precondition(r, z):
-        wp.launch(kernel, dim=r.shape, inputs=[r], outputs=[z], device=backend.device)
-
-    return precondition
 
 
 def _identity_check(grid: Grid, field: wp.array, handles, backend: Backend, chunk: slice | None = None):
