@@ -50,11 +50,11 @@ def main(argv=None):
             for n in args.resolutions:
                 b, wall, peak = run(pair, n, device)
                 s = b.stats
-                sec = s["seconds"]
+                sec = s.seconds
                 weights[(device, pair, n)] = b.weights
-                rows.append((s["device"], pair, n, "x".join(map(str, s["grid_shape"])), s["handles"],
-                             s["interior_nodes"], s["iterations"], f"{s['residual']:.1e}",
-                             f"{s['partition_of_unity_error']:.1e}", f"{s['linear_precision_error']:.1e}",
+                rows.append((s.device, pair, n, "x".join(map(str, s.grid.shape)), s.handles,
+                             s.grid.interior_nodes, s.solver.iterations, f"{s.solver.residual:.1e}",
+                             f"{s.partition_of_unity_error:.1e}", f"{s.linear_precision_error:.1e}",
                              f"{sec['voxelize']:.3f}", f"{sec['boundary']:.3f}", f"{sec['solve']:.3f}",
                              f"{sec['sample']:.3f}", f"{sec['total']:.3f}", f"{wall:.3f}",
                              f"{peak:.0f}" if peak == peak else "-"))

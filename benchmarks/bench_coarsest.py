@@ -47,9 +47,9 @@ def _one(pair: str, limit: int, resolutions: list[int], device: str, folder: str
         seconds = time.perf_counter() - start
         np.save(os.path.join(folder, f"{pair}_{limit}_{n}.npy"), b.weights)
         s = b.stats
-        rows.append(dict(pair=pair, limit=limit, n=n, levels=s["levels"], seconds=seconds,
-                         setup=s["seconds"]["setup"], solve=s["seconds"]["solve"], iterations=s["iterations"],
-                         peak=peak.bytes(), estimate=s["memory_estimate_bytes"]))
+        rows.append(dict(pair=pair, limit=limit, n=n, levels=s.solver.levels, seconds=seconds,
+                         setup=s.seconds["setup"], solve=s.seconds["solve"], iterations=s.solver.iterations,
+                         peak=peak.bytes(), estimate=s.memory_estimate_bytes))
     return rows
 
 

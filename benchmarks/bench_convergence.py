@@ -68,18 +68,18 @@ def measure(mesh, cage, n: int, device, method: str) -> dict:
                     "seconds": time.perf_counter() - start}
         except ws.ResolutionError as exc:  # refused (a grid too coarse for the cage): not a solver failure
             return {"refused": str(exc), "seconds": time.perf_counter() - start}
-    row = {"iterations": s["iterations"], "converged": s["converged"], "pu": s["partition_of_unity_error"],
-           "lp": s["linear_precision_error"], "levels": s["levels"], "recoveries": s["recoveries"],
-           "coarsest": s["coarsest_operator"], "seconds": time.perf_counter() - start}
+    row = {"iterations": s.solver.iterations, "converged": s.converged, "pu": s.partition_of_unity_error,
+           "lp": s.linear_precision_error, "levels": s.solver.levels, "recoveries": s.solver.recoveries,
+           "coarsest": s.solver.coarsest_operator, "seconds": time.perf_counter() - start}
     faults = []
-    if not s["converged"]:
+    if not s.converged:
         faults.append("not converged")
-    if s["iterations"] > ITERATIONS:
-        faults.append(f"{s['iterations']} iterations")
+    if s.solver.iterations > ITERATIONS:
+        faults.append(f"{s.solver.iterations} iterations")
     if not (row["pu"] <= EXACT and row["lp"] <= EXACT):
         faults.append(f"PU {row['pu']:.1e} LP {row['lp']:.1e}")
-    if s["recoveries"]:
-        faults.append("recovered: " + "; ".join(e["fault"] for e in s["recoveries"]))
+    if s.solver.recoveries:
+        faults.append("recovered: " + "; ".join(e["fault"] for e in s.solver.recoveries))
     if faults:
         row["fault"] = ", ".join(faults)
     return row

@@ -50,15 +50,15 @@ def run_case(name: str, resolution: int, folder: Path) -> dict:
     s = b.stats
     w = b.weights.astype(np.float64)
     return {
-        "device": s["device"], "pair": name, "n": resolution, "handles": s["handles"],
-        "interior": s["interior_nodes"], "active": s["interior_nodes"] + s["ring_nodes"] + s["band_nodes"],
-        "levels": s["levels"], "chunks": s["chunks"], "iterations": s["iterations"], "converged": s["converged"],
-        "wall_s": wall, "setup_s": s["seconds"]["setup"], "solve_s": s["seconds"]["solve"],
-        "boundary_s": s["seconds"]["boundary"], "peak_bytes": peak, "estimate_bytes": s["memory_estimate_bytes"],
-        "pu": s["partition_of_unity_error"], "lp": s["linear_precision_error"],
-        "identity_error": s["identity_error"], "min_weight": float(w.min()),
-        "chunk_iterations": s["chunk_iterations"], "chunk_rounds": s["chunk_rounds"],
-        "multigrid_seconds": s["multigrid_seconds"], "voxelize_s": s["seconds"]["voxelize"],
+        "device": s.device, "pair": name, "n": resolution, "handles": s.handles,
+        "interior": s.grid.interior_nodes, "active": s.grid.interior_nodes + s.grid.ring_nodes + s.grid.band_nodes,
+        "levels": s.solver.levels, "chunks": s.solver.chunks, "iterations": s.solver.iterations, "converged": s.converged,
+        "wall_s": wall, "setup_s": s.seconds["setup"], "solve_s": s.seconds["solve"],
+        "boundary_s": s.seconds["boundary"], "peak_bytes": peak, "estimate_bytes": s.memory_estimate_bytes,
+        "pu": s.partition_of_unity_error, "lp": s.linear_precision_error,
+        "identity_error": s.solver.identity_error, "min_weight": float(w.min()),
+        "chunk_iterations": s.solver.chunk_iterations, "chunk_rounds": s["chunk_rounds"],
+        "multigrid_seconds": s.solver.multigrid_seconds, "voxelize_s": s.seconds["voxelize"],
     }
 
 

@@ -119,8 +119,8 @@ def one(name, n, device, memory_budget=None):
                                   "residual", "converged", "levels",
                                   "chunks", "memory_estimate_bytes", "partition_of_unity_error",
                                   "linear_precision_error")})
-    out["active_nodes"] = s["interior_nodes"] + s["ring_nodes"] + s["band_nodes"]
-    out["seconds"] = s["seconds"]
+    out["active_nodes"] = s.grid.interior_nodes + s.grid.ring_nodes + s.grid.band_nodes
+    out["seconds"] = s.seconds
     out["peak_bytes"] = pool_high(dev)
 
     # stencil kernel bandwidth against a device copy
@@ -144,7 +144,7 @@ def one(name, n, device, memory_budget=None):
     out["ref_iterations"] = ref.stats.solver.iterations
     out["error"] = float(np.abs(b.weights - ref.weights).max())
 
-    if s["chunks"] == 1:
+    if s.solver.chunks == 1:
         out["history"] = convergence_history(ws, grid, checked, b.mesh_vertices, device)
         out["iterations_to_1e-6"] = next((k for k, e in enumerate(out["history"]["error"]) if e <= 1e-6), None)
 

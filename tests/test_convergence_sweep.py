@@ -32,15 +32,15 @@ def faults(binding) -> list[str]:
     """What breaks the sweep's promise in a binding's stats (empty when nothing does)."""
     s = binding.stats
     found = []
-    if not s["converged"]:
+    if not s.converged:
         found.append("not converged")
-    if s["iterations"] > ITERATIONS:
-        found.append(f"{s['iterations']} iterations")
-    if not (s["partition_of_unity_error"] <= EXACT and s["linear_precision_error"] <= EXACT):
-        found.append(f"PU {s['partition_of_unity_error']:.1e} LP {s['linear_precision_error']:.1e}")
-    if s["recoveries"]:
-        found.append(f"recovered: {s['recoveries']}")
-    coarsest = s["coarsest_operator"]
+    if s.solver.iterations > ITERATIONS:
+        found.append(f"{s.solver.iterations} iterations")
+    if not (s.partition_of_unity_error <= EXACT and s.linear_precision_error <= EXACT):
+        found.append(f"PU {s.partition_of_unity_error:.1e} LP {s.linear_precision_error:.1e}")
+    if s.solver.recoveries:
+        found.append(f"recovered: {s.solver.recoveries}")
+    coarsest = s.solver.coarsest_operator
     if coarsest is not None and (coarsest["dropped"] or not coarsest["smallest_eigenvalue"] > 1e-6):
         found.append(f"coarsest operator {coarsest}")
     return found

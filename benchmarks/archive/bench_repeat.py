@@ -35,10 +35,10 @@ def main(argv=None):
             t = time.perf_counter()
             b = ws.bind(mesh, cage, resolution=n, device=args.device)
             walls.append(time.perf_counter() - t)
-        stages = ", ".join(f"{k} {v:.3f}" for k, v in b.stats["seconds"].items())
+        stages = ", ".join(f"{k} {v:.3f}" for k, v in b.stats.seconds.items())
         print(f"{device} {args.pair} n={n}: whole bind median {statistics.median(walls):.3f} s "
               f"(min {min(walls):.3f}, max {max(walls):.3f}) over {args.repeats}; last: {stages}; "
-              f"iters {b.stats['iterations']}")
+              f"iters {b.stats.solver.iterations}")
     return 0
 
 
