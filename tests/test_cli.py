@@ -221,5 +221,5 @@ def test_deform_on_a_cpu_imports_none_of_the_binds_kernels(arm_npz, tmp_path):
     _, rc, modules = proc.stdout.strip().splitlines()[-1].split(" ", 2)
     assert rc == "0" and (tmp_path / "out.obj").is_file(), proc.stderr
     heavy = ["kernels.stencil", "kernels.voxel", "kernels.multigrid", "kernels.cg", "binding.pipeline",
-             "binding.skin", "solver", "geometry.grid", "geometry.make_cage"]
+             "binding.skin", "solver", "geometry.grid", "geometry.cage_making"]
     assert not [m for m in heavy if f"'warp_stokes.{m}" in modules], modules

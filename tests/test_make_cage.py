@@ -14,7 +14,7 @@ import trimesh
 import warp_stokes as ws
 from conftest import EXAMPLE
 from warp_stokes.geometry.cage import check_cage, crossing_faces
-from warp_stokes.geometry.make_cage import default_handles, make_cage
+from warp_stokes.geometry.cage_making import default_handles, make_cage
 from shapes import box_pair, dumbbell_pair, latitude_longitude_sphere, slab_pair, torus_pair
 from warp_stokes.geometry.simplify import simplify_enclosing
 from warp_stokes.geometry.topology import bounding_diagonal
@@ -163,7 +163,7 @@ def test_a_try_with_a_larger_offset_left_gives_up_where_collapses_grow_rare(monk
     left to make) it stops early, valid, every point inside at the margin. make_cage lets every try but the last
     give up, never one at an offset given, and finishes a try that gave up where every larger offset stopped higher."""
     simplify = importlib.import_module("warp_stokes.geometry.simplify")
-    module = importlib.import_module("warp_stokes.geometry.make_cage")  # the package exports the function by this name
+    module = importlib.import_module("warp_stokes.geometry.cage_making")
     ball, ball_faces = sphere()
     kept = make_cage((ball, ball_faces), handles=30, offset=0.02, device="cpu")  # stops above 30 (see above)
     assert kept.cage.n_handles > 31
@@ -255,7 +255,7 @@ def test_rounds_worked_out_ahead_are_the_rounds_one_at_a_time(monkeypatch):
 def test_offset_finer_than_the_grid_is_raised(monkeypatch):
     """An offset the grid cannot resolve is raised to what it can (a cell), said in a note; the cage stays
     valid with every vertex inside at the raised offset's margin."""
-    module = importlib.import_module("warp_stokes.geometry.make_cage")  # the package exports the function by this name
+    module = importlib.import_module("warp_stokes.geometry.cage_making")
     monkeypatch.setattr(module, "MAX_CELLS", 24)
     v, f = sphere()
     made = make_cage((v, f), handles=60, offset=0.01, device="cpu")
@@ -561,7 +561,7 @@ def test_the_cpus_field_by_even_nodes_is_every_nodes_field(mesh):
     import warp as wp
 
     from warp_stokes.geometry.inside import WINDING_ACCURACY
-    from warp_stokes.geometry.make_cage import signed_distance_field
+    from warp_stokes.geometry.cage_making import signed_distance_field
     from warp_stokes.kernels import cage as cage_kernels
 
     surface = mesh()

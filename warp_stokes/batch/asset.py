@@ -201,7 +201,7 @@ def _bind_asset(asset, outputs: list, device, progress, k: int, total: int, resu
     npz, *usd = outputs
     if asset.cage == MADE_CAGE:
         from ..binding.spread import driver_device, spread_devices
-        from ..geometry.make_cage import make_cage
+        from ..geometry.cage_making import make_cage
         from ..io.scene import load_scene
 
         usd, made = [], usd[0]

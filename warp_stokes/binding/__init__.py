@@ -6,12 +6,14 @@ The names below are imported when first used (PEP 562): a command that loads a b
 imports neither the bind's stages nor the skin writers."""
 
 from ..lazy import lazy_names
+# the function, not its module of the same name (which importing it would leave here): imported now, it is light
+from .inbetween import inbetween
 
 _HOME = {"bind": ".pipeline", "identity_errors": ".stats", "Binding": ".store", "load_binding": ".store",
-         "FORMAT": ".store", "sample_weights": ".sample", "deform_vertices": ".deform", "inbetween": ".inbetween",
+         "FORMAT": ".store", "sample_weights": ".sample", "deform_vertices": ".deform",
          "write_skin": ".skin", "skin_weights": ".skin", "skin_error": ".skin", "SkinWeights": ".skin",
          "SkinError": ".skin", "SkinReport": ".skin"}
 
-__all__ = list(_HOME)
+__all__ = [*_HOME, "inbetween"]
 
 __getattr__ = lazy_names(__name__, _HOME)

@@ -14,7 +14,7 @@ from ..device import Backend
 from ..errors import CageError, MeshError
 from ..geometry.cage import Cage, check_cage
 from ..geometry.inside import classify_points
-from ..geometry.make_cage import MadeCage, made_cage_record, make_cage
+from ..geometry.cage_making import MadeCage, made_cage_record, make_cage
 from ..io.load import Surface, load_surface
 from ..io.parts import Scene
 from ..io.scene import is_usd, load_scene

@@ -61,7 +61,7 @@ def bind(mesh, cage=None, resolution="auto", device=None, tol: float = 1e-6, max
     cage : path | trimesh.Trimesh | (vertices, faces) | "auto" | MadeCage, optional
         A closed, consistently oriented cage (quads and polygons are triangulated). May be left out when
         ``cage_prim`` names the cage in the mesh's USD stage. ``"auto"``: a cage made for the mesh
-        (:func:`warp_stokes.geometry.make_cage.make_cage`, its default handles and offset), recorded in
+        (:func:`warp_stokes.geometry.cage_making.make_cage`, its default handles and offset), recorded in
         ``stats.made_cage``; the binding holds it (``cage_vertices``, ``cage_faces``). A ``MadeCage``
         (``make_cage(mesh, handles=200)``, say) is bound and recorded the same way.
     resolution : "auto" | int

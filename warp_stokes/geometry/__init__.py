@@ -10,7 +10,7 @@ _HOME = {"COMPLEMENT_COLUMNS": ".boundary", "boundary_field": ".boundary", "mean
          "Cage": ".cage", "check_cage": ".cage", "crossing_faces": ".cage", "folded_edges": ".cage",
          "signed_volume": ".cage", "Grid": ".grid", "grid_from_mask": ".grid", "voxelize": ".grid",
          "wedge_resolution": ".resolution", "classify_points": ".inside", "LocalData": ".local_data",
-         "MeanValueData": ".local_data", "MadeCage": ".make_cage", "make_cage": ".make_cage"}
+         "MeanValueData": ".local_data", "MadeCage": ".cage_making", "make_cage": ".cage_making"}
 
 __all__ = list(_HOME)
 
