@@ -304,6 +304,12 @@ def _add_encode(sub) -> None:
     p.add_argument("frames", help="meshes with the bound mesh's topology: a folder of OBJ frames, a .npy/.npz array "
                                   "(F, V, 3), a USD file (time samples, or its UsdSkel skinning), or a skinned "
                                   "glTF/GLB (its animation, skinned: --animation)")
+    p.add_argument("-o", "--output", required=True, help="poses to write: .npy (F, L, 3) or USD (an animated cage)")
+    p.add_argument("--smooth", type=_number(float, 0.0), default=0.0,
+                   help="weight of each handle's squared change between consecutive frames (0)")
+    p.add_argument("--mesh-prim", action="append", default=None, metavar="PATH",
+                   help="for USD frames: the mesh prim(s) to read (default: the binding's parts, else the first "
+                        "mesh with the bound mesh's point count)")
     p.add_argument("--animation", default=None, metavar="NAME",
                    help="for a rigged glTF/GLB: the animation to read (its name; required when it has several); for "
                         "a UsdSkel asset: a SkelAnimation prim (path or name) to play instead of the skeletons' own")
@@ -313,12 +319,6 @@ def _add_encode(sub) -> None:
     p.add_argument("--resolution", type=_resolution, default=None,
                    help="with binding auto: the bind's grid cells along the cage's longest axis (default auto, as "
                         "for bind)")
-    p.add_argument("-o", "--output", required=True, help="poses to write: .npy (F, L, 3) or USD (an animated cage)")
-    p.add_argument("--smooth", type=_number(float, 0.0), default=0.0,
-                   help="weight of each handle's squared change between consecutive frames (0)")
-    p.add_argument("--mesh-prim", action="append", default=None, metavar="PATH",
-                   help="for USD frames: the mesh prim(s) to read (default: the binding's parts, else the first "
-                        "mesh with the bound mesh's point count)")
     p.add_argument("--device", default=None,
                    help="where the products over the vertices are summed: cpu (BLAS), cuda or cuda:N (default: CUDA "
                         "when present)")
