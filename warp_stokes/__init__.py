@@ -22,7 +22,7 @@ __version__ = "0.2.0"
 _PUBLIC = {
     ".errors": ["WarpStokesError", "MeshError", "CageError", "BindingError", "ResolutionError", "ConvergenceError"],
     ".device": ["Backend", "resolve_device", "device_name"],
-    ".io": ["Surface", "load_surface", "Poses", "load_poses", "write_animation"],
+    ".io": ["Surface", "load_surface", "Poses", "load_poses", "load_frames", "write_animation"],
     ".geometry": ["Cage", "check_cage", "signed_volume", "Grid", "voxelize", "wedge_resolution", "grid_from_mask",
                   "classify_points", "LocalData", "MeanValueData", "COMPLEMENT_COLUMNS", "mean_value_coordinates",
                   "boundary_field", "make_cage", "MadeCage"],
@@ -46,7 +46,7 @@ __all__ = [
     "sample_weights", "deform_vertices", "deformation_quality", "mean_value_quality",
     "MemoryEstimate", "estimate_memory", "available_memory", "plan_chunks",
     "Backend", "resolve_device", "device_name",
-    "Poses", "load_poses", "write_animation", "inbetween", "read_manifest", "run_batch",
+    "Poses", "load_poses", "load_frames", "write_animation", "inbetween", "read_manifest", "run_batch",
     "write_skin", "skin_weights", "skin_error", "SkinWeights", "SkinError", "SkinReport",
     "WarpStokesError", "MeshError", "CageError", "BindingError", "ResolutionError", "ConvergenceError",
 ]

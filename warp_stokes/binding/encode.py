@@ -90,7 +90,7 @@ def normal_equations(weights: np.ndarray, positions: np.ndarray, device=None,
     return np.triu(upper) + np.triu(upper, 1).T, projected
 
 
-def encode_poses(binding, frames: Poses, smoothness: float = 0.0, device=None) -> tuple[Poses, np.ndarray]:
+def encode_poses(binding, frames: Poses, smoothness: float = 0.0, device=None, return_max: bool = False) -> tuple:
     """Cage poses whose deformation of the bound mesh best matches each frame (least squares on the weights).
 
     Parameters
@@ -99,11 +99,14 @@ def encode_poses(binding, frames: Poses, smoothness: float = 0.0, device=None) -
     frames : Poses whose positions are (F, V, 3) mesh vertices (:func:`warp_stokes.io.frames.load_mesh_frames`)
     smoothness : float >= 0, weight of the squared change of each handle between consecutive frames
     device : None | str, where the products over the vertices are summed (default: the binding's device)
+    return_max : bool, also return each frame's largest vertex distance
 
     Returns
     -------
     poses : Poses (F, L, 3), at the frames' numbers
     rms : (F,) the RMS distance per frame between the deformed mesh and the frame, over the cage's diagonal
+    largest : (F,) with ``return_max``: the largest distance of a vertex from its place in the frame, per frame, over
+        the cage's diagonal
 
     Examples
     --------
@@ -129,6 +132,11 @@ def encode_poses(binding, frames: Poses, smoothness: float = 0.0, device=None) -
         solution = np.einsum("li,ijd,fj->lfd", u_w, projected, u_d)
     poses = np.ascontiguousarray(solution.transpose(1, 0, 2))  # (F, L, 3)
     residual = np.asarray(binding.deform(poses), dtype=np.float64).reshape(positions.shape) - positions
-    rms = np.sqrt(np.mean(np.sum(residual**2, axis=2), axis=1)) / bounding_diagonal(binding.cage_vertices)
-    return Poses(poses, np.asarray(frames.frames, dtype=np.float64), f"encoded {frames.name}",
-                 frames.time_codes_per_second), rms
+    diagonal = bounding_diagonal(binding.cage_vertices)
+    squared = np.sum(residual**2, axis=2)
+    rms = np.sqrt(np.mean(squared, axis=1)) / diagonal
+    encoded = Poses(poses, np.asarray(frames.frames, dtype=np.float64), f"encoded {frames.name}",
+                    frames.time_codes_per_second)
+    if return_max:
+        return encoded, rms, np.sqrt(squared.max(axis=1)) / diagonal
+    return encoded, rms

@@ -298,16 +298,27 @@ def _add_animate(sub) -> None:
 def _add_encode(sub) -> None:
     p = sub.add_parser("encode", help="the cage poses that best reproduce a sequence of meshes (least squares)")
     p.add_argument("binding", help="binding file written by 'warp-stokes bind', or 'auto': a sequence without a cage "
-                                   "(OBJ frames or a USD file): a cage made for its first frame, bound, and both "
-                                   "written beside the poses (OUTPUT.cage.obj, OUTPUT.binding.npz)")
+                                   "(OBJ frames, a USD file or a rigged glTF/GLB): a cage made for its first frame (a "
+                                   "rigged file's rest pose), bound, and both written beside the poses "
+                                   "(OUTPUT.cage.obj, OUTPUT.binding.npz)")
     p.add_argument("frames", help="meshes with the bound mesh's topology: a folder of OBJ frames, a .npy/.npz array "
-                                  "(F, V, 3) or a USD file (time samples)")
+                                  "(F, V, 3), a USD file (time samples, or its UsdSkel skinning), or a skinned "
+                                  "glTF/GLB (its animation, skinned: --animation)")
     p.add_argument("-o", "--output", required=True, help="poses to write: .npy (F, L, 3) or USD (an animated cage)")
     p.add_argument("--smooth", type=_number(float, 0.0), default=0.0,
                    help="weight of each handle's squared change between consecutive frames (0)")
     p.add_argument("--mesh-prim", action="append", default=None, metavar="PATH",
                    help="for USD frames: the mesh prim(s) to read (default: the binding's parts, else the first "
                         "mesh with the bound mesh's point count)")
+    p.add_argument("--animation", default=None, metavar="NAME",
+                   help="for a rigged glTF/GLB: the animation to read (its name; required when it has several); for "
+                        "a UsdSkel asset: a SkelAnimation prim (path or name) to play instead of the skeletons' own")
+    p.add_argument("--fps", type=_number(float, 0.0, low_open=True), default=None,
+                   help="for a rigged file: sample its animation at this rate from its first key to its last "
+                        "(default: at its key times)")
+    p.add_argument("--resolution", type=_resolution, default=None,
+                   help="with binding auto: the bind's grid cells along the cage's longest axis (default auto, as "
+                        "for bind)")
     p.add_argument("--device", default=None,
                    help="where the products over the vertices are summed: cpu (BLAS), cuda or cuda:N (default: CUDA "
                         "when present)")

@@ -279,6 +279,9 @@ def encode_command(args) -> int:
     ext = os.path.splitext(args.output)[1].lower()
     if ext not in (".npy", ".usd", ".usda", ".usdc"):
         raise ws.WarpStokesError(f"{args.output}: the poses are written as .npy or USD (.usd, .usda, .usdc)")
+    if args.resolution is not None and args.binding != "auto":
+        raise ws.WarpStokesError("--resolution is the resolution of the bind 'encode auto' makes; a binding given "
+                                 "has its own")
     made = made_beside(args.output) if args.binding == "auto" else ()
     # with a cage made: the cage, its binding and the poses renamed together, once the frames are encoded
     with writing([*made, args.output], inputs_of(args.binding, args.frames, error=ws.BindingError)):
@@ -287,8 +290,9 @@ def encode_command(args) -> int:
         else:
             binding = ws.load_binding(args.binding, device=args.device)
         prims = args.mesh_prim or ([p["path"] for p in binding.parts] if binding.asset else None)
-        frames = load_mesh_frames(args.frames, binding.mesh_faces, binding.n_vertices, prims=prims)
-        poses, rms = encode_poses(binding, frames, smoothness=args.smooth)
+        frames = load_mesh_frames(args.frames, binding.mesh_faces, binding.n_vertices, prims=prims,
+                                  animation=args.animation, fps=args.fps)
+        poses, rms, largest = encode_poses(binding, frames, smoothness=args.smooth, return_max=True)
         if ext == ".npy":
             with atomic_output(args.output) as tmp, open(tmp, "wb") as fh:
                 np.save(fh, poses.positions)
@@ -298,9 +302,10 @@ def encode_command(args) -> int:
         record = binding.stats.made_cage
         print(f"made a cage of {record['handles']} handles: {made[0]}; bound at n = "
               f"{binding.settings['resolution']}: {made[1]}")
-    worst = int(np.argmax(rms))
-    print(f"wrote {args.output}: {len(rms)} cage poses; RMS error over the cage's diagonal: mean {rms.mean():.2e}, "
-          f"max {rms[worst]:.2e} (frame {poses.frames[worst]:g})")
+    worst, farthest = int(np.argmax(rms)), int(np.argmax(largest))
+    print(f"wrote {args.output}: {len(rms)} cage poses of {frames.name}; RMS error over the cage's diagonal: mean "
+          f"{rms.mean():.2e}, max {rms[worst]:.2e} (frame {poses.frames[worst]:g}); largest vertex error "
+          f"{largest[farthest]:.2e} (frame {poses.frames[farthest]:g})")
     return 0
 
 
@@ -326,11 +331,15 @@ def _bind_first_frame(args, cage_path: str, binding_path: str):
             raise ws.BindingError(f"{frames}: the folder has no .obj frames")
         first = os.path.join(frames, names[0])
     elif is_usd(frames):
-        first = frames  # its meshes at the earliest time sample
+        first = frames  # its meshes at the earliest time sample (a UsdSkel asset's: its rest points)
+    elif frames.lower().endswith((".glb", ".gltf")):
+        first = frames  # its meshes at rest: the pose its skin is bound in
     else:
         raise ws.WarpStokesError(f"{frames}: 'encode auto' makes the cage around the first frame's surface: give a "
-                                 "folder of OBJ frames or a USD file (an array of positions has no faces)")
-    binding = ws.bind(first, "auto", device=args.device, mesh_prims=args.mesh_prim)
+                                 "folder of OBJ frames, a USD file or a rigged glTF/GLB (an array of positions has no "
+                                 "faces)")
+    binding = ws.bind(first, "auto", device=args.device, mesh_prims=args.mesh_prim,
+                      resolution=args.resolution or "auto")
     write_cage_file(cage_path, binding.cage_vertices, binding.cage_faces)
     binding.save(binding_path)
     return binding

@@ -14,7 +14,7 @@ from .naming import natural_key
 from .parts import MeshPart, Scene
 from .usd.asset import read_asset
 
-__all__ = ["MeshPart", "Scene", "load_scene", "USD_EXTENSIONS", "is_usd"]
+__all__ = ["MeshPart", "Scene", "load_scene", "USD_EXTENSIONS", "is_usd", "gltf_mesh_nodes"]
 
 USD_EXTENSIONS = (".usd", ".usda", ".usdc", ".usdz")
 
@@ -23,22 +23,44 @@ def is_usd(source) -> bool:
     return isinstance(source, (str, os.PathLike)) and os.fspath(source).lower().endswith(USD_EXTENSIONS)
 
 
-def _gltf_scene(path: str) -> Scene:
-    """The mesh nodes of a glTF/GLB scene, each in world space by its node's transform (trimesh's scene graph),
-    in the natural order of the node names (trimesh keeps no file order)."""
+def gltf_mesh_nodes(loaded) -> list[tuple[str, str, np.ndarray]]:
+    """The mesh nodes of a trimesh scene read from a glTF/GLB file that have faces, as (scene graph node, geometry
+    name, local-to-world matrix (column vectors)), in the order they are bound: the natural order of the node names
+    (trimesh keeps no file order), the primitives of one node in their file order (trimesh hangs each under the node
+    by a random name, so that name's order would change from one reading to the next).
+
+    Examples
+    --------
+    >>> [node for node, _, _ in gltf_mesh_nodes(read_with_trimesh("Fox.glb", "scene"))]   # doctest: +SKIP
+    ['fox']
+    """
     import trimesh
 
-    loaded = read_with_trimesh(path, "scene")
-    parts = []
-    for node in sorted(loaded.graph.nodes_geometry, key=lambda n: natural_key(str(n))):
+    geometry_order = {name: k for k, name in enumerate(loaded.geometry)}  # the file's meshes and primitives, in order
+    parents = loaded.graph.transforms.parents
+    found = []
+    for node in loaded.graph.nodes_geometry:
         matrix, geometry_name = loaded.graph[node]
         mesh = loaded.geometry.get(geometry_name)
         if not isinstance(mesh, trimesh.Trimesh) or len(mesh.vertices) == 0 or len(mesh.faces) == 0:
             continue
-        to_world = np.asarray(matrix, dtype=np.float64).T  # trimesh: column vectors; here: row vectors
+        owner = parents.get(node, node) if mesh.metadata.get("from_gltf_primitive") else node
+        found.append(((natural_key(str(owner)), geometry_order.get(geometry_name, 0)), str(node), geometry_name,
+                      np.asarray(matrix, dtype=np.float64)))
+    return [entry[1:] for entry in sorted(found, key=lambda entry: entry[0])]
+
+
+def _gltf_scene(path: str) -> Scene:
+    """The mesh nodes of a glTF/GLB scene, each in world space by its node's transform (trimesh's scene graph),
+    in the order of :func:`gltf_mesh_nodes`."""
+    loaded = read_with_trimesh(path, "scene")
+    parts = []
+    for node, geometry_name, matrix in gltf_mesh_nodes(loaded):
+        mesh = loaded.geometry[geometry_name]
+        to_world = matrix.T  # trimesh: column vectors; here: row vectors
         world = np.asarray(mesh.vertices, dtype=np.float64) @ to_world[:3, :3] + to_world[3, :3]
         surface = with_vertex_uvs(load_surface((world, np.asarray(mesh.faces)), name=f"{path}:{node}"), mesh)
-        parts.append(MeshPart(str(node), surface, to_world))
+        parts.append(MeshPart(node, surface, to_world))
     if not parts:
         raise MeshError(f"{path}: the scene has no meshes with faces")
     return Scene(tuple(parts), path)
