@@ -20,7 +20,8 @@ from .door import read_input, reason
 from .gltf_container import GltfDamaged, GltfFile
 from .looks import ImageSource, Looks, image_type, material_problem, texture_slots
 
-__all__ = ["gltf_looks", "gltf_primitives", "position_count", "texture_coordinates", "mtl_looks"]
+__all__ = ["gltf_looks", "gltf_primitives", "position_count", "texture_coordinates", "mtl_looks",
+           "obj_dependencies"]
 
 
 def _warn(message: str) -> None:
@@ -287,6 +288,28 @@ def mtl_looks(obj_path: str, libraries: list[str], used: list[str]) -> tuple[Loo
         materials.append(material)
     numbers = {name: k for k, name in enumerate(definitions)}
     return Looks(obj_path, materials, textures, [], images, [], read), [numbers[name] for name in used]
+
+
+def obj_dependencies(path: str, error=WarpStokesError) -> list[str]:
+    """The files an OBJ's materials would be read from: its ``mtllib`` files (beside it) and the images their
+    ``map_Kd`` records name, for the inputs' full set (:func:`~.inputs.inputs_of`); the OBJ is decoded only where
+    its bytes hold an ``mtllib``."""
+    from .obj import obj_libraries
+
+    data = read_input(path, error, "mesh")
+    if b"mtllib" not in data:
+        return []
+    found = []
+    for library in obj_libraries("\n" + data.decode("utf-8", errors="replace")):
+        mtl = os.path.join(os.path.dirname(path), library.replace("\\", "/"))
+        found.append(mtl)
+        if os.path.isfile(mtl):
+            try:
+                materials = _mtl_materials(mtl)
+            except WarpStokesError:  # its reader says so, when it is read
+                continue
+            found += [os.path.join(os.path.dirname(mtl), texture) for _, _, texture in materials if texture]
+    return found
 
 
 def _read_image_file(obj_path: str, file: str) -> ImageSource | None:

@@ -11,7 +11,7 @@ import numpy as np
 from ..errors import MeshError
 from .door import read_input
 
-__all__ = ["read_obj", "read_obj_with_usage", "obj_usage"]
+__all__ = ["read_obj", "read_obj_with_usage", "obj_usage", "obj_libraries"]
 
 
 def _bodies(text: str, tag: str) -> list:
@@ -222,15 +222,28 @@ _MATERIAL_RECORDS = re.compile(r"\n(f)[ \t]|\nusemtl[ \t]+([^\n]*)")
 _LIBRARY_RECORD = re.compile(r"\nmtllib[ \t]+([^\n]*)")
 
 
+def obj_libraries(text: str) -> list[str]:
+    """The material libraries an OBJ's text (starting with a newline) names in its ``mtllib`` records, as named
+    (several to a record; one name may hold spaces where the record names one ``.mtl``).
+
+    Examples
+    --------
+    >>> obj_libraries("\\nmtllib a.mtl b.mtl\\nmtllib my skin.mtl\\nv 0 0 0")
+    ['a.mtl', 'b.mtl', 'my skin.mtl']
+    """
+    libraries = []
+    for body in _LIBRARY_RECORD.findall(text):
+        body = body.strip()
+        libraries += [body] if body.lower().count(".mtl") <= 1 else re.findall(r"\S+?\.mtl", body, re.I)
+    return libraries
+
+
 def obj_usage(text: str, n_faces: int):
     """The materials an OBJ's text (starting with a newline) uses: (its ``mtllib`` names, the ``usemtl`` names in
     order of first use, each face's number among those (-1 before any ``usemtl``)); None where it names none."""
     if "usemtl" not in text and "mtllib" not in text:
         return None
-    libraries = []
-    for body in _LIBRARY_RECORD.findall(text):
-        body = body.strip()
-        libraries += [body] if body.lower().count(".mtl") <= 1 else re.findall(r"\S+?\.mtl", body, re.I)
+    libraries = obj_libraries(text)
     marks = _MATERIAL_RECORDS.findall(text)
     is_face = np.fromiter((f == "f" for f, _ in marks), dtype=bool, count=len(marks))
     if int(is_face.sum()) != n_faces:
