@@ -233,6 +233,40 @@ def test_an_obj_with_a_material_library_keeps_its_colours_and_textures(work, cap
     assert usd["meshes"]["Mesh"] == [(list(range(12 * k, 12 * k + 12)), f"mat{k}", images[k]) for k in range(3)]
 
 
+def test_every_texture_of_a_material_maps_onto_the_preview_surface(work):
+    """A material with base colour, metallic-roughness, normal, emissive and occlusion textures and an alpha mask:
+    each UsdPreviewSurface input is fed by a UsdUVTexture of the right channel, colour space and factor."""
+    from pxr import Usd, UsdShade
+
+    write_gltf_case(work / "full.glb", LooksCase((0,), (True,)))
+    gltf = pygltflib.GLTF2().load(str(work / "full.glb"))
+    material = gltf.materials[0]
+    material.normalTexture = pygltflib.NormalMaterialTexture(index=0, scale=0.5)
+    material.emissiveTexture, material.emissiveFactor = pygltflib.TextureInfo(index=0), [1.0, 0.5, 0.0]
+    material.occlusionTexture = pygltflib.OcclusionTextureInfo(index=0, strength=0.8)
+    material.pbrMetallicRoughness.metallicRoughnessTexture = pygltflib.TextureInfo(index=0)
+    material.alphaMode, material.alphaCutoff = "MASK", 0.3
+    gltf.save_binary(str(work / "full.glb"))
+    bind_and_write("full.glb", ("out.usda",))
+    stage = Usd.Stage.Open(str(work / "out.usda"))
+    surface = UsdShade.Shader(stage.GetPrimAtPath("/Root/Looks/mat0/PreviewSurface"))
+    fed = {}
+    for name in ("diffuseColor", "metallic", "roughness", "normal", "emissiveColor", "occlusion", "opacity"):
+        source, channel, _ = surface.GetInput(name).GetConnectedSource()
+        texture = UsdShade.Shader(source.GetPrim())
+        fed[name] = (source.GetPrim().GetName(), channel, texture.GetInput("sourceColorSpace").Get(),
+                     tuple(round(x, 3) for x in texture.GetInput("scale").Get()))
+    assert fed == {"diffuseColor": ("BaseColorTexture", "rgb", "sRGB", (1.0, 1.0, 1.0, 1.0)),
+                   "opacity": ("BaseColorTexture", "a", "sRGB", (1.0, 1.0, 1.0, 1.0)),
+                   "metallic": ("MetallicRoughnessTexture", "b", "raw", (1.0, 0.7, 0.0, 1.0)),
+                   "roughness": ("MetallicRoughnessTexture", "g", "raw", (1.0, 0.7, 0.0, 1.0)),
+                   "normal": ("NormalTexture", "rgb", "raw", (1.0, 1.0, 2.0, 1.0)),
+                   "emissiveColor": ("EmissiveTexture", "rgb", "sRGB", (1.0, 0.5, 0.0, 1.0)),
+                   "occlusion": ("OcclusionTexture", "r", "raw", (0.8, 0.8, 0.8, 1.0))}
+    assert surface.GetInput("opacityThreshold").Get() == pytest.approx(0.3)
+    assert sorted(os.listdir(work)).count("out.image0.png") == 1  # one file for the five textures
+
+
 def test_deform_to_glb_keeps_the_parts_and_their_materials(work, capsys):
     case = LooksCase((1, 0), (False, True), embedded=True)
     write_gltf_case(work / "two.glb", case)
@@ -311,6 +345,20 @@ def test_a_source_gone_since_the_bind_leaves_grey_materials_and_a_moved_folder_i
     assert err.count("is not found as the bind recorded it") >= 2 and "not at" in err
     assert gltf_looks(moved / "grey.glb")["counts"] == (2, 0, 0, 1)
     assert {m for bound in usd_looks(moved / "grey.usda")["meshes"].values() for _, m, _ in bound} == {"mat0", "mat1"}
+
+
+def test_the_material_files_are_inputs_a_binding_records_and_a_batch_digests(work):
+    import warp_stokes as ws
+    from warp_stokes.io.inputs import inputs_of
+
+    write_obj_case(work / "char.obj", LooksCase((0, 1), (True, False)))
+    bind_and_write("char.obj", ())
+    looks_files = {str(work / "char.mtl"), str(work / "char_tex0.png")}
+    assert looks_files <= set(ws.load_binding(work / "b.npz", device="cpu").sources)
+    assert looks_files <= set(inputs_of(work / "b.npz").files) and looks_files <= set(inputs_of("char.obj").files)
+    before = inputs_of("char.obj").digest()
+    (work / "char_tex0.png").write_bytes(b"another image")
+    assert inputs_of("char.obj").digest() != before  # a batch binds it again
 
 
 def test_a_binding_with_damaged_looks_is_one_error_line(work, capsys):
