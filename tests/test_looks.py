@@ -301,6 +301,17 @@ def test_a_materials_extensions_are_carried_as_they_are_and_a_damaged_material_l
     assert gltf_looks(work / "bad.glb")["counts"] == (0, 0, 0, 0)
 
 
+def test_a_texture_on_a_second_uv_set_is_said(work, capsys):
+    write_gltf_case(work / "uv1.glb", LooksCase((0,), (True,)))
+    gltf = pygltflib.GLTF2().load(str(work / "uv1.glb"))
+    gltf.materials[0].pbrMetallicRoughness.baseColorTexture.texCoord = 1
+    gltf.save_binary(str(work / "uv1.glb"))
+    bind_and_write("uv1.glb", ("out.glb",))
+    assert "uv1.glb: material 0's baseColorTexture uses a second set of texture coordinates, which is not kept" in \
+        capsys.readouterr().err
+    assert gltf_looks(work / "out.glb")["counts"] == (1, 1, 1, 1)
+
+
 # ----------------------------------------------------------------------------------------------------------------
 # when the looks' files moved or changed since the bind
 # ----------------------------------------------------------------------------------------------------------------

@@ -106,6 +106,11 @@ def gltf_looks(gltf: GltfFile, named: str) -> Looks | None:
         else:
             beside = os.path.join(os.path.dirname(named), os.path.relpath(own_file, os.path.dirname(gltf.path)))
             images.append(_image_source(label or os.path.basename(own_file), data, mime, own_file, beside, None))
+    second = [f"material {k}'s {key}" for k, material in enumerate(materials)
+              for holder, key in texture_slots(material) if holder[key].get("texCoord", 0) != 0]
+    if second:  # the binding keeps one set of UVs, TEXCOORD_0
+        _warn(f"{gltf.path}: {second[0]}{' and others use' if len(second) > 1 else ' uses'} a second set of "
+              "texture coordinates, which is not kept: placed by the first set in the outputs")
     looks = Looks(gltf.path, materials, textures, samplers, [], _extensions_used(materials, textures, samplers))
     return _without_unread(looks, images)
 
