@@ -207,7 +207,8 @@ def _bind_asset(asset, outputs: list, device, progress, k: int, total: int, resu
         usd, made = [], usd[0]
         if progress:
             progress_line(progress, k, total, asset.name, "making a cage")
-        surface = load_scene(asset.mesh, mesh_prims=asset.mesh_prims, rest_time=asset.rest_time).surface()
+        surface = load_scene(asset.mesh, mesh_prims=asset.mesh_prims, rest_time=asset.rest_time,
+                             looks=False).surface()
         spread = spread_devices(device)
         cage = make_cage(surface, handles=asset.handles, device=device if spread is None else driver_device(spread),
                          offset=asset.offset)  # bind records it

@@ -49,7 +49,8 @@ class Inputs:
         return Binding(weights, cage.vertices, cage.faces, surface.vertices, surface.faces, settings, stats,
                        device=backend, mesh_normals=surface.normals, cage_source_index=cage.source_index,
                        mesh_polygons=surface.polygons(), mesh_uvs=surface.uvs, parts=parts_record(self.scene),
-                       asset=asset_record(self.scene), sources=self.sources)
+                       asset=asset_record(self.scene), sources=self.sources, looks=surface.looks,
+                       mesh_face_materials=surface.face_materials)
 
 
 def load_inputs(mesh, cage, cage_prim, mesh_prims, rest_time, backend: Backend, seconds: dict) -> Inputs:
@@ -63,7 +64,8 @@ def load_inputs(mesh, cage, cage_prim, mesh_prims, rest_time, backend: Backend, 
         if cage_prim is not None:
             raise CageError(f"cage 'auto' and a cage prim ({cage_prim}): give one of them")
         if isinstance(cage, str):
-            cage = make_cage(load_scene(mesh, mesh_prims=mesh_prims, rest_time=rest_time).surface(), device=backend)
+            cage = make_cage(load_scene(mesh, mesh_prims=mesh_prims, rest_time=rest_time, looks=False).surface(),
+                             device=backend)
         made = cage
         cage = made.cage
         seconds["cage"] = sum(made.seconds.values())
@@ -82,7 +84,10 @@ def load_inputs(mesh, cage, cage_prim, mesh_prims, rest_time, backend: Backend, 
     inside, distance = classify_points(checked, surface.vertices, device=backend)
     _refuse_mesh_outside(surface, checked, inside, distance)
     seconds["load"] = time.perf_counter() - t
-    return Inputs(scene, surface, checked, made, inside, distance, _sources(mesh, cage_argument))
+    sources = _sources(mesh, cage_argument)
+    if surface.looks is not None:  # the images by reference: an output never replaces one either
+        sources = sorted(set(sources) | set(surface.looks.files()))
+    return Inputs(scene, surface, checked, made, inside, distance, sources)
 
 
 def _swapped_hint(error: CageError, cage, surface) -> CageError:

@@ -194,6 +194,7 @@ TOP = {
     "asset": (optional(RECORD), False),
     "sources": (optional(list_of(TEXT)), False),
     "batch_inputs": (optional(HEX), False),
+    "looks": (optional(RECORD), False),  # (its fields: warp_stokes.io.looks.Looks.from_record)
 }
 
 

@@ -58,12 +58,16 @@ class Binding:
         whole layer stack): a command's output never replaces one of them
     batch_inputs : str or None, for a binding a batch wrote: the digest of the asset's inputs and entry, which a
         later run compares to know the asset is up to date
+    looks : :class:`~warp_stokes.io.looks.Looks` or None, the mesh's materials (a glTF's, an OBJ's ``.mtl``), with
+        their images by path and digest: glTF and standalone USD outputs carry them (see :mod:`warp_stokes.io.looks`)
+    mesh_face_materials : (len(mesh_face_counts),) int64 or None, each polygon's material among ``looks.materials``
+        (-1: none)
     device : the Warp device ``deform`` runs on
     """
 
     def __init__(self, weights, cage_vertices, cage_faces, mesh_vertices, mesh_faces, settings, stats,
                  device=None, mesh_normals=None, cage_source_index=None, mesh_polygons=None, mesh_uvs=None,
-                 parts=None, asset=None, sources=None, batch_inputs=None):
+                 parts=None, asset=None, sources=None, batch_inputs=None, looks=None, mesh_face_materials=None):
         self.weights = np.ascontiguousarray(weights, dtype=np.float32)
         self.cage_vertices = np.asarray(cage_vertices, dtype=np.float64)
         self.cage_faces = np.asarray(cage_faces, dtype=np.int64)
@@ -85,6 +89,9 @@ class Binding:
         self.stats = stats if isinstance(stats, BindStats) else BindStats.from_record(stats)
         self.sources = list(sources or [])
         self.batch_inputs = batch_inputs
+        self.looks = looks
+        self.mesh_face_materials = None if looks is None or mesh_face_materials is None else \
+            np.asarray(mesh_face_materials, dtype=np.int64)
         self.backend = Backend.of(device)
         self._weights_t = None
 
@@ -171,6 +178,8 @@ class Binding:
             "sources": self.sources,
             "batch_inputs": self.batch_inputs,
         }
+        if self.looks is not None:
+            meta["looks"] = self.looks.record()
         optional = {"mesh_face_counts": self.mesh_face_counts, "mesh_face_indices": self.mesh_face_indices}
         if self.mesh_normals is not None:
             optional["mesh_normals"] = self.mesh_normals
@@ -178,6 +187,8 @@ class Binding:
             optional["cage_source_index"] = self.cage_source_index
         if self.mesh_uvs is not None:
             optional["mesh_st"], optional["mesh_st_indices"] = self.mesh_uvs
+        if self.mesh_face_materials is not None:
+            optional["mesh_face_materials"] = self.mesh_face_materials
         check_metadata(json.loads(json.dumps(meta)), path, *self.weights.shape)  # as a reader will find it
         try:
             with atomic_output(path, ".npz") as tmp, open(tmp, "wb") as fh:
@@ -246,12 +257,32 @@ def load_binding(path, device=None) -> Binding:
     if "mesh_st" in arrays and "mesh_st_indices" in arrays:
         uvs = arrays["mesh_st"], arrays["mesh_st_indices"]
     parts = meta.get("parts")
+    looks = _stored_looks(path, arrays, meta)
     return Binding(
         w, arrays["cage_vertices"], arrays["cage_faces"], arrays["mesh_vertices"], arrays["mesh_faces"],
         meta["settings"], meta["stats"], device=device, mesh_normals=arrays.get("mesh_normals"),
         cage_source_index=arrays.get("cage_source_index"), mesh_polygons=polygons, mesh_uvs=uvs, parts=parts,
         asset=meta.get("asset"), sources=meta.get("sources"), batch_inputs=meta.get("batch_inputs"),
+        looks=looks, mesh_face_materials=arrays.get("mesh_face_materials") if looks is not None else None,
     )
+
+
+def _stored_looks(path: str, arrays: dict, meta: dict):
+    """The looks a binding file records (None for one that records none), checked whole with the polygons'
+    materials: each a number among the materials, or -1."""
+    if meta.get("looks") is None:
+        return None
+    from ..io.looks import Looks
+
+    looks = Looks.from_record(meta["looks"], path)
+    if "mesh_face_materials" in arrays:
+        materials = arrays["mesh_face_materials"]
+        polygons = len(arrays["mesh_face_counts"]) if "mesh_face_counts" in arrays else len(arrays["mesh_faces"])
+        if materials.dtype.kind not in "iu" or materials.shape != (polygons,) or (materials.size and (
+                materials.min() < -1 or materials.max() >= len(looks.materials))):
+            raise BindingError(f"{path}: the binding's mesh_face_materials must be one material number (-1 to "
+                               f"{len(looks.materials) - 1}) per polygon of its {polygons}")
+    return looks
 
 
 def _array(path: str, arrays: dict, name: str, kind: str, columns: int | None, rows: int | None = None,

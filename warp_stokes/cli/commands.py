@@ -3,8 +3,10 @@ outputs before any work, then the library's functions. Heavy modules are importe
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import sys
+import warnings
 
 __all__ = ["format_stats", "listed", "announce_compilation", "cage_command", "bind_command",
            "deform_command", "animate_command", "encode_command", "sweep_command", "show_command", "batch_command"]
@@ -142,7 +144,8 @@ def bind_command(args) -> int:
         if made_cage is not None and (args.handles is not None or args.offset is not None):
             from warp_stokes.io.scene import load_scene
 
-            surface = load_scene(args.mesh, mesh_prims=args.mesh_prim, rest_time=args.rest_time).surface()
+            surface = load_scene(args.mesh, mesh_prims=args.mesh_prim, rest_time=args.rest_time,
+                                 looks=False).surface()
             cage = ws.make_cage(surface, handles=args.handles, offset=args.offset,
                                 device=args.device if spread is None else driver_device(spread))
         budget = None if args.memory_gb is None else args.memory_gb * 2**30
@@ -189,7 +192,15 @@ def deform_command(args) -> int:
             raise ws.WarpStokesError(f"{args.output}: the bound mesh has no faces (a point set), which {ext} cannot "
                                      "hold; write obj, ply or off")
         vertices = binding.deform(pose_argument(args.cage, binding.n_handles))
-        write_mesh_file(args.output, vertices, binding.mesh_faces)
+        if ext == "glb" and importlib.util.find_spec("pygltflib") is not None:
+            from warp_stokes.io.gltf import write_gltf_mesh  # parts, UVs and materials, as animate's glTF has them
+
+            write_gltf_mesh(args.output, ".glb", binding, vertices)
+        else:
+            if ext == "glb" and binding.looks is not None:
+                warnings.warn(f"{args.output}: written without the mesh's parts, UVs and materials, which need "
+                              "pygltflib: pip install 'warp-stokes[gltf]'", stacklevel=2)
+            write_mesh_file(args.output, vertices, binding.mesh_faces)
     print(f"wrote {args.output} ({len(vertices)} vertices)")
     return 0
 

@@ -197,7 +197,7 @@ def make_cage(mesh, handles: int | None = None, offset: float | None = None, dev
     (60, True)
     """
     _check_request(handles, offset)
-    surface = load_scene(mesh, mesh_prims=mesh_prims).surface()
+    surface = load_scene(mesh, mesh_prims=mesh_prims, looks=False).surface()
     name = surface.name
     points, faces, stray, diag = _surface_to_enclose(surface)
     device = Backend.of(device).device

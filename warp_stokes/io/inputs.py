@@ -1,6 +1,6 @@
 """The inputs' full set: which files a command reads, so that no output replaces one and a batch knows what it
-depends on (:func:`inputs_of`): each USD file's whole layer stack, a glTF's buffers and images, a folder of frames and
-the frames it would read, a binding's own sources. The files themselves are read through :mod:`.door`.
+depends on (:func:`inputs_of`): each USD file's whole layer stack, a glTF's buffers and images, an OBJ's material
+libraries and their images, a folder of frames and the frames it would read, a binding's own sources. The files themselves are read through :mod:`.door`.
 """
 
 from __future__ import annotations
@@ -92,9 +92,9 @@ def _same_inode(a: str, b: str) -> bool:
 
 def inputs_of(*sources, error=WarpStokesError, role: str = "input") -> InputSet:
     """Every file the given inputs make a command read: a USD file's whole layer stack (sublayers, references,
-    payloads, value clips, recursively, and the assets its attributes name), a ``.gltf``'s buffers and images, a
-    folder of frames and the frame files in it, a binding's own sources (the files it was bound from); any other
-    path as itself. ``None``, ``"auto"`` and objects that are not paths add nothing. A layer that cannot be read is
+    payloads, value clips, recursively, and the assets its attributes name), a ``.gltf``'s buffers and images, an
+    OBJ's material libraries and their images, a folder of frames and the frame files in it, a binding's own sources
+    (the files it was bound from); any other path as itself. ``None``, ``"auto"`` and objects that are not paths add nothing. A layer that cannot be read is
     one ``error`` naming it.
 
     Parameters
@@ -133,6 +133,11 @@ def inputs_of(*sources, error=WarpStokesError, role: str = "input") -> InputSet:
         elif path.lower().endswith(".gltf"):
             for dependency in gltf_dependencies(path, error):
                 files.setdefault(os.path.realpath(dependency), f"a file of the {role} {path} ({dependency})")
+        elif path.lower().endswith(".obj"):
+            from .looks_in import obj_dependencies
+
+            for dependency in obj_dependencies(path, error):
+                files.setdefault(os.path.realpath(dependency), f"a material file of the {role} {path} ({dependency})")
         elif path.lower().endswith(".npz"):
             for recorded in _binding_sources(path):
                 files.setdefault(recorded, f"a source of the {role} {path} ({recorded})")

@@ -5,15 +5,16 @@ Vertex order is preserved exactly (no merging, no reordering): users map weights
 
 from __future__ import annotations
 
+import io
 import os
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ..errors import MeshError
 from .door import checked_input, gltf_dependencies, input_bytes, read_input, reason
-from .obj import read_obj
+from .obj import read_obj_with_usage
 
 __all__ = ["Surface", "load_surface", "fan_triangles", "first_missing_vertex", "polygons_by_part", "EXTENTS",
            "COORDINATE_LIMIT", "finite_coordinates", "read_with_trimesh"]
@@ -43,6 +44,10 @@ class Surface:
     uvs : tuple (st (N, 2) float64, st_indices (len(face_indices),) int64) or None
         Texture coordinates per polygon corner (face-varying, indexed), when the file has them (OBJ ``vt``,
         a glTF/PLY mesh's per-vertex UVs).
+    face_materials : (len(face_counts),) int64 or None
+        Each polygon's material, a number among ``looks.materials`` (-1: none), where the looks were asked for
+        and the file has materials.
+    looks : :class:`~.looks.Looks` or None, the materials themselves
     """
 
     vertices: np.ndarray
@@ -52,6 +57,8 @@ class Surface:
     face_counts: np.ndarray | None = None
     face_indices: np.ndarray | None = None
     uvs: tuple | None = None
+    face_materials: np.ndarray | None = None
+    looks: object | None = None
 
     def polygons(self) -> tuple[np.ndarray, np.ndarray]:
         """The polygons as read, ``(face_counts, face_indices)``; the triangles when no polygons were kept.
@@ -225,13 +232,14 @@ def _from_polygons(vertices, counts: np.ndarray, corners: np.ndarray, name: str)
 
 
 def with_vertex_uvs(surface: Surface, mesh) -> Surface:
-    """``surface`` with the per-vertex UVs of a trimesh mesh (glTF, PLY), as face-varying indexed coordinates."""
-    uv = getattr(getattr(mesh, "visual", None), "uv", None)
+    """``surface`` with the per-vertex UVs of a trimesh mesh (glTF, PLY), or of an (V, 2) array, as face-varying
+    indexed coordinates."""
+    uv = mesh if isinstance(mesh, np.ndarray) else getattr(getattr(mesh, "visual", None), "uv", None)
     if uv is None or len(uv) != len(surface.vertices) or np.ndim(uv) != 2 or np.shape(uv)[1] < 2:
         return surface
     counts, indices = surface.polygons()
-    return _finite_attributes(Surface(surface.vertices, surface.faces, surface.name, surface.normals, counts, indices,
-                                      (np.asarray(uv, dtype=np.float64)[:, :2].copy(), indices.copy())))
+    return _finite_attributes(replace(surface, face_counts=counts, face_indices=indices,
+                                      uvs=(np.asarray(uv, dtype=np.float64)[:, :2].copy(), indices.copy())))
 
 
 class _CheckedResolver:
@@ -259,7 +267,7 @@ class _CheckedResolver:
         raise MeshError(f"{self.name}: reading it would write {name}")
 
 
-def read_with_trimesh(path: str, force: str):
+def read_with_trimesh(path: str, force: str, data: bytes | None = None):
     """A mesh file trimesh reads (PLY, STL, OFF, glTF/GLB, ...), its bytes through the one door in: any failure to
     parse it, whatever trimesh raises, is one MeshError naming the file.
 
@@ -267,6 +275,7 @@ def read_with_trimesh(path: str, force: str):
     ----------
     path : str
     force : "mesh" (all geometry as one mesh) or "scene" (the scene graph kept)
+    data : bytes, optional, the file's contents where already read (through the door)
     """
     import trimesh
 
@@ -274,7 +283,7 @@ def read_with_trimesh(path: str, force: str):
     if ext == "gltf":
         for dependency in gltf_dependencies(path, MeshError):
             checked_input(dependency, MeshError, f"glTF resource ({path})")
-    data = input_bytes(path, MeshError, "mesh")
+    data = input_bytes(path, MeshError, "mesh") if data is None else io.BytesIO(data)
     if ext == "stl":
         _check_stl(path, data.getvalue())
     try:
@@ -318,8 +327,7 @@ def _finite_attributes(surface: "Surface") -> "Surface":
     if not dropped:
         return surface
     warnings.warn(f"{surface.name}: its {' and '.join(dropped)} are not all finite numbers; dropped", stacklevel=3)
-    return Surface(surface.vertices, surface.faces, surface.name, normals, surface.face_counts, surface.face_indices,
-                   uvs)
+    return replace(surface, normals=normals, uvs=uvs)
 
 
 def _is_trimesh(source) -> bool:
@@ -330,7 +338,7 @@ def _is_trimesh(source) -> bool:
     return trimesh is not None and isinstance(source, trimesh.Trimesh)
 
 
-def load_surface(source, name: str | None = None) -> Surface:
+def load_surface(source, name: str | None = None, looks: bool = False) -> Surface:
     """Load a triangle surface (polygons are fan-triangulated) from a path, a trimesh object or arrays.
 
     Parameters
@@ -341,6 +349,8 @@ def load_surface(source, name: str | None = None) -> Surface:
         (``faces`` may be ``None`` for a point set).
     name : str, optional
         Name used in error messages; defaults to the path or a description of the object.
+    looks : bool, read an OBJ file's materials too (its ``.mtl`` files and the images they name: see
+        :mod:`.looks`), into ``face_materials`` and ``looks``
 
     Returns
     -------
@@ -365,13 +375,21 @@ def load_surface(source, name: str | None = None) -> Surface:
         name = name or path
         checked_input(path, MeshError, "mesh")
         if path.lower().endswith(".obj"):
-            verts, polys, normals, uvs = read_obj(path)
+            verts, polys, normals, uvs, usage = read_obj_with_usage(path)
             if len(verts) == 0:
                 raise MeshError(f"{path}: the file has no vertices")
             surface = _from_arrays(verts, polys, name) if not isinstance(polys, tuple) else \
                 _from_polygons(verts, *polys, name)
-            return _finite_attributes(Surface(surface.vertices, surface.faces, surface.name, normals,
-                                              surface.face_counts, surface.face_indices, uvs))
+            surface = _finite_attributes(replace(surface, normals=normals, uvs=uvs))
+            if looks and usage is not None:
+                from .looks_in import mtl_looks
+
+                libraries, used, face_used = usage
+                read, numbers = mtl_looks(path, libraries, used)
+                if read is not None:
+                    number = np.append(np.asarray(numbers, dtype=np.int64), -1)  # (-1: no usemtl before the face)
+                    surface = replace(surface, face_materials=number[face_used], looks=read)
+            return surface
         import trimesh  # here only: importing it takes half a second, and OBJ files do not need it
 
         loaded = read_with_trimesh(path, "mesh")

@@ -11,7 +11,7 @@ import numpy as np
 from ..errors import MeshError
 from .door import read_input
 
-__all__ = ["read_obj"]
+__all__ = ["read_obj", "read_obj_with_usage", "obj_usage", "obj_libraries"]
 
 
 def _bodies(text: str, tag: str) -> list:
@@ -86,9 +86,21 @@ def read_obj(path: str) -> tuple[np.ndarray, np.ndarray | list, np.ndarray | Non
     MeshError
         An unreadable file, vertex or face, naming the line.
     """
+    return read_obj_with_usage(path)[:4]
+
+
+def read_obj_with_usage(path: str):
+    """:func:`read_obj`'s four, and a fifth: the materials the file uses (:func:`obj_usage`), or None."""
     # -sig: a byte-order mark is no part of line 1; universal newlines as text mode reads them
     text = read_input(path, MeshError, "mesh").decode("utf-8-sig", errors="replace")
     text = text.replace("\r\n", "\n").replace("\r", "\n")
+    read = _read_records(path, text)
+    polygons = read[1]
+    return (*read, obj_usage("\n" + text, len(polygons[0]) if isinstance(polygons, tuple) else len(polygons)))
+
+
+def _read_records(path: str, text: str):
+    """:func:`read_obj` of the file's text (newlines made plain)."""
     fast = _read_obj_triangles(text)
     if fast is not None:
         return fast
@@ -204,3 +216,43 @@ def _obj_normals(text: str, corners: str, indices: np.ndarray, n_vertices: int) 
     if (length == 0).any():
         return None
     return sums / length[:, None]
+
+
+_MATERIAL_RECORDS = re.compile(r"\n(f)[ \t]|\nusemtl[ \t]+([^\n]*)")
+_LIBRARY_RECORD = re.compile(r"\nmtllib[ \t]+([^\n]*)")
+
+
+def obj_libraries(text: str) -> list[str]:
+    """The material libraries an OBJ's text (starting with a newline) names in its ``mtllib`` records, as named
+    (several to a record; one name may hold spaces where the record names one ``.mtl``).
+
+    Examples
+    --------
+    >>> obj_libraries("\\nmtllib a.mtl b.mtl\\nmtllib my skin.mtl\\nv 0 0 0")
+    ['a.mtl', 'b.mtl', 'my skin.mtl']
+    """
+    libraries = []
+    for body in _LIBRARY_RECORD.findall(text):
+        body = body.strip()
+        libraries += [body] if body.lower().count(".mtl") <= 1 else re.findall(r"\S+?\.mtl", body, re.I)
+    return libraries
+
+
+def obj_usage(text: str, n_faces: int):
+    """The materials an OBJ's text (starting with a newline) uses: (its ``mtllib`` names, the ``usemtl`` names in
+    order of first use, each face's number among those (-1 before any ``usemtl``)); None where it names none."""
+    if "usemtl" not in text and "mtllib" not in text:
+        return None
+    libraries = obj_libraries(text)
+    marks = _MATERIAL_RECORDS.findall(text)
+    is_face = np.fromiter((f == "f" for f, _ in marks), dtype=bool, count=len(marks))
+    if int(is_face.sum()) != n_faces:
+        return None  # records this reading does not count as the mesh's reader does: left out, not guessed
+    uses = np.flatnonzero(~is_face)
+    names = [marks[k][1].strip() for k in uses]
+    used = list(dict.fromkeys(names))
+    number = {name: k for k, name in enumerate(used)}
+    use_material = np.array([number[name] for name in names], dtype=np.int64)
+    last_use = np.searchsorted(uses, np.flatnonzero(is_face)) - 1  # the usemtl before each face, -1 for none
+    face_material = np.where(last_use >= 0, use_material[np.maximum(last_use, 0)] if len(uses) else -1, -1)
+    return libraries, used, face_material.astype(np.int64)

@@ -32,9 +32,9 @@ from .door import file_kind, files_read
 if TYPE_CHECKING:  # (the inputs' module imports the USD readers; the door out needs none of them)
     from .inputs import InputSet
 
-__all__ = ["atomic_output", "OutputGroup", "writing", "output_folder", "check_output_target", "temporary_path",
-           "is_temporary", "remove_stale_temporaries", "remove_temporaries_of", "process_alive", "host_name",
-           "Interrupted", "interrupt_on_signals", "same_file"]
+__all__ = ["atomic_output", "OutputGroup", "writing", "together", "output_folder", "check_output_target",
+           "temporary_path", "is_temporary", "remove_stale_temporaries", "remove_temporaries_of", "process_alive",
+           "host_name", "Interrupted", "interrupt_on_signals", "same_file"]
 
 _GROUP: contextvars.ContextVar = contextvars.ContextVar("warp_stokes_output_group", default=None)
 _TEMPORARY = re.compile(r"^\.wst~(?P<pid>\d+)~(?P<host>[A-Za-z0-9.-]*)~[0-9a-f]{8}~")
@@ -225,19 +225,26 @@ class OutputGroup:
     """
 
     def __init__(self, paths, inputs: InputSet | None = None):
-        self.paths = [os.fspath(p) for p in paths]
+        self.paths: list[str] = []
         self.inputs = inputs
         self.written: dict[str, str] = {}  # output -> its finished temporary file
         self._open: set = set()
-        reals = [os.path.realpath(p) for p in self.paths]
-        for k, real in enumerate(reals):
-            if real in reals[:k]:
-                raise WarpStokesError(f"{self.paths[k]}: named twice among the outputs")
-        for path in self.paths:
-            if os.path.isdir(path):
-                raise WarpStokesError(f"{path}: the output is a folder, not a file")
-            _check_folder(os.path.dirname(os.path.abspath(path)), path)
-            check_output_target(path, inputs)
+        for path in paths:
+            self.add(path)
+
+    def add(self, path, after=None) -> None:
+        """One more output of the group (a file a writer finds it needs: an image beside a layer), checked as the
+        others were: refused where named twice, where it is a folder or one of the inputs. It is renamed into place
+        right after the output ``after`` where that is given (a batch renames its binding last), else last."""
+        path = os.fspath(path)
+        if any(os.path.realpath(p) == os.path.realpath(path) for p in self.paths):
+            raise WarpStokesError(f"{path}: named twice among the outputs")
+        if os.path.isdir(path):
+            raise WarpStokesError(f"{path}: the output is a folder, not a file")
+        _check_folder(os.path.dirname(os.path.abspath(path)), path)
+        check_output_target(path, self.inputs)
+        place = len(self.paths) if after is None else self.paths.index(self._key(after)) + 1
+        self.paths.insert(place, path)
 
     def holds(self, path) -> bool:
         real = os.path.realpath(os.fspath(path))
@@ -350,6 +357,29 @@ def writing(paths, inputs: InputSet | None = None):
     finally:
         _GROUP.reset(token)
     group.commit()
+
+
+@contextlib.contextmanager
+def together(paths):
+    """Write ``paths`` (an output and the files that go with it: a layer and its images) in one group: the
+    enclosing :func:`writing` group where it holds the first of them (the others are added to it, and renamed with
+    it when the command's outputs are), else a group of their own (:func:`writing`).
+
+    Examples
+    --------
+    >>> with together(["walk.usda", "walk.texture0.png"]):   # doctest: +SKIP
+    ...     write_layer_and_images()
+    """
+    paths = [os.fspath(p) for p in paths]
+    group = _GROUP.get()
+    if group is not None and paths and group.holds(paths[0]):
+        for path in reversed(paths[1:]):  # each right after the first: in their order, before the group's others
+            if not group.holds(path):
+                group.add(path, after=paths[0])
+        yield group
+        return
+    with writing(paths) as own:
+        yield own
 
 
 @contextlib.contextmanager

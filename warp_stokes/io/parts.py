@@ -7,7 +7,7 @@ back in its own local space. The readers that make them are in :mod:`.scene` and
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -46,12 +46,15 @@ class Scene:
         written as a layer over it)
     metadata : dict, the asset's stage metadata: ``up_axis``, ``meters_per_unit``, ``default_prim``,
         ``time_codes_per_second``, ``rest_time``
+    looks : :class:`~.looks.Looks` or None, the materials the parts' ``face_materials`` number (a glTF's; an OBJ's
+        are its one part's surface's own)
     """
 
     parts: tuple
     name: str
     asset: str | None = None
     metadata: dict = field(default_factory=dict)
+    looks: object | None = None
 
     def surface(self) -> Surface:
         """All parts as one surface (vertices, triangles and polygons concatenated in part order).
@@ -63,7 +66,8 @@ class Scene:
         [[0, 1, 2], [3, 4, 5]]
         """
         if len(self.parts) == 1:
-            return self.parts[0].surface
+            only = self.parts[0].surface
+            return only if self.looks is None else replace(only, looks=self.looks)
         offsets = self.vertex_offsets()
         surfaces = [p.surface for p in self.parts]
         polygons = [s.polygons() for s in surfaces]
@@ -75,9 +79,13 @@ class Scene:
         if without and len(without) < len(self.parts):
             import warnings
 
-            warnings.warn(f"{self.name}: the UVs of its meshes are dropped: {len(without)} of {len(self.parts)} have "
-                          f"none (e.g. {without[0]})", stacklevel=2)
-        if not without:
+            # the others keep theirs (and their textures): one UV (0, 0) at every corner of a mesh without any
+            warnings.warn(f"{self.name}: {len(without)} of its {len(self.parts)} meshes have no UVs (e.g. "
+                          f"{without[0]}); they are given (0, 0)", stacklevel=2)
+            surfaces = [s if s.uvs is not None else
+                        replace(s, uvs=(np.zeros((1, 2)), np.zeros(len(c[1]), dtype=np.int64)))
+                        for s, c in zip(surfaces, polygons)]
+        if len(without) < len(self.parts):
             st_offsets = np.cumsum([0] + [len(s.uvs[0]) for s in surfaces])
             uvs = (np.concatenate([s.uvs[0] for s in surfaces]),
                    np.concatenate([s.uvs[1] + o for s, o in zip(surfaces, st_offsets)]))
@@ -87,8 +95,17 @@ class Scene:
             name=self.name, normals=normals,
             face_counts=np.concatenate([c for c, _ in polygons]),
             face_indices=np.concatenate([i + o for (_, i), o in zip(polygons, offsets)]),
-            uvs=uvs,
+            uvs=uvs, face_materials=self._face_materials([c for c, _ in polygons]),
+            looks=self.looks or next((s.looks for s in surfaces if s.looks is not None), None),
         )
+
+    def _face_materials(self, counts: list) -> np.ndarray | None:
+        """The parts' polygons' materials, in part order (-1 for a part without any), or None where none has any."""
+        surfaces = [p.surface for p in self.parts]
+        if all(s.face_materials is None for s in surfaces):
+            return None
+        return np.concatenate([np.full(len(c), -1, dtype=np.int64) if s.face_materials is None else s.face_materials
+                               for s, c in zip(surfaces, counts)])
 
     def vertex_offsets(self) -> np.ndarray:
         """(P + 1,) where each part's vertices start in :meth:`surface`, and the total."""

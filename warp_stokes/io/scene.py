@@ -4,12 +4,16 @@ glTF/GLB scene's mesh nodes, or any other mesh file, arrays or trimesh object as
 from __future__ import annotations
 
 import os
+import warnings
+from collections import Counter
+from dataclasses import replace
 
 import numpy as np
 
 from ..errors import MeshError
-from .door import checked_input
+from .door import checked_input, read_input
 from .load import load_surface, read_with_trimesh, with_vertex_uvs
+from .looks_in import texture_coordinates
 from .naming import natural_key
 from .parts import MeshPart, Scene
 from .usd.asset import read_asset
@@ -25,9 +29,10 @@ def is_usd(source) -> bool:
 
 def gltf_mesh_nodes(loaded) -> list[tuple[str, str, np.ndarray]]:
     """The mesh nodes of a trimesh scene read from a glTF/GLB file that have faces, as (scene graph node, geometry
-    name, local-to-world matrix (column vectors)), in the order they are bound: the natural order of the node names
-    (trimesh keeps no file order), the primitives of one node in their file order (trimesh hangs each under the node
-    by a random name, so that name's order would change from one reading to the next).
+    name, local-to-world matrix (column vectors)), in the order they are bound (by ``bind`` and by
+    :func:`warp_stokes.io.skinned.load_frames`, which must agree): the natural order of the node names (trimesh keeps no
+    file order), the primitives of one node in their file order (trimesh hangs each under the node by a random name,
+    so that name's order would change from one reading to the next).
 
     Examples
     --------
@@ -50,23 +55,62 @@ def gltf_mesh_nodes(loaded) -> list[tuple[str, str, np.ndarray]]:
     return [entry[1:] for entry in sorted(found, key=lambda entry: entry[0])]
 
 
-def _gltf_scene(path: str) -> Scene:
+def _gltf_scene(path: str, looks: bool = True) -> Scene:
     """The mesh nodes of a glTF/GLB scene, each in world space by its node's transform (trimesh's scene graph),
-    in the order of :func:`gltf_mesh_nodes`."""
-    loaded = read_with_trimesh(path, "scene")
+    in the order of :func:`gltf_mesh_nodes`; with ``looks``, its materials and each part's (:mod:`.looks_in`).
+
+    A node whose mesh has several primitives gives a part per primitive, named ``NODE.K`` by the primitive's number
+    (trimesh names them by random suffixes)."""
+    data = read_input(path, MeshError, "mesh")
+    loaded = read_with_trimesh(path, "scene", data)
+    gltf, primitives, scene_looks = _gltf_materials(path, data, loaded, looks)
+    per_mesh = Counter(m for m, _, _ in primitives.values())
+    parents = loaded.graph.transforms.parents
     parts = []
     for node, geometry_name, matrix in gltf_mesh_nodes(loaded):
         mesh = loaded.geometry[geometry_name]
+        m, p, material = primitives.get(geometry_name, (None, None, None))
+        name = f"{parents.get(node, node)}.{p}" if per_mesh.get(m, 0) > 1 else str(node)
         to_world = matrix.T  # trimesh: column vectors; here: row vectors
         world = np.asarray(mesh.vertices, dtype=np.float64) @ to_world[:3, :3] + to_world[3, :3]
-        surface = with_vertex_uvs(load_surface((world, np.asarray(mesh.faces)), name=f"{path}:{node}"), mesh)
-        parts.append(MeshPart(node, surface, to_world))
+        surface = with_vertex_uvs(load_surface((world, np.asarray(mesh.faces)), name=f"{path}:{name}"), mesh)
+        if surface.uvs is None and m is not None:  # trimesh reads a primitive's UVs only where it has a material
+            surface = with_vertex_uvs(surface, texture_coordinates(gltf, m, p))
+        if scene_looks is not None:
+            number = material if material is not None and 0 <= material < len(scene_looks.materials) else -1
+            surface = replace(surface, face_materials=np.full(len(surface.polygons()[0]), number, dtype=np.int64))
+        parts.append(MeshPart(name, surface, to_world))
     if not parts:
         raise MeshError(f"{path}: the scene has no meshes with faces")
-    return Scene(tuple(parts), path)
+    return Scene(tuple(parts), path, looks=scene_looks)
 
 
-def load_scene(source, mesh_prims=None, cage_prim: str | None = None, rest_time=None) -> Scene:
+def _gltf_materials(path: str, data: bytes, loaded, looks: bool):
+    """The file read (:class:`~.gltf_container.GltfFile`), the glTF primitive of each of trimesh's geometries (name
+    -> (mesh, primitive, material)) and, with ``looks``, the file's looks; none of these (with a warning where it has
+    materials) where the primitives cannot be matched to the geometries with certainty: no materials rather than
+    materials on the wrong parts."""
+    from .gltf_container import GltfDamaged, GltfFile
+    from .looks_in import gltf_looks, gltf_primitives, position_count
+
+    try:
+        gltf = GltfFile(path, data)
+        primitives = gltf_primitives(gltf)
+    except GltfDamaged as exc:
+        if looks:
+            warnings.warn(f"{path}: its materials are left out ({exc})", stacklevel=4)
+        return None, {}, None
+    unmatched = [name for name, geometry in loaded.geometry.items() if name not in primitives or
+                 position_count(gltf, *primitives[name][:2]) != len(getattr(geometry, "vertices", ()))]
+    if unmatched:
+        if looks and gltf.document.get("materials"):
+            warnings.warn(f"{path}: its materials are left out (its meshes could not be matched to its primitives: "
+                          f"{unmatched[0]})", stacklevel=4)
+        return None, {}, None
+    return gltf, primitives, gltf_looks(gltf, path) if looks else None
+
+
+def load_scene(source, mesh_prims=None, cage_prim: str | None = None, rest_time=None, looks: bool = True) -> Scene:
     """The meshes to bind from what users have.
 
     Parameters
@@ -81,6 +125,7 @@ def load_scene(source, mesh_prims=None, cage_prim: str | None = None, rest_time=
     rest_time : float, optional
         For a USD asset, the time code at which the rest pose is read (default: the cage prim's first time
         sample, else the stage's earliest).
+    looks : bool, read the materials of a glTF or OBJ file too (:mod:`.looks`); a USD asset keeps its own
 
     Returns
     -------
@@ -105,6 +150,6 @@ def load_scene(source, mesh_prims=None, cage_prim: str | None = None, rest_time=
     if mesh_prims:
         raise MeshError(f"{source}: mesh prims are named, but it is not a USD file")
     if isinstance(source, (str, os.PathLike)) and os.fspath(source).lower().endswith((".glb", ".gltf")):
-        return _gltf_scene(checked_input(source, MeshError, "mesh"))
-    surface = load_surface(source)
+        return _gltf_scene(checked_input(source, MeshError, "mesh"), looks)
+    surface = load_surface(source, looks=looks)
     return Scene((MeshPart(surface.name, surface),), surface.name)

@@ -27,7 +27,7 @@ import os
 import numpy as np
 
 from ...errors import WarpStokesError
-from ..outputs import atomic_output
+from ..outputs import atomic_output, together
 from .common import deformed_frames, define_mesh, extent, new_stage, save_layer, set_timing, vec3f
 from .layers import reads_usd
 
@@ -122,9 +122,12 @@ def write_standalone_skeleton(path, ext, binding, skin, joints, positions, frame
     see :func:`warp_stokes.binding.skin.write_skin` for the arguments."""
     from pxr import UsdGeom, UsdSkel
 
+    from .looks import StageLooks
     from .standalone import _define_parts
 
-    with atomic_output(path, ext) as tmp:
+    looks = StageLooks(path, binding)
+    with together([path, *looks.outputs()]), atomic_output(path, ext) as tmp:  # the images renamed with the layer
+        looks.write_images()
         layer, stage = new_stage(tmp, ext)
         UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y if up_axis == "Y" else UsdGeom.Tokens.z)
         UsdGeom.SetStageMetersPerUnit(stage, float(meters_per_unit))
@@ -134,8 +137,11 @@ def write_standalone_skeleton(path, ext, binding, skin, joints, positions, frame
         stage.SetDefaultPrim(root.GetPrim())
         skeleton, translations = _define_skeleton(stage, "/Root", binding.cage_vertices, joints)
         # the parts' points are the binding's, in world space: their geom bind transform is the identity
+        meshes = []
         for rows, points, *_ in _define_parts(stage, binding, None, False):
             _skin_prim(points.GetPrim(), skeleton, skin.indices[rows], skin.weights[rows], np.eye(4))
+            meshes.append(UsdGeom.Mesh(points.GetPrim()))
+        looks.define(stage, binding, meshes)
         if with_cage:
             cage = define_mesh(stage, "/Root/Cage", np.full(len(binding.cage_faces), 3), binding.cage_faces.ravel(),
                                binding.cage_vertices)

@@ -1,5 +1,6 @@
 """A standalone animated stage for meshes from files without USD: ``/Root`` with one mesh per bound part, its
-polygons as read, face-varying UVs and per-frame normals."""
+polygons as read, face-varying UVs and per-frame normals, and the input's materials bound to them (:mod:`.looks`:
+``/Root/Looks``, the images beside the layer)."""
 
 from __future__ import annotations
 
@@ -8,10 +9,11 @@ import re
 import numpy as np
 
 from ...errors import WarpStokesError
-from ..outputs import atomic_output
+from ..outputs import atomic_output, together
 from ..load import polygons_by_part
 from ..normals import NormalsPlan
 from .common import animation_rate, define_mesh, deformed_frames, extent, new_stage, save_layer, set_timing, vec3f
+from .looks import StageLooks
 
 __all__ = ["write_standalone", "write_cage_poses"]
 
@@ -41,7 +43,9 @@ def write_standalone(path, ext, binding, positions, frames, poses, fps, with_cag
         raise WarpStokesError(f"meters per unit must be positive, got {meters_per_unit!r}")
     rate = animation_rate(fps, poses)
     normals = binding.mesh_normals if normals is None else np.asarray(normals)
-    with atomic_output(path, ext) as tmp:
+    looks = StageLooks(path, binding)
+    with together([path, *looks.outputs()]), atomic_output(path, ext) as tmp:  # the images renamed with the layer
+        looks.write_images()
         layer, stage = new_stage(tmp, ext)
         UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y if up_axis == "Y" else UsdGeom.Tokens.z)
         UsdGeom.SetStageMetersPerUnit(stage, float(meters_per_unit))
@@ -49,6 +53,7 @@ def write_standalone(path, ext, binding, positions, frames, poses, fps, with_cag
         root = UsdGeom.Xform.Define(stage, "/Root")
         stage.SetDefaultPrim(root.GetPrim())
         writers = _define_parts(stage, binding, normals, with_weights)
+        looks.define(stage, binding, [UsdGeom.Mesh(points.GetPrim()) for _, points, *_ in writers])
         cage = None
         if with_cage:
             cage = define_mesh(stage, "/Root/Cage", np.full(len(binding.cage_faces), 3), binding.cage_faces.ravel(),
