@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import BindingError
-from .gltf_document import GltfDocument
+from .gltf_file import GltfFile
 
 __all__ = ["Channel", "animation_channels", "key_times", "world_matrices", "posed_primitive", "quaternion_matrices"]
 
@@ -98,7 +98,7 @@ def quaternion_matrices(quaternions: np.ndarray) -> np.ndarray:
     ], axis=-2)
 
 
-def animation_channels(document: GltfDocument, animation: dict, name: str) -> list[Channel]:
+def animation_channels(document: GltfFile, animation: dict, name: str) -> list[Channel]:
     """The channels of ``animation`` (one entry of the document's animations, called ``name`` in messages), each
     checked: a node that exists, a known path, times that increase, as many values as the interpolation needs."""
     samplers = animation.get("samplers") or []
@@ -143,7 +143,7 @@ def key_times(channels: list[Channel]) -> np.ndarray:
     return times[keep]
 
 
-def _parents(document: GltfDocument) -> np.ndarray:
+def _parents(document: GltfFile) -> np.ndarray:
     """Each node's parent (-1 for a root); a node with two parents, or a cycle, is one error (glTF's nodes form a
     forest)."""
     nodes = document.entries("nodes")
@@ -157,7 +157,7 @@ def _parents(document: GltfDocument) -> np.ndarray:
     return parents
 
 
-def _hierarchy_order(document: GltfDocument, parents: np.ndarray) -> list[int]:
+def _hierarchy_order(document: GltfFile, parents: np.ndarray) -> list[int]:
     """The nodes, each after its parent; a cycle is one error."""
     children = [[] for _ in parents]
     for n, p in enumerate(parents):
@@ -173,7 +173,7 @@ def _hierarchy_order(document: GltfDocument, parents: np.ndarray) -> list[int]:
     return order
 
 
-def _rest_transforms(document: GltfDocument) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
+def _rest_transforms(document: GltfFile) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
     """Every node's translation, rotation and scale (N, 3/4/3) as the file sets them, and {node: 4 x 4} for nodes set
     by a matrix instead."""
     nodes = document.entries("nodes")
@@ -198,12 +198,12 @@ def _rest_transforms(document: GltfDocument) -> tuple[np.ndarray, np.ndarray, np
     return translation, rotation, scale, matrices
 
 
-def world_matrices(document: GltfDocument, channels: list[Channel], times: np.ndarray) -> np.ndarray:
+def world_matrices(document: GltfFile, channels: list[Channel], times: np.ndarray) -> np.ndarray:
     """Every node's local-to-world matrix at each of ``times``: (F, N, 4, 4).
 
     Parameters
     ----------
-    document : GltfDocument
+    document : GltfFile
     channels : the animation's channels (:func:`animation_channels`); nodes they do not move keep their own
         transforms
     times : (F,) seconds
@@ -232,7 +232,7 @@ def world_matrices(document: GltfDocument, channels: list[Channel], times: np.nd
     return world
 
 
-def _morph_weights(document: GltfDocument, node: int, mesh: dict, channels: list[Channel], times: np.ndarray,
+def _morph_weights(document: GltfFile, node: int, mesh: dict, channels: list[Channel], times: np.ndarray,
                    n_targets: int) -> np.ndarray:
     """The morph target weights (F, n_targets) of a mesh node: its animation's weights channel, else the node's
     weights, else the mesh's, else zeros."""
@@ -250,7 +250,7 @@ def _morph_weights(document: GltfDocument, node: int, mesh: dict, channels: list
     return np.repeat(weights[None], len(times), axis=0)
 
 
-def _influences(document: GltfDocument, attributes: dict, n_vertices: int, n_joints: int, what: str):
+def _influences(document: GltfFile, attributes: dict, n_vertices: int, n_joints: int, what: str):
     """Every JOINTS_n / WEIGHTS_n set of a primitive side by side: joint indices (V, 4S) and weights (V, 4S)
     normalised to sum one (a vertex of no weight keeps zeros)."""
     joints, weights, s = [], [], 0
@@ -274,7 +274,7 @@ def _influences(document: GltfDocument, attributes: dict, n_vertices: int, n_joi
     return joints, weights / np.where(total > 0, total, 1.0), total[:, 0] > 0
 
 
-def _skinned(document: GltfDocument, skin_index: int, attributes: dict, points: np.ndarray, world: np.ndarray,
+def _skinned(document: GltfFile, skin_index: int, attributes: dict, points: np.ndarray, world: np.ndarray,
              node: int, what: str) -> np.ndarray:
     """Linear blend skinning of ``points`` (F, V, 3) by skin ``skin_index`` at each frame's world matrices."""
     skin = document.entry("skins", skin_index, what)
@@ -304,13 +304,13 @@ def _skinned(document: GltfDocument, skin_index: int, attributes: dict, points: 
     return posed
 
 
-def posed_primitive(document: GltfDocument, node: int, mesh_index: int, primitive_index: int,
+def posed_primitive(document: GltfFile, node: int, mesh_index: int, primitive_index: int,
                     channels: list[Channel], times: np.ndarray, world: np.ndarray) -> np.ndarray:
     """The world-space vertices (F, V, 3) of one primitive of node ``node``'s mesh at each of ``times``.
 
     Parameters
     ----------
-    document : GltfDocument
+    document : GltfFile
     node, mesh_index, primitive_index : the mesh node, its mesh and the primitive
     channels : the animation's channels
     times : (F,) seconds

@@ -166,7 +166,7 @@ class ImageSource:
         """The image's bytes where a place it may be holds them with the recorded digest, else None; and what was
         found (for the warning). ``containers``: glTF files read so far, by path (an embedded image's file is read
         once for all its images)."""
-        from .gltf_container import GltfDamaged, GltfFile
+        from .gltf_file import GltfFile
 
         found = []
         for place in dict.fromkeys([self.file, os.path.abspath(self.named)]):
@@ -180,8 +180,8 @@ class ImageSource:
                     if place not in containers:
                         containers[place] = GltfFile(place)
                     data = containers[place].image(self.index)[0]
-            except (WarpStokesError, GltfDamaged) as exc:
-                found.append(f"{place} unreadable ({reason(exc)})")
+            except WarpStokesError as exc:  # (a GltfDamaged among them: its detail, the file named once)
+                found.append(f"{place} unreadable ({reason(getattr(exc, 'detail', exc))})")
                 continue
             if hashlib.sha256(data).hexdigest() == self.sha256:
                 return data, ""

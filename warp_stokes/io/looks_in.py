@@ -17,7 +17,7 @@ import numpy as np
 
 from ..errors import WarpStokesError
 from .door import read_input, reason
-from .gltf_container import GltfDamaged, GltfFile
+from .gltf_file import GltfDamaged, GltfFile
 from .looks import ImageSource, Looks, image_type, material_problem, texture_slots
 
 __all__ = ["gltf_looks", "gltf_primitives", "position_count", "texture_coordinates", "mtl_looks",
@@ -72,32 +72,32 @@ def gltf_looks(gltf: GltfFile, named: str) -> Looks | None:
         for k, material in enumerate(materials):
             problem = material_problem(material)
             if problem is not None:
-                raise GltfDamaged(f"material {k}: {problem}")
+                raise gltf.damaged(f"material {k}: {problem}")
             for holder, key in texture_slots(material):
                 index = holder[key]["index"]
                 if not (isinstance(index, int) and 0 <= index < len(textures)):
-                    raise GltfDamaged(f"material {k}'s {key} names texture {index!r} of {len(textures)}")
+                    raise gltf.damaged(f"material {k}'s {key} names texture {index!r} of {len(textures)}")
         for k, sampler in enumerate(samplers):
             if not all(isinstance(v, int) and not isinstance(v, bool) for key, v in sampler.items()
                        if key in ("magFilter", "minFilter", "wrapS", "wrapT")):
-                raise GltfDamaged(f"sampler {k}'s filters and wraps are not integers")
+                raise gltf.damaged(f"sampler {k}'s filters and wraps are not integers")
         for k, texture in enumerate(textures):
             sampler = texture.get("sampler")
             if sampler is not None and not (isinstance(sampler, int) and 0 <= sampler < len(samplers)):
-                raise GltfDamaged(f"texture {k} names sampler {sampler!r} of {len(samplers)}")
+                raise gltf.damaged(f"texture {k} names sampler {sampler!r} of {len(samplers)}")
             source = texture.get("source")
             if source is not None and not (isinstance(source, int) and 0 <= source < len(image_entries)):
-                raise GltfDamaged(f"texture {k} names image {source!r} of {len(image_entries)}")
+                raise gltf.damaged(f"texture {k} names image {source!r} of {len(image_entries)}")
     except GltfDamaged as exc:
-        _warn(f"{gltf.path}: its materials are left out ({exc})")
+        _warn(f"{gltf.path}: its materials are left out ({exc.detail})")
         return None
     images = []
     for k, entry in enumerate(image_entries):
         try:
             data, mime, own_file = gltf.image(k)
-        except (GltfDamaged, WarpStokesError) as exc:
-            _warn(f"{gltf.path}: image {k} of its materials cannot be read ({reason(exc)}); its textures are left "
-                  "out")
+        except WarpStokesError as exc:  # (a GltfDamaged among them: its detail, the file named once)
+            _warn(f"{gltf.path}: image {k} of its materials cannot be read ({reason(getattr(exc, 'detail', exc))}); "
+                  "its textures are left out")
             images.append(None)
             continue
         label = entry.get("name") if isinstance(entry.get("name"), str) else None
@@ -139,7 +139,7 @@ def gltf_primitives(gltf: GltfFile) -> dict:
     try:
         return _primitive_names(gltf, unique_name)
     except (TypeError, AttributeError, ValueError) as exc:  # a name or a primitive not as glTF lays them out
-        raise GltfDamaged(f"its meshes are not as glTF lays them out ({reason(exc)})") from None
+        raise gltf.damaged(f"its meshes are not as glTF lays them out ({reason(exc)})") from None
 
 
 def _primitive_names(gltf: GltfFile, unique_name) -> dict:
@@ -172,10 +172,12 @@ def texture_coordinates(gltf: GltfFile, mesh: int, primitive: int) -> np.ndarray
         attributes = gltf.entries("meshes")[mesh]["primitives"][primitive].get("attributes") or {}
         if "TEXCOORD_0" not in attributes:
             return None
-        uv = gltf.accessor(attributes["TEXCOORD_0"])
-    except (GltfDamaged, WarpStokesError, KeyError, IndexError, TypeError, AttributeError):
+        stored = gltf.entry("accessors", attributes["TEXCOORD_0"])  # unsigned bytes and shorts: normalised unless
+        unsigned = stored.get("componentType") in (5121, 5123)   # the file says otherwise (as glTF's UVs are)
+        uv = gltf.accessor(attributes["TEXCOORD_0"], normalized=bool(stored.get("normalized", unsigned)))
+    except (WarpStokesError, KeyError, IndexError, TypeError, AttributeError):
         return None
-    if uv.shape[1] != 2 or not np.isfinite(uv).all():
+    if uv.ndim != 2 or uv.shape[1] != 2 or not np.isfinite(uv).all():
         return None
     return np.stack([uv[:, 0], 1.0 - uv[:, 1]], axis=1)
 

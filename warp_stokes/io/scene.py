@@ -86,11 +86,11 @@ def _gltf_scene(path: str, looks: bool = True) -> Scene:
 
 
 def _gltf_materials(path: str, data: bytes, loaded, looks: bool):
-    """The file read (:class:`~.gltf_container.GltfFile`), the glTF primitive of each of trimesh's geometries (name
+    """The file read (:class:`~.gltf_file.GltfFile`), the glTF primitive of each of trimesh's geometries (name
     -> (mesh, primitive, material)) and, with ``looks``, the file's looks; none of these (with a warning where it has
     materials) where the primitives cannot be matched to the geometries with certainty: no materials rather than
     materials on the wrong parts."""
-    from .gltf_container import GltfDamaged, GltfFile
+    from .gltf_file import GltfDamaged, GltfFile
     from .looks_in import gltf_looks, gltf_primitives, position_count
 
     try:
@@ -98,7 +98,7 @@ def _gltf_materials(path: str, data: bytes, loaded, looks: bool):
         primitives = gltf_primitives(gltf)
     except GltfDamaged as exc:
         if looks:
-            warnings.warn(f"{path}: its materials are left out ({exc})", stacklevel=4)
+            warnings.warn(f"{path}: its materials are left out ({exc.detail})", stacklevel=4)
         return None, {}, None
     unmatched = [name for name, geometry in loaded.geometry.items() if name not in primitives or
                  position_count(gltf, *primitives[name][:2]) != len(getattr(geometry, "vertices", ()))]

@@ -12,7 +12,7 @@ import numpy as np
 from ..errors import BindingError, WarpStokesError
 from .door import checked_input, reason
 from .frame_times import frame_numbers, sample_times
-from .gltf_document import GltfDocument, read_gltf
+from .gltf_file import GltfDamaged, GltfFile
 from .gltf_pose import animation_channels, key_times, posed_primitive, world_matrices
 from .poses import Poses, checked_poses
 
@@ -23,11 +23,11 @@ __all__ = ["load_frames", "GLTF_RATE"]
 GLTF_RATE = 24.0
 
 
-def _animation_names(document: GltfDocument) -> list[str]:
+def _animation_names(document: GltfFile) -> list[str]:
     return [a.get("name") or f"#{k}" for k, a in enumerate(document.entries("animations"))]
 
 
-def _chosen_animation(document: GltfDocument, animation) -> tuple[dict, str]:
+def _chosen_animation(document: GltfFile, animation) -> tuple[dict, str]:
     """The animation named ``animation`` (its name, or its number), or the file's only one; else one error listing
     the animations it has."""
     animations = document.entries("animations")
@@ -46,7 +46,7 @@ def _chosen_animation(document: GltfDocument, animation) -> tuple[dict, str]:
     raise BindingError(f"{document.path}: no animation {text!r}; its animations: {listed}")
 
 
-def _trimesh_names(document: GltfDocument) -> tuple[dict, dict]:
+def _trimesh_names(document: GltfFile) -> tuple[dict, dict]:
     """What trimesh names the file's nodes and primitives (its scene graph's frames and geometries): {frame: node},
     {geometry: (mesh, primitive)}, named by trimesh's own function in its own order, so that the meshes ``bind`` reads
     (through trimesh) are found in the file."""
@@ -67,7 +67,7 @@ def _trimesh_names(document: GltfDocument) -> tuple[dict, dict]:
     return node_of, geometry_of
 
 
-def _bound_primitives(path: str, document: GltfDocument) -> list[tuple[int, int, int]]:
+def _bound_primitives(path: str, document: GltfFile) -> list[tuple[int, int, int]]:
     """(node, mesh, primitive) of every mesh ``bind`` reads from the file, in its order, each checked against the
     vertices bind reads for it."""
     from .load import read_with_trimesh
@@ -95,7 +95,15 @@ def _bound_primitives(path: str, document: GltfDocument) -> list[tuple[int, int,
 
 
 def _gltf_frames(path: str, animation, fps: float | None) -> Poses:
-    document = read_gltf(path)
+    try:
+        return _animation_frames(path, animation, fps)
+    except GltfDamaged as exc:  # the file is the frames' input: its damage is theirs
+        raise BindingError(str(exc)) from None
+
+
+def _animation_frames(path: str, animation, fps: float | None) -> Poses:
+    document = GltfFile(path)
+    document.check_version()
     chosen, name = _chosen_animation(document, animation)
     for primitive in (p for m in document.entries("meshes") for p in m.get("primitives") or []):
         if "KHR_draco_mesh_compression" in (primitive.get("extensions") or {}):
