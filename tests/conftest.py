@@ -99,6 +99,7 @@ def bindings():
 def warp_stokes(*args, timeout=300):
     """The ``warp-stokes`` command as a user runs it: a subprocess (the installed script, else ``python -m``)."""
     exe = shutil.which("warp-stokes")
+    args = [str(a) for a in args]
     command = [exe, *args] if exe else [sys.executable, "-m", "warp_stokes.cli", *args]
     return subprocess.run(command, capture_output=True, text=True, timeout=timeout)
 

@@ -36,24 +36,22 @@ def test_usd_poses_whose_rate_is_not_a_positive_number_are_refused(tmp_path, arm
     # -24 was written as framesPerSecond -24 (USD refused to reopen it, the file stayed); inf exited 0
     poses = usd_poses(tmp_path / "poses.usda", rate)
     out = tmp_path / "o.usda"
-    proc = cli("animate", str(arm_npz), str(poses), "--cage-prim", "/Arm/Rig/Cage", "-o", str(out),
-                       "--device", "cpu")
+    proc = cli("animate", str(arm_npz), str(poses), "--cage-prim", "/Arm/Rig/Cage", "-o", str(out), "--device", "cpu")
     assert proc.returncode == 2 and not out.exists() and os.listdir(tmp_path) == ["poses.usda"]
     assert one_error_line(proc) == (f"warp-stokes: error: {poses}: timeCodesPerSecond is {rate:g}, not a positive "
                                     "number of time codes per second")
 
 
 def test_fps_that_is_not_finite_is_refused(tmp_path, arm_npz):
-    proc = cli("animate", str(arm_npz), str(EXAMPLE / "bend_poses.npy"), "--fps", "inf", "-o",
-                       str(tmp_path / "o.usda"))
+    proc = cli("animate", str(arm_npz), str(EXAMPLE / "bend_poses.npy"), "--fps", "inf", "-o", str(tmp_path / "o.usda"))
     assert proc.returncode == 2 and os.listdir(tmp_path) == []
     assert one_error_line(proc).endswith("argument --fps: must be > 0, got inf")
 
 
 def test_a_time_sample_that_is_not_finite_is_named(tmp_path, arm_npz):
     poses = usd_poses(tmp_path / "poses.usda", nan_at=3.0)
-    proc = cli("animate", str(arm_npz), str(poses), "--cage-prim", "/Arm/Rig/Cage", "-o",
-                       str(tmp_path / "o.usda"), "--device", "cpu")
+    proc = cli("animate", str(arm_npz), str(poses), "--cage-prim", "/Arm/Rig/Cage", "-o", str(tmp_path / "o.usda"),
+               "--device", "cpu")
     assert proc.returncode == 2 and not (tmp_path / "o.usda").exists()
     assert one_error_line(proc) == (f"warp-stokes: error: {poses}: /Arm/Rig/Cage has points that are not finite at "
                                     "time 3")

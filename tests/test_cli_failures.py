@@ -108,8 +108,7 @@ def test_deform_takes_reordered_faces_and_plain_positions(tmp_path, arm_npz):
     proc = cli("deform", str(arm_npz), str(other), "-o", str(tmp_path / "c.obj"), "--device", "cpu")
     assert proc.returncode == 2 and "the pose's faces differ from the bound cage's" in one_error_line(proc)
     np.save(tmp_path / "short.npy", moved[:-1])
-    proc = cli("deform", str(arm_npz), str(tmp_path / "short.npy"), "-o", str(tmp_path / "d.obj"),
-                       "--device", "cpu")
+    proc = cli("deform", str(arm_npz), str(tmp_path / "short.npy"), "-o", str(tmp_path / "d.obj"), "--device", "cpu")
     assert proc.returncode == 2 and "positions of shape (57, 3); the bound cage needs (58, 3)" in one_error_line(proc)
     assert not (tmp_path / "c.obj").exists() and not (tmp_path / "d.obj").exists()
 
@@ -252,8 +251,7 @@ def test_a_mesh_given_as_its_own_cage_is_refused_saying_so(tmp_path):
 
     ball = tmp_path / "ball.obj"
     trimesh.creation.icosphere(2).export(ball)
-    proc = cli("bind", str(ball), str(ball), "-o", str(tmp_path / "b.npz"), "--resolution", "16", "--device",
-                       "cpu")
+    proc = cli("bind", str(ball), str(ball), "-o", str(tmp_path / "b.npz"), "--resolution", "16", "--device", "cpu")
     assert proc.returncode == 2
     assert one_error_line(proc) == (
         f"warp-stokes: error: {ball}: 162 of 162 vertices (100%) lie on {ball} itself; a cage must enclose the mesh "
