@@ -2,24 +2,21 @@
 
 import csv
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
 
 import warp_stokes as ws
-from conftest import EXAMPLE
+from conftest import EXAMPLE, cli, warp_stokes
 from warp_stokes.sweep import COLUMNS, format_sweep, sweep
 
 
 def test_sweep_command_writes_the_table_as_csv_and_json(tmp_path):
     pose = tmp_path / "bent.npy"
     np.save(pose, np.load(EXAMPLE / "bend_poses.npy")[-1])
-    run = [sys.executable, "-m", "warp_stokes.cli", "sweep", str(EXAMPLE / "arm.obj"), str(EXAMPLE / "arm_cage.obj"),
-           "--resolutions", "8,16,12", "--methods", "stokes,harmonic,mvc", "--pose", str(pose), "-o", str(tmp_path / "sweep"),
-           "--device", "cpu"]
-    result = subprocess.run(run, capture_output=True, text=True)
+    run = ["sweep", str(EXAMPLE / "arm.obj"), str(EXAMPLE / "arm_cage.obj"), "--resolutions", "8,16,12", "--methods",
+           "stokes,harmonic,mvc", "--pose", str(pose), "-o", str(tmp_path / "sweep"), "--device", "cpu"]
+    result = warp_stokes(*run)  # as a user runs it: the installed command
     assert result.returncode == 0, result.stderr
     assert "weight_diff_max" in result.stdout and "wrote" in result.stdout
     with open(tmp_path / "sweep" / "sweep.csv", newline="") as fh:
@@ -52,8 +49,7 @@ def test_sweep_command_writes_the_table_as_csv_and_json(tmp_path):
     for picture, width in (("convergence.png", 600), ("cost.png", 1000)):
         pixels = matplotlib.image.imread(tmp_path / "sweep" / picture)  # decoded: a real PNG
         assert pixels.shape[1] == width and pixels[..., :3].std() > 0.05  # drawn on, not blank
-    bad = subprocess.run(run[:5] + ["--resolutions", "8,x", "-o", str(tmp_path / "bad")], capture_output=True,
-                         text=True)
+    bad = cli(*run[:2], "--resolutions", "8,x", "-o", tmp_path / "bad")
     assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and "not a comma-separated list" in bad.stderr
 
 
