@@ -87,9 +87,9 @@ def run_document(path: Path, workdir: Path) -> list[str]:
                 else [[sys.executable, "-c", code]])
         for command in runs:
             argvs = in_process(command[-1]) if language == "bash" else None
-            procs = ([cli(*argv, cwd=workdir) for argv in argvs] if argvs is not None else
-                     [subprocess.run(command, cwd=workdir, env=env, capture_output=True, text=True, timeout=600)])
-            for proc in procs:
+            for argv in argvs if argvs is not None else [None]:  # (each of a && b only once the one before passed)
+                proc = (cli(*argv, cwd=workdir) if argv is not None else
+                        subprocess.run(command, cwd=workdir, env=env, capture_output=True, text=True, timeout=600))
                 assert proc.returncode == 0, (f"{path.name}: {command[-1][:200]!r} exited {proc.returncode}\n"
                                               f"{proc.stdout[-2000:]}\n{proc.stderr[-3000:]}")
                 errors.append(proc.stderr)
@@ -155,4 +155,7 @@ def test_the_block_reader_skips_only_what_is_marked(tmp_path):
     assert run_document(doc, tmp_path) == [""]
     doc.write_text("```bash\nexit 3\n```\n")
     with pytest.raises(AssertionError, match="exited 3"):
+        run_document(doc, tmp_path)
+    doc.write_text("```bash\nwarp-stokes bind missing.obj cage.obj -o b.npz\n```\n")  # in process: its exit code too
+    with pytest.raises(AssertionError, match="exited 2"):
         run_document(doc, tmp_path)
