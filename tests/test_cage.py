@@ -74,10 +74,7 @@ def _stl(path, vertices, faces):
 
 
 def test_a_triangle_soup_cage_is_merged_and_binds_like_the_original(tmp_path):
-    import subprocess
-    import sys
-
-    from conftest import EXAMPLE
+    from conftest import EXAMPLE, cli, warp_stokes
 
     original = ws.load_surface(EXAMPLE / "arm_cage.obj")
     stl = _stl(tmp_path / "arm_cage.stl", original.vertices, original.faces)
@@ -89,10 +86,10 @@ def test_a_triangle_soup_cage_is_merged_and_binds_like_the_original(tmp_path):
     np.testing.assert_allclose(cage.vertices[cage.source_index], ws.load_surface(stl).vertices, rtol=0,
                                atol=float32_rounding(np.abs(original.vertices).max(), 1))
 
-    # the commands as a user runs them, in subprocesses on the CPU (a soup is merged before any device work)
+    # the commands on the CPU (a soup is merged before any device work): bind in process, deform as a user runs it
+    # (a subprocess of the installed command)
     out = tmp_path / "b.npz"
-    proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "bind", str(EXAMPLE / "arm.obj"), str(stl), "-o",
-                           str(out), "--resolution", "16", "--device", "cpu"], capture_output=True, text=True)
+    proc = cli("bind", EXAMPLE / "arm.obj", stl, "-o", out, "--resolution", "16", "--device", "cpu")
     assert proc.returncode == 0, proc.stderr
     b = ws.load_binding(out, device="cpu")
     assert b.n_handles == 58 and b.stats.partition_of_unity_error <= 1e-5
@@ -102,8 +99,7 @@ def test_a_triangle_soup_cage_is_merged_and_binds_like_the_original(tmp_path):
     # a deformed STL with the same layout deforms the mesh like the deformed cage as OBJ
     moved = _stl(tmp_path / "moved.stl", original.vertices * [1.0, 1.2, 1.0] + [5.0, 0.0, 0.0], original.faces)
     deformed = tmp_path / "deformed.obj"
-    proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "deform", str(out), str(moved), "-o",
-                           str(deformed), "--device", "cpu"], capture_output=True, text=True)
+    proc = warp_stokes("deform", out, moved, "-o", deformed, "--device", "cpu")
     assert proc.returncode == 0, proc.stderr
     expected = b.deform(cage.vertices * [1.0, 1.2, 1.0] + [5.0, 0.0, 0.0])
     np.testing.assert_allclose(ws.load_surface(deformed).vertices, expected, atol=1e-3)

@@ -6,7 +6,7 @@ import pytest
 
 import warp_stokes as ws
 from warp_stokes.cli import main
-from conftest import EXAMPLE
+from conftest import EXAMPLE, cli
 
 
 def test_bind_then_deform(tmp_path, capsys, device):
@@ -70,19 +70,17 @@ def test_an_unconverged_bind_exits_non_zero(tmp_path, capsys, device):
     assert ws.load_binding(out).stats.partition_of_unity_error <= 1e-6
 
 
-def test_a_recovered_solve_says_so_once(tmp_path):
-    # the command in a process of its own, its smoothers' bounds forced too low (the fault the watchdog recovers
-    # from): it binds, says in its table what it did, and warns once on stderr. On 2 threads each lane recovers on
-    # its own (its own smoother bounds: none changes under another lane's cycles): a fault per chunk, one warning
-    import sys
+def test_a_recovered_solve_says_so_once(tmp_path, monkeypatch):
+    # the command, its smoothers' bounds forced too low (the fault the watchdog recovers from): it binds, says in its
+    # table what it did, and warns once on stderr. On 2 threads each lane recovers on its own (its own smoother
+    # bounds: none changes under another lane's cycles): a fault per chunk, one warning
+    from warp_stokes.solver import multigrid
 
+    monkeypatch.setattr(multigrid, "LMAX_SAFETY", 0.3)
     out = tmp_path / "arm.npz"
-    script = ("import sys; from warp_stokes.solver import multigrid; multigrid.LMAX_SAFETY = 0.3; "
-              "from warp_stokes.cli import main; sys.exit(main(sys.argv[1:]))")
     for threads in (1, 2):
-        proc = subprocess.run([sys.executable, "-c", script, "bind", str(EXAMPLE / "arm.obj"),
-                               str(EXAMPLE / "arm_cage.obj"), "-o", str(out), "--resolution", "20", "--device", "cpu",
-                               "--threads", str(threads)], capture_output=True, text=True)
+        proc = cli("bind", EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", "-o", out, "--resolution", "20", "--device",
+                   "cpu", "--threads", threads)
         assert proc.returncode == 0, proc.stderr
         assert (f"converged (after {threads} fault(s) of its preconditioner, with multigrid with guaranteed smoother "
                 "bounds)") in proc.stdout

@@ -1,5 +1,7 @@
-"""The command as a user meets it when something is wrong: each case runs ``warp-stokes`` as a subprocess (CPU,
-small grids) and checks the exit code, the one-line message and the files left behind (issue 13)."""
+"""The command as a user meets it when something is wrong: each case runs the command line (CPU, small grids) and
+checks the exit code, the one-line message and the files left behind (issue 13). In process (``main(argv)``, its
+output captured) where a fresh process would add only its start; as a subprocess where the process is the subject:
+Ctrl-C, the warnings a fresh process prints, a writer failing in the installed command."""
 
 import hashlib
 import re
@@ -14,14 +16,14 @@ import numpy as np
 import pytest
 
 import warp_stokes as ws
-from conftest import EXAMPLE, cuda_available, float32_rounding, one_error_line, warp_stokes, write_obj
+from conftest import EXAMPLE, cli, cuda_available, float32_rounding, one_error_line, warp_stokes, write_obj
 from warp_stokes.io.outputs import is_temporary
 
 MESH, CAGE = str(EXAMPLE / "arm.obj"), str(EXAMPLE / "arm_cage.obj")
 
 
 def test_version():
-    proc = warp_stokes("--version")
+    proc = cli("--version")
     assert proc.returncode == 0 and proc.stdout.strip() == f"warp-stokes {ws.__version__}"
 
 
@@ -33,14 +35,14 @@ def test_version():
     (["--memory-gb", "0"], "argument --memory-gb: must be > 0, got 0"),
 ])
 def test_numbers_out_of_range_are_one_line_errors(tmp_path, args, message):
-    proc = warp_stokes("bind", MESH, CAGE, "-o", str(tmp_path / "b.npz"), *args)
+    proc = cli("bind", MESH, CAGE, "-o", str(tmp_path / "b.npz"), *args)
     assert proc.returncode == 2 and one_error_line(proc) == f"warp-stokes bind: error: {message}"
     assert os.listdir(tmp_path) == []
 
 
 def test_outputs_are_checked_before_the_solve(tmp_path):
     # a missing folder: refused before anything is computed (no stats printed)
-    proc = warp_stokes("bind", MESH, CAGE, "-o", str(tmp_path / "missing" / "b.npz"), "--device", "cpu")
+    proc = cli("bind", MESH, CAGE, "-o", str(tmp_path / "missing" / "b.npz"), "--device", "cpu")
     assert proc.returncode == 2 and proc.stdout == ""
     assert one_error_line(proc) == f"warp-stokes: error: {tmp_path / 'missing' / 'b.npz'}: the output folder " \
                                    f"{tmp_path / 'missing'} does not exist"
@@ -50,17 +52,17 @@ def test_outputs_are_checked_before_the_solve(tmp_path):
     before = hashlib.sha256(mesh.read_bytes()).hexdigest()
     binding = tmp_path / "arm.npz"
     shutil.copy(mesh, binding)  # a mesh saved under a binding's name
-    proc = warp_stokes("bind", str(binding), CAGE, "-o", str(binding), "--device", "cpu")
+    proc = cli("bind", str(binding), CAGE, "-o", str(binding), "--device", "cpu")
     assert proc.returncode == 2 and "the output would replace the input" in one_error_line(proc)
     binding.unlink()
     assert hashlib.sha256(mesh.read_bytes()).hexdigest() == before
     # a folder that takes no files (for root too, who passes every permission check)
-    proc = warp_stokes("bind", MESH, CAGE, "-o", "/proc/b.npz", "--device", "cpu")
+    proc = cli("bind", MESH, CAGE, "-o", "/proc/b.npz", "--device", "cpu")
     assert proc.returncode == 2 and proc.stdout == ""
     assert one_error_line(proc).startswith("warp-stokes: error: /proc/b.npz: the output folder /proc takes no new files")
     # nor a folder
     (tmp_path / "folder.npz").mkdir()
-    proc = warp_stokes("bind", MESH, CAGE, "-o", str(tmp_path / "folder.npz"), "--device", "cpu")
+    proc = cli("bind", MESH, CAGE, "-o", str(tmp_path / "folder.npz"), "--device", "cpu")
     assert proc.returncode == 2 and "the output is a folder" in one_error_line(proc)
     (tmp_path / "folder.npz").rmdir()
     assert sorted(os.listdir(tmp_path)) == ["arm.obj"]
@@ -72,7 +74,7 @@ def test_a_mesh_far_outside_its_cage_is_refused(tmp_path):
     mesh = ws.load_surface(MESH)
     far = tmp_path / "far.obj"
     write_obj(far, mesh.vertices + [100 * cage.diagonal, 0, 0], mesh.faces)
-    proc = warp_stokes("bind", str(far), CAGE, "-o", str(tmp_path / "b.npz"), "--device", "cpu")
+    proc = cli("bind", str(far), CAGE, "-o", str(tmp_path / "b.npz"), "--device", "cpu")
     assert proc.returncode == 2
     line = one_error_line(proc)
     assert "far.obj: 2089 of 2089 vertices (100%) lie outside" in line and "cage diagonals away" in line
@@ -82,7 +84,7 @@ def test_a_mesh_far_outside_its_cage_is_refused(tmp_path):
 def test_deform_takes_reordered_faces_and_plain_positions(tmp_path, arm_npz):
     cage = ws.load_surface(CAGE)
     moved = cage.vertices + [0.5, -0.25, 1.0]
-    expected = ws.load_binding(arm_npz, device="cpu").deform(moved)  # on the CPU, like the subprocesses below
+    expected = ws.load_binding(arm_npz, device="cpu").deform(moved)  # on the CPU, like the commands below
 
     # the deformed cage as another exporter writes it: faces in another order, corners rotated
     rng = np.random.default_rng(3)
@@ -92,9 +94,9 @@ def test_deform_takes_reordered_faces_and_plain_positions(tmp_path, arm_npz):
     positions = tmp_path / "moved.npy"
     np.save(positions, moved)
     for source, name in ((shuffled, "a.obj"), (positions, "b.obj")):
-        proc = warp_stokes("deform", str(arm_npz), str(source), "-o", str(tmp_path / name), "--device", "cpu")
+        proc = cli("deform", str(arm_npz), str(source), "-o", str(tmp_path / name), "--device", "cpu")
         assert proc.returncode == 0, proc.stderr
-        # float32 positions (~140) deformed in another process (the OBJ's 8 decimals lose nothing of them): 8 eps
+        # float32 positions (~140) deformed by the command (the OBJ's 8 decimals lose nothing of them): 8 eps
         np.testing.assert_allclose(ws.load_surface(tmp_path / name).vertices, expected, rtol=0,
                                    atol=float32_rounding(np.abs(expected).max()))
 
@@ -103,11 +105,10 @@ def test_deform_takes_reordered_faces_and_plain_positions(tmp_path, arm_npz):
     faces = cage.faces.copy()
     faces[0] = [faces[0][0], faces[0][1], faces[5][2] if faces[5][2] not in faces[0] else faces[7][2]]
     write_obj(other, moved, faces)
-    proc = warp_stokes("deform", str(arm_npz), str(other), "-o", str(tmp_path / "c.obj"), "--device", "cpu")
+    proc = cli("deform", str(arm_npz), str(other), "-o", str(tmp_path / "c.obj"), "--device", "cpu")
     assert proc.returncode == 2 and "the pose's faces differ from the bound cage's" in one_error_line(proc)
     np.save(tmp_path / "short.npy", moved[:-1])
-    proc = warp_stokes("deform", str(arm_npz), str(tmp_path / "short.npy"), "-o", str(tmp_path / "d.obj"),
-                       "--device", "cpu")
+    proc = cli("deform", str(arm_npz), str(tmp_path / "short.npy"), "-o", str(tmp_path / "d.obj"), "--device", "cpu")
     assert proc.returncode == 2 and "positions of shape (57, 3); the bound cage needs (58, 3)" in one_error_line(proc)
     assert not (tmp_path / "c.obj").exists() and not (tmp_path / "d.obj").exists()
 
@@ -131,8 +132,10 @@ def test_ctrl_c_exits_130_and_leaves_no_file(tmp_path):
     # inside the solve however fast the machine (a fixed sleep let a faster bind finish first). The child handles
     # SIGINT as a command started from a terminal does, even where the suite runs with SIGINT ignored.
     leader, follower = pty.openpty()
-    # two threads whatever the machine's cores: two chunks, each drawing at most one more iteration once signalled
-    proc = subprocess.Popen(command + ["bind", MESH, CAGE, "-o", str(out), "--resolution", "128", "--device", "cpu",
+    # two threads whatever the machine's cores: two chunks, each drawing at most one more iteration once signalled.
+    # At resolution 96 the solve lasts seconds (4.7 s of 8.7 on 2 idle cores; 128 took 11 of 21): the signal, sent
+    # as soon as "solving" is read, comes well inside it
+    proc = subprocess.Popen(command + ["bind", MESH, CAGE, "-o", str(out), "--resolution", "96", "--device", "cpu",
                                        "--threads", "2"],
                             stdout=subprocess.PIPE, stderr=follower, text=True,
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
@@ -177,7 +180,7 @@ def test_a_self_intersecting_cage_is_refused_naming_two_crossing_faces(tmp_path)
     poked[0] = -1.5 * poked[0]
     cage = tmp_path / "poked.obj"
     trimesh.Trimesh(poked, sphere.faces, process=False).export(cage)
-    proc = warp_stokes("bind", MESH, str(cage), "-o", str(tmp_path / "b.npz"), "--device", "cpu")
+    proc = cli("bind", MESH, str(cage), "-o", str(tmp_path / "b.npz"), "--device", "cpu")
     assert proc.returncode == 2
     assert re.fullmatch(r"warp-stokes: error: .*poked\.obj: the cage intersects itself: faces \d+ \[\d+, \d+, \d+\] "
                         r"and \d+ \[\d+, \d+, \d+\] cross \(\d+ crossing pair\(s\)\); .*", one_error_line(proc))
@@ -234,12 +237,12 @@ def test_a_full_disk_during_animate_in_a_subprocess(tmp_path, arm_npz):
 
 
 def test_a_mesh_and_cage_the_other_way_round_get_a_hint(tmp_path):
-    proc = warp_stokes("bind", CAGE, MESH, "-o", str(tmp_path / "b.npz"), "--device", "cpu")
+    proc = cli("bind", CAGE, MESH, "-o", str(tmp_path / "b.npz"), "--device", "cpu")
     line = one_error_line(proc)
     assert proc.returncode == 2 and "arm.obj: the cage is not closed" in line
     assert "the cage has more vertices (2089) than the mesh (58): are the mesh and the cage the other way round?" in line
     # a cage that is merely bad gets no such guess
-    proc = warp_stokes("bind", MESH, MESH, "-o", str(tmp_path / "b.npz"), "--device", "cpu")
+    proc = cli("bind", MESH, MESH, "-o", str(tmp_path / "b.npz"), "--device", "cpu")
     assert proc.returncode == 2 and "other way round" not in one_error_line(proc)
     assert not (tmp_path / "b.npz").exists()
 
@@ -250,8 +253,7 @@ def test_a_mesh_given_as_its_own_cage_is_refused_saying_so(tmp_path):
 
     ball = tmp_path / "ball.obj"
     trimesh.creation.icosphere(2).export(ball)
-    proc = warp_stokes("bind", str(ball), str(ball), "-o", str(tmp_path / "b.npz"), "--resolution", "16", "--device",
-                       "cpu")
+    proc = cli("bind", str(ball), str(ball), "-o", str(tmp_path / "b.npz"), "--resolution", "16", "--device", "cpu")
     assert proc.returncode == 2
     assert one_error_line(proc) == (
         f"warp-stokes: error: {ball}: 162 of 162 vertices (100%) lie on {ball} itself; a cage must enclose the mesh "
@@ -275,7 +277,7 @@ def test_a_mesh_float32_cannot_resolve_is_refused_by_its_size(tmp_path, scale, c
                "(1e-08 to 1e+18 in any unit); scale it (to metres, say)")
     args = {"cage": ("cage", str(mesh), "-o", str(tmp_path / "made.obj")),
             "bind": ("bind", str(mesh), str(cage), "-o", str(tmp_path / "b.npz"), "--resolution", "16")}[command]
-    proc = warp_stokes(*args, "--device", "cpu")
+    proc = cli(*args, "--device", "cpu")
     assert proc.returncode == 2 and one_error_line(proc) == f"warp-stokes: error: {mesh}: {message}"
     assert sorted(os.listdir(tmp_path)) == ["ball.obj", "cage.obj"]
     # just inside the range, the same ball is made a cage and bound as at any size

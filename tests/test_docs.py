@@ -4,7 +4,10 @@ commands print no warning.
 
 A block is skipped only where the line before its fence says ``<!-- docs-test: skip (reason) -->`` (a running Ray
 cluster, a GPU, large data). In a shell block the set-up steps (a virtual environment, ``pip install``, ``pytest``)
-are left out: the tests run inside the installed package already.
+are left out: the tests run inside the installed package already. A shell command that is ``warp-stokes`` alone with
+plain words (several joined by ``&&``) runs in this process, ``main(argv)`` in the working folder, as the shell would
+run it without the second a fresh process spends starting (the installed command itself is run by each command's
+own test); every other command, and every Python block, runs as a subprocess.
 """
 
 from __future__ import annotations
@@ -18,10 +21,13 @@ from pathlib import Path
 
 import pytest
 
+from conftest import cli
+
 ROOT = Path(__file__).resolve().parent.parent
 GUIDES = ["usd.md", "batch.md", "methods.md", "resolution.md", "reference.md", "troubleshooting.md", "performance.md"]
 SETUP = re.compile(r"^(python3 -m venv\b|\. \.venv/bin/activate$|pip install\b|pytest$)")
 SKIP = re.compile(r"<!-- docs-test: skip \((.+)\) -->")
+PLAIN = re.compile(r"[\w./=,:+-]+")  # a word the shell passes on as it is written
 
 
 def blocks(path: Path) -> list[tuple[str, str, str | None]]:
@@ -53,6 +59,22 @@ def shell_commands(code: str) -> list[str]:
     return commands
 
 
+def in_process(command: str) -> list[list[str]] | None:
+    """The arguments of each ``warp-stokes`` command of a shell command where it is that command alone with plain
+    words (several joined by ``&&``, a comment after them): what ``main(argv)`` runs as the shell would. None where
+    the shell does more (quotes, a variable, a pipe or redirection, another program), and for a batch on Ray
+    workers (``--workers``, ``--ray-address``: Ray's processes, started from this one, would outlive the command)."""
+    words = command.split()
+    words = words[:next((k for k, w in enumerate(words) if w.startswith("#")), len(words))]
+    if not words or not all(w == "&&" or PLAIN.fullmatch(w) for w in words):
+        return None
+    commands = " ".join(words).split(" && ")
+    argvs = [c.split() for c in commands]
+    if any(argv[0] != "warp-stokes" or {"--workers", "--ray-address"} & set(argv) for argv in argvs):
+        return None
+    return [argv[1:] for argv in argvs]
+
+
 def run_document(path: Path, workdir: Path) -> list[str]:
     """Run the document's blocks in ``workdir``; returns the stderr of every command (for warnings)."""
     env = dict(os.environ, PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}",
@@ -64,10 +86,13 @@ def run_document(path: Path, workdir: Path) -> list[str]:
         runs = ([["bash", "-c", c] for c in shell_commands(code)] if language == "bash"
                 else [[sys.executable, "-c", code]])
         for command in runs:
-            proc = subprocess.run(command, cwd=workdir, env=env, capture_output=True, text=True, timeout=600)
-            assert proc.returncode == 0, (f"{path.name}: {command[-1][:200]!r} exited {proc.returncode}\n"
-                                          f"{proc.stdout[-2000:]}\n{proc.stderr[-3000:]}")
-            errors.append(proc.stderr)
+            argvs = in_process(command[-1]) if language == "bash" else None
+            for argv in argvs if argvs is not None else [None]:  # (each of a && b only once the one before passed)
+                proc = (cli(*argv, cwd=workdir) if argv is not None else
+                        subprocess.run(command, cwd=workdir, env=env, capture_output=True, text=True, timeout=600))
+                assert proc.returncode == 0, (f"{path.name}: {command[-1][:200]!r} exited {proc.returncode}\n"
+                                              f"{proc.stdout[-2000:]}\n{proc.stderr[-3000:]}")
+                errors.append(proc.stderr)
     return errors
 
 
@@ -120,7 +145,17 @@ def test_the_block_reader_skips_only_what_is_marked(tmp_path):
     assert [(lang, skip) for lang, _, skip in blocks(doc)] == [("bash", None), ("bash", "needs a GPU"),
                                                                 ("text", None)]
     assert shell_commands(blocks(doc)[0][1]) == ["echo hi there"]
+    # what runs in this process: warp-stokes alone with plain words, each of several joined by &&
+    assert in_process("warp-stokes bind a.obj b.obj -o c.npz && warp-stokes show c.npz -o d.png  # two") == [
+        ["bind", "a.obj", "b.obj", "-o", "c.npz"], ["show", "c.npz", "-o", "d.png"]]
+    for shell in ("warp-stokes batch m.toml -o out/ --workers 2", "warp-stokes bind $MESH auto -o b.npz",
+                  "warp-stokes show b.npz -o 'my picture.png'", "warp-stokes bind a.obj b.obj -o c.npz > log",
+                  "warp-stokes bind a.obj b.obj -o c.npz && echo done", "python -c pass", "# a comment"):
+        assert in_process(shell) is None, shell
     assert run_document(doc, tmp_path) == [""]
     doc.write_text("```bash\nexit 3\n```\n")
     with pytest.raises(AssertionError, match="exited 3"):
+        run_document(doc, tmp_path)
+    doc.write_text("```bash\nwarp-stokes bind missing.obj cage.obj -o b.npz\n```\n")  # in process: its exit code too
+    with pytest.raises(AssertionError, match="exited 2"):
         run_document(doc, tmp_path)

@@ -1,15 +1,13 @@
 """Encoding mesh sequences as cage poses: known poses recovered, the smoothness term against a direct solve, and the
 command as a user runs it."""
 
-import subprocess
-import sys
 import warnings
 
 import numpy as np
 import pytest
 
 import warp_stokes as ws
-from conftest import EXAMPLE, float32_rounding, write_obj
+from conftest import EXAMPLE, cli, float32_rounding, warp_stokes, write_obj
 from warp_stokes.binding.encode import encode_poses
 from warp_stokes.io.frames import load_mesh_frames
 
@@ -67,19 +65,18 @@ def test_encode_command(arm, tmp_path):
     folder.mkdir()
     for k, frame in enumerate(arm.deform(poses)):
         write_obj(folder / f"frame_{k + 10}.obj", frame, arm.mesh_faces)
-    run = [sys.executable, "-m", "warp_stokes.cli", "encode", str(binding), str(folder)]
-    result = subprocess.run(run + ["-o", str(tmp_path / "poses.npy")], capture_output=True, text=True)
+    run = ["encode", binding, folder]
+    result = warp_stokes(*run, "-o", tmp_path / "poses.npy")  # as a user runs it: the installed command
     assert result.returncode == 0, result.stderr
     assert "3 cage poses" in result.stdout
     diagonal = np.linalg.norm(np.ptp(arm.cage_vertices, axis=0))
     assert np.abs(np.load(tmp_path / "poses.npy") - poses).max() <= 1e-4 * diagonal  # OBJ text: 6 digits
-    result = subprocess.run(run + ["-o", str(tmp_path / "poses.usda"), "--smooth", "0.1"], capture_output=True,
-                            text=True)
+    result = cli(*run, "-o", tmp_path / "poses.usda", "--smooth", "0.1")  # then in process
     assert result.returncode == 0, result.stderr
     back = ws.load_poses(tmp_path / "poses.usda", arm.cage_faces, arm.n_handles)  # what animate reads
     assert back.frames.tolist() == [10.0, 11.0, 12.0] and back.positions.shape == poses.shape
     write_obj(folder / "frame_99.obj", np.vstack([arm.mesh_vertices, [[0.0, 0.0, 0.0]]]), arm.mesh_faces)
-    result = subprocess.run(run + ["-o", str(tmp_path / "bad.npy")], capture_output=True, text=True)
+    result = cli(*run, "-o", tmp_path / "bad.npy")
     assert result.returncode == 2 and result.stderr.count("\n") == 1
     assert "frame_99.obj: the frame has 2090 vertices, the bound mesh 2089" in result.stderr
     assert not (tmp_path / "bad.npy").exists()

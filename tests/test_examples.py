@@ -1,13 +1,11 @@
 """The bundled USD example is what its script writes, and the README's USD workflow runs on it as a user runs it."""
 
 import importlib.util
-import subprocess
-import sys
 
 import numpy as np
 from pxr import Sdf, Usd, UsdGeom
 
-from conftest import EXAMPLE
+from conftest import EXAMPLE, warp_stokes
 
 CAGE, SKIN = "/Arm/Rig/Cage", "/Arm/Geo/Skin"
 
@@ -28,14 +26,13 @@ def test_bundled_asset_is_what_its_script_writes(tmp_path):
 
 
 def test_readme_usd_workflow(tmp_path):
-    run = [sys.executable, "-m", "warp_stokes.cli"]
-    bind = run + ["bind", str(EXAMPLE / "arm.usda"), "--cage-prim", CAGE, "-o", str(tmp_path / "arm_usd.npz"),
-                  "--resolution", "24", "--device", "cpu"]
-    result = subprocess.run(bind, capture_output=True, text=True)
+    # the installed command in subprocesses: the bind and animate commands' runs as a user runs them
+    result = warp_stokes("bind", EXAMPLE / "arm.usda", "--cage-prim", CAGE, "-o", tmp_path / "arm_usd.npz",
+                         "--resolution", "24", "--device", "cpu")
     assert result.returncode == 0, result.stderr
     out = tmp_path / "arm_bend_layer.usda"
-    result = subprocess.run(run + ["animate", str(tmp_path / "arm_usd.npz"), str(EXAMPLE / "arm.usda"), "--cage-prim",
-                                   CAGE, "-o", str(out), "--device", "cpu"], capture_output=True, text=True)
+    result = warp_stokes("animate", tmp_path / "arm_usd.npz", EXAMPLE / "arm.usda", "--cage-prim", CAGE, "-o", out,
+                         "--device", "cpu")
     assert result.returncode == 0, result.stderr
     assert "24 frames (1 to 24) at 24 fps" in result.stdout
     layer = Sdf.Layer.FindOrOpen(str(out))

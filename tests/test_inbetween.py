@@ -1,8 +1,6 @@
 """In-betweening of key cage poses: the function against independent references, and `animate --key-frames /
 --inbetween / --interpolation` as a user runs it, read back with pxr."""
 
-import subprocess
-import sys
 import warnings
 
 import numpy as np
@@ -10,7 +8,7 @@ import pytest
 from pxr import Usd, UsdGeom
 
 import warp_stokes as ws
-from conftest import EXAMPLE, REPO
+from conftest import EXAMPLE, REPO, cli
 from warp_stokes.cli import main
 
 
@@ -175,10 +173,8 @@ def mesh_points(path):
 def test_animate_with_key_frames_and_a_spline(arm, tmp_path):
     binding, folder, keys = arm
     out = tmp_path / "out.usda"
-    proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "animate", str(folder / "arm.npz"),
-                           str(folder / "keys.npy"), "-o", str(out), "--key-frames", "0,10,30",
-                           "--interpolation", "spline", "--device", "cpu"],
-                          capture_output=True, text=True, cwd=REPO)
+    proc = cli("animate", folder / "arm.npz", folder / "keys.npy", "-o", out, "--key-frames", "0,10,30",
+               "--interpolation", "spline", "--device", "cpu", cwd=REPO)
     assert proc.returncode == 0, proc.stderr
     assert "31 frames (0 to 30)" in proc.stdout
     written = mesh_points(out)

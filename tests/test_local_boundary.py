@@ -1,8 +1,6 @@
 """Local boundary data: exact partition of unity and linear precision, locality along the cage, folded edges."""
 
 import re
-import subprocess
-import sys
 import warnings
 
 import numpy as np
@@ -11,7 +9,7 @@ import trimesh
 import warp as wp
 
 import warp_stokes as ws
-from conftest import EXAMPLE, box_cage, u_cage
+from conftest import EXAMPLE, box_cage, cli, u_cage
 from warp_stokes.geometry.cage import Cage, folded_edges, unit_normals
 from warp_stokes.geometry.local_data import cage_graph_distances, normal_derivatives
 from warp_stokes.kernels import local_boundary as local_boundary_kernels
@@ -181,17 +179,15 @@ def test_local_data_decouples_parts_close_in_space_far_along_the_cage(device):
 
 
 def test_the_boundary_data_is_a_bind_and_cli_choice(tmp_path):
-    # the command line as a user runs it: subprocesses on the CPU (the boundary data on every device is tested
-    # above, and the bind's refusal comes before any device work)
+    # the command line, in process, on the CPU (the boundary data on every device is tested above, and the bind's
+    # refusal comes before any device work)
     out = tmp_path / "arm.npz"
-    proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "bind", str(EXAMPLE / "arm.obj"),
-                           str(EXAMPLE / "arm_cage.obj"), "-o", str(out), "--resolution", "16", "--device", "cpu",
-                           "--boundary", "mvc"], capture_output=True, text=True)
+    proc = cli("bind", str(EXAMPLE / "arm.obj"), str(EXAMPLE / "arm_cage.obj"), "-o", str(out), "--resolution", "16",
+               "--device", "cpu", "--boundary", "mvc")
     assert proc.returncode == 0, proc.stderr
     assert ws.load_binding(out, device="cpu").settings["boundary"] == "mvc-central-difference"
-    proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "bind", str(EXAMPLE / "arm.obj"),
-                           str(EXAMPLE / "arm_cage.obj"), "-o", str(out), "--boundary", "harmonic"],
-                          capture_output=True, text=True)
+    proc = cli("bind", str(EXAMPLE / "arm.obj"), str(EXAMPLE / "arm_cage.obj"), "-o", str(out), "--boundary",
+               "harmonic")
     assert proc.returncode == 2 and "invalid choice" in proc.stderr
     with pytest.raises(ws.WarpStokesError, match="boundary must be"):
         ws.bind(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", resolution=16, device="cpu", boundary="harmonic")

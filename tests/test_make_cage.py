@@ -1,6 +1,6 @@
 """Made cages (`warp-stokes cage`, ws.make_cage): valid by the package's own checks, every vertex inside, the handles
 asked for, and bindable; on an open real mesh, on meshes in pieces, self-intersecting, thin and holed, and through
-the command line."""
+the command line (in process, ``main(argv)``; `warp-stokes cage` as a subprocess once, as a user runs it)."""
 
 import importlib
 import os
@@ -12,7 +12,7 @@ import pytest
 import trimesh
 
 import warp_stokes as ws
-from conftest import EXAMPLE
+from conftest import EXAMPLE, cli, warp_stokes
 from warp_stokes.geometry.cage import check_cage, crossing_faces
 from warp_stokes.geometry.cage_making import default_handles, make_cage
 from shapes import box_pair, dumbbell_pair, latitude_longitude_sphere, slab_pair, torus_pair
@@ -82,8 +82,7 @@ def test_vertices_on_no_face_are_enclosed_too(tmp_path):
     mesh.write_text("".join(f"v {x:.17g} {y:.17g} {z:.17g}\n" for x, y, z in vertices)
                     + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in f))
     out = tmp_path / "made.obj"
-    proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "cage", str(mesh), "-o", str(out), "--handles",
-                           "60", "--device", "cpu"], capture_output=True, text=True)
+    proc = cli("cage", str(mesh), "-o", str(out), "--handles", "60", "--device", "cpu")
     assert proc.returncode == 0, proc.stderr
     read = trimesh.load(out, process=False)
     inside, _ = ws.classify_points(check_cage((read.vertices, read.faces)), vertices, device="cpu")
@@ -148,8 +147,7 @@ def test_the_default_offset_is_raised_to_reach_the_handles_but_one_given_is_kept
     trimesh.Trimesh(v, f, process=False).export(mesh)
     for extra, handles in (([], 30), (["--offset", "0.02"], stopped)):
         out = tmp_path / "made.obj"
-        proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "cage", str(mesh), "-o", str(out), "--handles",
-                               "30", "--device", "cpu", *extra], capture_output=True, text=True)
+        proc = cli("cage", str(mesh), "-o", str(out), "--handles", "30", "--device", "cpu", *extra)
         assert proc.returncode == 0, proc.stderr
         assert len(trimesh.load(out, process=False).vertices) == handles
         assert f"cage of {handles} handles (asked 30)" in proc.stdout
@@ -280,16 +278,15 @@ def test_simplify_keeps_points_at_the_margin():
 
 
 def test_cli_writes_a_cage_that_binds(tmp_path):
+    # `warp-stokes cage` as a user runs it (a subprocess of the installed command)
     out = tmp_path / "made.obj"
-    proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "cage", str(EXAMPLE / "arm.obj"), "-o", str(out),
-                           "--handles", "40", "--device", "cpu"], capture_output=True, text=True)
+    proc = warp_stokes("cage", str(EXAMPLE / "arm.obj"), "-o", str(out), "--handles", "40", "--device", "cpu")
     assert proc.returncode == 0, proc.stderr
     assert "cage of 40 handles" in proc.stdout and f"wrote {out}" in proc.stdout
     read = trimesh.load(out, process=False)
     assert len(read.vertices) == 40 and read.is_watertight and read.is_winding_consistent and read.volume > 0
     binding = tmp_path / "arm.npz"
-    proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "bind", str(EXAMPLE / "arm.obj"), str(out), "-o",
-                           str(binding), "--resolution", "24", "--device", "cpu"], capture_output=True, text=True)
+    proc = cli("bind", str(EXAMPLE / "arm.obj"), str(out), "-o", str(binding), "--resolution", "24", "--device", "cpu")
     assert proc.returncode == 0, proc.stderr
     assert ws.load_binding(binding).weights.shape == (2089, 40)
 
@@ -298,9 +295,8 @@ def test_cli_usd_asset_named_prims(tmp_path):
     """A USD asset: its named mesh prims, in world space (the arm's skin sits under a transform; its cage prim is
     left out by naming the skin)."""
     out = tmp_path / "made.obj"
-    proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "cage", str(EXAMPLE / "arm.usda"), "-o", str(out),
-                           "--mesh-prim", "/Arm/Geo/Skin", "--handles", "40", "--device", "cpu"],
-                          capture_output=True, text=True)
+    proc = cli("cage", str(EXAMPLE / "arm.usda"), "-o", str(out), "--mesh-prim", "/Arm/Geo/Skin", "--handles", "40",
+               "--device", "cpu")
     assert proc.returncode == 0, proc.stderr
     skin = ws.bind(EXAMPLE / "arm.usda", out, mesh_prims=["/Arm/Geo/Skin"], resolution=24, device="cpu")
     assert skin.n_handles == 40 and skin.stats.partition_of_unity_error <= 1e-5
@@ -316,9 +312,8 @@ def test_cli_usd_asset_cage_as_a_prim_of_a_new_layer(tmp_path):
     from pxr import Sdf, Usd, UsdGeom
 
     def cage(output, *more):
-        proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "cage", str(EXAMPLE / "arm.usda"), "-o",
-                               str(output), "--mesh-prim", "/Arm/Geo/Skin", "--handles", "40", "--device", "cpu",
-                               *more], capture_output=True, text=True)
+        proc = cli("cage", str(EXAMPLE / "arm.usda"), "-o", str(output), "--mesh-prim", "/Arm/Geo/Skin", "--handles",
+                   "40", "--device", "cpu", *more)
         assert proc.returncode == 0, proc.stderr
         return proc.stdout
 
@@ -339,9 +334,8 @@ def test_cli_usd_asset_cage_as_a_prim_of_a_new_layer(tmp_path):
         assert np.array_equal(np.array(mesh.GetFaceVertexIndicesAttr().Get()).reshape(-1, 3), expected.faces)
     assert not np.allclose(local, expected.vertices, atol=1)  # under /Arm/Geo: its translation taken out
     out = tmp_path / "bound.npz"
-    proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "bind", str(tmp_path / "layer.usda"),
-                           "--cage-prim", "/Arm/MadeCage", "--mesh-prim", "/Arm/Geo/Skin", "-o", str(out),
-                           "--resolution", "16", "--device", "cpu"], capture_output=True, text=True)
+    proc = cli("bind", str(tmp_path / "layer.usda"), "--cage-prim", "/Arm/MadeCage", "--mesh-prim", "/Arm/Geo/Skin",
+               "-o", str(out), "--resolution", "16", "--device", "cpu")
     assert proc.returncode == 0, proc.stderr
     binding = ws.load_binding(out)
     np.testing.assert_allclose(binding.cage_vertices, expected.vertices, atol=1e-4)
@@ -376,8 +370,7 @@ def test_cli_refuses_bad_input(tmp_path, args, message):
             rest.append(a)
     if "-o" in rest:
         rest.remove("-o")
-    proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "cage", mesh, "-o", output, *rest,
-                           "--device", "cpu"], capture_output=True, text=True)
+    proc = cli("cage", mesh, "-o", output, *rest, "--device", "cpu")
     assert proc.returncode == 2
     assert message in proc.stderr and "Traceback" not in proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1
@@ -388,8 +381,7 @@ def test_bind_auto_makes_and_records_the_cage(tmp_path):
     """`bind MESH auto`: the cage made with the defaults, written beside the binding (B.cage.obj), recorded in the
     binding's stats; the binding deforms by that file's vertices exactly as by its own cage."""
     out = tmp_path / "arm.npz"
-    proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "bind", str(EXAMPLE / "arm.obj"), "auto", "-o",
-                           str(out), "--resolution", "24", "--device", "cpu"], capture_output=True, text=True)
+    proc = cli("bind", str(EXAMPLE / "arm.obj"), "auto", "-o", str(out), "--resolution", "24", "--device", "cpu")
     assert proc.returncode == 0, proc.stderr
     cage_file = tmp_path / "arm.cage.obj"
     assert "made a cage of" in proc.stdout and str(cage_file) in proc.stdout
@@ -402,16 +394,14 @@ def test_bind_auto_makes_and_records_the_cage(tmp_path):
         ws.bind(EXAMPLE / "arm.usda", "auto", cage_prim="/Arm/Rig/Cage")
     # the made cage's handles and offset, asked for; refused with a cage given
     out = tmp_path / "arm40.npz"
-    proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "bind", str(EXAMPLE / "arm.obj"), "auto",
-                           "--handles", "40", "--offset", "0.03", "-o", str(out), "--resolution", "16", "--device",
-                           "cpu"], capture_output=True, text=True)
+    proc = cli("bind", str(EXAMPLE / "arm.obj"), "auto", "--handles", "40", "--offset", "0.03", "-o", str(out),
+               "--resolution", "16", "--device", "cpu")
     assert proc.returncode == 0, proc.stderr
     record = ws.load_binding(out).stats.made_cage
     assert (record["handles"], record["chosen"]) == (40, False) and len(ws.load_surface(tmp_path / "arm40.cage.obj")
                                                                          .vertices) == 40
-    proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "bind", str(EXAMPLE / "arm.obj"),
-                           str(EXAMPLE / "arm_cage.obj"), "--handles", "40", "-o", str(tmp_path / "x.npz")],
-                          capture_output=True, text=True)
+    proc = cli("bind", str(EXAMPLE / "arm.obj"), str(EXAMPLE / "arm_cage.obj"), "--handles", "40", "-o",
+               str(tmp_path / "x.npz"))
     assert proc.returncode == 2 and "shape a made cage: give the cage as auto" in proc.stderr
     assert not (tmp_path / "x.npz").exists()
     # a MadeCage itself, bound and recorded as "auto" is
@@ -444,8 +434,8 @@ handles = 40
 offset = 0.03
 """)
     out = tmp_path / "out"
-    command = [sys.executable, "-m", "warp_stokes.cli", "batch", str(manifest), "-o", str(out), "--device", "cpu"]
-    proc = subprocess.run(command, capture_output=True, text=True)
+    command = ["batch", str(manifest), "-o", str(out), "--device", "cpu"]
+    proc = cli(*command)
     assert proc.returncode == 0, proc.stderr
     assert "making a cage" in proc.stderr
     assert sorted(p.name for p in out.iterdir()) == ["arm.cage.obj", "arm.npz", "arm_40.cage.obj", "arm_40.npz",
@@ -462,7 +452,7 @@ offset = 0.03
     # the skin sits under a transform: its made cage is in world space, the same as the OBJ's around the same skin
     np.testing.assert_allclose(ws.load_binding(out / "arm_usd.npz").cage_vertices,
                                ws.load_binding(out / "arm.npz").cage_vertices, atol=1e-4)
-    again = subprocess.run(command, capture_output=True, text=True)
+    again = cli(*command)
     assert again.returncode == 0 and again.stderr.count("up to date, skipped") == 3, again.stderr
 
 
@@ -477,8 +467,7 @@ def test_encode_a_sequence_without_a_cage(tmp_path):
     for k, positions in enumerate(frames):
         trimesh.Trimesh(positions, artist.mesh_faces, process=False).export(folder / f"arm_{k + 1:03d}.obj")
     out = tmp_path / "poses.npy"
-    proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "encode", "auto", str(folder), "-o", str(out),
-                           "--device", "cpu"], capture_output=True, text=True)
+    proc = cli("encode", "auto", str(folder), "-o", str(out), "--device", "cpu")
     assert proc.returncode == 0, proc.stderr
     assert "made a cage of" in proc.stdout and f"wrote {out}" in proc.stdout
     binding = ws.load_binding(tmp_path / "poses.binding.npz")
@@ -490,8 +479,7 @@ def test_encode_a_sequence_without_a_cage(tmp_path):
 
     # arrays of positions have no faces to make a cage around: refused in one line
     np.save(tmp_path / "frames.npy", frames)
-    proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "encode", "auto", str(tmp_path / "frames.npy"),
-                           "-o", str(tmp_path / "p2.npy"), "--device", "cpu"], capture_output=True, text=True)
+    proc = cli("encode", "auto", str(tmp_path / "frames.npy"), "-o", str(tmp_path / "p2.npy"), "--device", "cpu")
     assert proc.returncode == 2 and "an array of positions has no faces" in proc.stderr
     assert not (tmp_path / "p2.npy").exists()
 
@@ -499,8 +487,7 @@ def test_encode_a_sequence_without_a_cage(tmp_path):
     # around its first sample, the poses written as USD time samples of the cage
     ws.write_animation(tmp_path / "captured.usd", artist, np.load(EXAMPLE / "bend_poses.npy")[::4])
     out = tmp_path / "poses.usd"
-    proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "encode", "auto", str(tmp_path / "captured.usd"),
-                           "-o", str(out), "--device", "cpu"], capture_output=True, text=True)
+    proc = cli("encode", "auto", str(tmp_path / "captured.usd"), "-o", str(out), "--device", "cpu")
     assert proc.returncode == 0, proc.stderr
     binding = ws.load_binding(tmp_path / "poses.binding.npz")
     poses = ws.load_poses(out, binding.cage_faces)
@@ -602,8 +589,7 @@ def test_a_mesh_of_few_vertices_gets_no_more_handles_than_it_has(tmp_path):
     mesh = tmp_path / "tetra.obj"
     mesh.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")
     out = tmp_path / "made.obj"
-    proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "cage", str(mesh), "-o", str(out), "--device",
-                           "cpu"], capture_output=True, text=True)
+    proc = cli("cage", str(mesh), "-o", str(out), "--device", "cpu")
     assert proc.returncode == 0, proc.stderr
     assert "cage of 8 handles (chosen from the mesh's shape: 8)" in proc.stdout
     read = trimesh.load(out, process=False)

@@ -1,9 +1,7 @@
 """bind(method=...): Stokes, harmonic and mean value coordinates through the same Binding, and every command that
-takes a binding working with each (the commands run as a user runs them)."""
+takes a binding working with each (the command line in process, ``main(argv)``)."""
 
 import json
-import subprocess
-import sys
 import warnings
 
 import numpy as np
@@ -11,7 +9,7 @@ import pytest
 from pxr import Usd, UsdGeom
 
 import warp_stokes as ws
-from conftest import EXAMPLE, float32_rounding
+from conftest import EXAMPLE, cli, float32_rounding
 
 MESH, CAGE = EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj"
 
@@ -73,25 +71,21 @@ def test_unknown_method_is_one_error():
 
 @pytest.mark.parametrize("method", ["harmonic", "mvc"])
 def test_commands_take_bindings_of_every_method(method, tmp_path):
-    exe = [sys.executable, "-m", "warp_stokes.cli"]
     out = tmp_path / f"arm_{method}.npz"
-    run = subprocess.run(exe + ["bind", str(MESH), str(CAGE), "--method", method, "--resolution", "16", "-o", str(out),
-                                "--device", "cpu"], capture_output=True, text=True)
+    run = cli("bind", MESH, CAGE, "--method", method, "--resolution", "16", "-o", out, "--device", "cpu")
     assert run.returncode == 0, run.stderr
     assert ("harmonic coordinates" if method == "harmonic" else "mean value coordinates") in run.stdout
     binding = ws.load_binding(out, device="cpu")
     assert binding.settings["method"] == method
     poses = np.load(EXAMPLE / "bend_poses.npy")
     np.save(tmp_path / "pose.npy", poses[-1])
-    run = subprocess.run(exe + ["deform", str(out), str(tmp_path / "pose.npy"), "-o", str(tmp_path / "d.obj")],
-                         capture_output=True, text=True)
+    run = cli("deform", out, tmp_path / "pose.npy", "-o", tmp_path / "d.obj")
     assert run.returncode == 0, run.stderr
     import trimesh
 
     deformed = trimesh.load(tmp_path / "d.obj", process=False)
     assert np.abs(deformed.vertices - binding.deform(poses[-1])).max() <= 1e-4
-    run = subprocess.run(exe + ["animate", str(out), str(EXAMPLE / "bend_poses.npy"), "-o", str(tmp_path / "a.usda")],
-                         capture_output=True, text=True)
+    run = cli("animate", out, EXAMPLE / "bend_poses.npy", "-o", tmp_path / "a.usda")
     assert run.returncode == 0, run.stderr
     stage = Usd.Stage.Open(str(tmp_path / "a.usda"))
     mesh = next(UsdGeom.Mesh(p) for p in stage.Traverse() if p.IsA(UsdGeom.Mesh))
@@ -99,8 +93,7 @@ def test_commands_take_bindings_of_every_method(method, tmp_path):
     assert np.abs(np.array(mesh.GetPointsAttr().Get(times[-1])) - binding.deform(poses[-1])).max() <= 1e-4
     frames = tmp_path / "frames.npy"
     np.save(frames, binding.deform(poses[:5]))
-    run = subprocess.run(exe + ["encode", str(out), str(frames), "-o", str(tmp_path / "enc.npy")],
-                         capture_output=True, text=True)
+    run = cli("encode", out, frames, "-o", tmp_path / "enc.npy")
     assert run.returncode == 0, run.stderr
     diagonal = ws.check_cage(CAGE).diagonal
     assert np.abs(np.load(tmp_path / "enc.npy") - poses[:5]).max() <= 1e-3 * diagonal

@@ -6,7 +6,7 @@ import warnings
 import pytest
 
 import warp_stokes as ws
-from conftest import EXAMPLE, one_error_line, warp_stokes
+from conftest import EXAMPLE, cli, one_error_line, warp_stokes
 from warp_stokes.binding.stats import ResolutionChoice
 from warp_stokes.geometry import grid as grid_module
 from warp_stokes.geometry import resolution as resolution_module
@@ -99,12 +99,12 @@ def test_a_manifest_takes_auto_and_refuses_other_words(tmp_path):
 
 
 def test_the_command_line_takes_auto_or_a_number(tmp_path):
-    proc = warp_stokes("bind", str(EXAMPLE / "arm.obj"), str(EXAMPLE / "arm_cage.obj"), "-o", str(tmp_path / "a.npz"),
-                       "--resolution", "fine")
+    proc = cli("bind", str(EXAMPLE / "arm.obj"), str(EXAMPLE / "arm_cage.obj"), "-o", str(tmp_path / "a.npz"),
+               "--resolution", "fine")
     assert proc.returncode == 2 and "--resolution: 'fine' is neither auto nor an integer" in one_error_line(proc)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        assert "auto" in warp_stokes("bind", "--help").stdout
+        assert "auto" in cli("bind", "--help").stdout
 
 
 def test_auto_goes_finer_for_a_cage_too_thin_and_for_the_meshs_thin_parts(monkeypatch):

@@ -1,7 +1,5 @@
 """Sampling the weight field at points: tricubic Hermite (C1, default) and trilinear."""
 
-import subprocess
-import sys
 import warnings
 
 import numpy as np
@@ -9,7 +7,7 @@ import pytest
 import warp as wp
 
 import warp_stokes as ws
-from conftest import EXAMPLE, float32_rounding
+from conftest import EXAMPLE, cli, float32_rounding
 
 
 @pytest.fixture(scope="module")
@@ -104,18 +102,15 @@ def test_binds_sample_with_hermite_by_default_and_trilinear_on_request(tmp_path,
     assert hermite.settings["sampling"] == "hermite"
     assert hermite.stats.partition_of_unity_error <= 1e-5 and hermite.stats.linear_precision_error <= 1e-5
     out = tmp_path / "t.npz"
-    # the command line's choice, as a user runs it: a subprocess, on the CPU whatever the device under test
-    proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "bind", str(EXAMPLE / "arm.obj"),
-                           str(EXAMPLE / "arm_cage.obj"), "-o", str(out), "--resolution", "16", "--device", "cpu",
-                           "--sampling", "trilinear"], capture_output=True, text=True)
+    # the command line's choice (in process), on the CPU whatever the device under test
+    proc = cli("bind", str(EXAMPLE / "arm.obj"), str(EXAMPLE / "arm_cage.obj"), "-o", str(out), "--resolution", "16",
+               "--device", "cpu", "--sampling", "trilinear")
     assert proc.returncode == 0, proc.stderr
     trilinear = ws.load_binding(out, device=device)
     assert trilinear.settings["sampling"] == "trilinear"
     assert trilinear.stats.partition_of_unity_error <= 1e-5
     assert 1e-4 < np.abs(trilinear.weights - hermite.weights).max() < 0.5  # the same field, sampled two ways
-    proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "bind", str(EXAMPLE / "arm.obj"),
-                           str(EXAMPLE / "arm_cage.obj"), "-o", str(out), "--sampling", "cubic"],
-                          capture_output=True, text=True)
+    proc = cli("bind", str(EXAMPLE / "arm.obj"), str(EXAMPLE / "arm_cage.obj"), "-o", str(out), "--sampling", "cubic")
     assert proc.returncode == 2 and "invalid choice" in proc.stderr
     with pytest.raises(ws.WarpStokesError, match="sampling must be"):
         ws.bind(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", resolution=16, device=device, sampling="cubic")

@@ -1,17 +1,15 @@
-"""warp-stokes show: the pictures as a user makes them (the command in a subprocess, its PNG decoded and checked), and
+"""warp-stokes show: the pictures as a user makes them (the command, its PNG decoded and checked), and
 the numbers behind them checked against what holds independently of the drawing: partition of unity and linear
 precision of the slices of all handles, the binding's own weights at vertices on the plane, mean value coordinates
 at the pixel centres, and the conformal distortion of the deformation."""
 
-import subprocess
-import sys
 import warnings
 
 import numpy as np
 import pytest
 
 import warp_stokes as ws
-from conftest import EXAMPLE, box_cage, write_obj
+from conftest import EXAMPLE, box_cage, cli, warp_stokes, write_obj
 from warp_stokes.binding import pipeline
 from warp_stokes.quality import conformal_distortion
 from warp_stokes.show import cage_edges, cross_section, mesh_colours, view_frame, weight_slice
@@ -20,8 +18,8 @@ imread = pytest.importorskip("matplotlib.image").imread
 
 
 def show(*args):
-    return subprocess.run([sys.executable, "-m", "warp_stokes.cli", "show", *(str(a) for a in args)],
-                          capture_output=True, text=True)
+    """`warp-stokes show` in process (``main(argv)``, its output captured); the first test runs it as a subprocess."""
+    return cli("show", *args)
 
 
 def assert_drawn(path):
@@ -47,20 +45,16 @@ def pixel_centres(s):
 
 
 @pytest.fixture(scope="module")
-def arm(tmp_path_factory):
-    """The bundled arm bound at resolution 16 on the CPU, and its file."""
-    path = tmp_path_factory.mktemp("show") / "arm.npz"
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        binding = ws.bind(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", resolution=16, device="cpu")
-    binding.save(path)
-    return path, binding
+def arm(arm_npz):
+    """The bundled arm bound at resolution 16 on the CPU (the session's binding file, read only), and its file."""
+    return arm_npz, ws.load_binding(arm_npz, device="cpu")
 
 
 def test_the_weight_slice_command_draws_the_same_picture_every_time(arm, tmp_path):
     path, binding = arm
     first, second = tmp_path / "weights.png", tmp_path / "again.png"
-    result = show(path, "--handle", 5, "--slice", "y=0.5", "-o", first, "--device", "cpu")
+    # the command as a user runs it (a subprocess of the installed command), then again in this process
+    result = warp_stokes("show", path, "--handle", 5, "--slice", "y=0.5", "-o", first, "--device", "cpu")
     assert result.returncode == 0, result.stderr
     assert show(path, "--handle", 5, "--slice", "y=0.5", "-o", second, "--device", "cpu").returncode == 0
     assert first.read_bytes() == second.read_bytes()  # deterministic, to the byte
@@ -343,8 +337,7 @@ def test_the_colour_scale_is_symmetric_and_the_slice_shows_the_mesh_and_the_hand
         show_weights(binding, 19, tmp_path / "w.png", "z", 0.3, device="cpu")
     assert scales == [(low, high)]  # the picture's scale is this one
     assert_drawn(tmp_path / "w.png")
-    help_text = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "show", "--help"], capture_output=True,
-                               text=True).stdout
+    help_text = show("--help").stdout
     assert "handles count from 0" in help_text
 
 

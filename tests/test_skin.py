@@ -1,6 +1,6 @@
 """A binding as a skin: the K largest weights per vertex, the error of truncation measured against an independent
 skinning, and the skins read back with what consumers use: pxr's UsdSkel (BakeSkinning, validation) for the USD
-rig, pygltflib and numpy skinning for the glTF skin, and the command line as a subprocess."""
+rig, pygltflib and numpy skinning for the glTF skin, and the command line (in process, ``main(argv)``)."""
 
 import base64
 import os
@@ -11,7 +11,7 @@ import pytest
 from pxr import Sdf, Usd, UsdGeom, UsdSkel, UsdValidation
 
 import warp_stokes as ws
-from conftest import EXAMPLE, one_error_line, warp_stokes
+from conftest import EXAMPLE, cli, one_error_line
 from usd_assets import BAND, BODY, CAGE, TIMES, write_asset
 from warp_stokes.binding.skin import skin_points
 
@@ -301,7 +301,7 @@ def test_gltf_skin_splits_vertices_at_uv_seams(tmp_path):
 def test_animate_writes_skins_from_the_command_line(arm_npz, tmp_path):
     poses = str(EXAMPLE / "bend_poses.npy")
     rig = tmp_path / "rig.usd"
-    proc = warp_stokes("animate", str(arm_npz), poses, "-o", str(rig), "--skeleton", "--device", "cpu")
+    proc = cli("animate", str(arm_npz), poses, "-o", str(rig), "--skeleton", "--device", "cpu")
     assert proc.returncode == 0, proc.stderr
     assert "UsdSkel stage" in proc.stdout and "all influences" in proc.stdout and "of the diagonal" in proc.stdout
     # Stokes weights go negative: what consumers that drop them play is measured and said
@@ -311,7 +311,7 @@ def test_animate_writes_skins_from_the_command_line(arm_npz, tmp_path):
     baked = _baked_world(rig, ["/Root/Mesh"], np.arange(1.0, 25.0))
     assert np.linalg.norm(baked - binding.deform(positions), axis=2).max() / _diagonal(binding) < 1e-5
     glb = tmp_path / "arm.glb"
-    proc = warp_stokes("animate", str(arm_npz), poses, "-o", str(glb), "--influences", "4", "--device", "cpu")
+    proc = cli("animate", str(arm_npz), poses, "-o", str(glb), "--influences", "4", "--device", "cpu")
     assert proc.returncode == 0, proc.stderr
     assert "glTF skin" in proc.stdout and "4 influences per vertex, non-negative" in proc.stdout
     reported = float(proc.stdout.split("max ")[1].split(",")[0])
@@ -320,8 +320,8 @@ def test_animate_writes_skins_from_the_command_line(arm_npz, tmp_path):
     assert distance == pytest.approx(reported, rel=0.01, abs=1e-5)
     # a skin further than --max-error is refused, in one line, and nothing is written
     refused = tmp_path / "refused.glb"
-    proc = warp_stokes("animate", str(arm_npz), poses, "-o", str(refused), "--influences", "4", "--max-error",
-                       f"{reported / 2:g}", "--device", "cpu")
+    proc = cli("animate", str(arm_npz), poses, "-o", str(refused), "--influences", "4", "--max-error",
+               f"{reported / 2:g}", "--device", "cpu")
     assert proc.returncode == 2 and "keep more influences" in one_error_line(proc)
     assert not refused.exists() and not [p for p in os.listdir(tmp_path) if "refused" in p]
 
@@ -335,7 +335,7 @@ def test_animate_writes_skins_from_the_command_line(arm_npz, tmp_path):
 ])
 def test_animate_refuses_skin_options_it_cannot_honour(arm_npz, tmp_path, args, message):
     args = [str(tmp_path / a) if a.startswith("x.") else a for a in args]
-    proc = warp_stokes("animate", str(arm_npz), str(EXAMPLE / "bend_poses.npy"), *args, "--device", "cpu")
+    proc = cli("animate", str(arm_npz), str(EXAMPLE / "bend_poses.npy"), *args, "--device", "cpu")
     assert proc.returncode == 2 and message in one_error_line(proc)
     assert not os.listdir(tmp_path)
 
@@ -360,7 +360,7 @@ influences = 4
 name = "arm_rig"
 skin = "usd"
 """)
-    proc = warp_stokes("batch", str(manifest), "-o", str(tmp_path / "out"), "--device", "cpu")
+    proc = cli("batch", str(manifest), "-o", str(tmp_path / "out"), "--device", "cpu")
     assert proc.returncode == 0, proc.stderr
     assert sorted(os.listdir(tmp_path / "out")) == ["arm_glb.glb", "arm_glb.npz", "arm_rig.npz", "arm_rig.usd",
                                                     "summary.json"]
@@ -383,7 +383,7 @@ def test_batch_refuses_skin_keys_before_any_work(tmp_path, entry, message):
     manifest = tmp_path / "bad.toml"
     manifest.write_text(f'[[asset]]\nmesh = "{EXAMPLE / "arm.obj"}"\ncage = "{EXAMPLE / "arm_cage.obj"}"\n'
                         f'poses = "{EXAMPLE / "bend_poses.npy"}"\n{entry}\n')
-    proc = warp_stokes("batch", str(manifest), "-o", str(tmp_path / "out"), "--device", "cpu")
+    proc = cli("batch", str(manifest), "-o", str(tmp_path / "out"), "--device", "cpu")
     assert proc.returncode == 2 and message in one_error_line(proc)
     assert not (tmp_path / "out").exists() or not os.listdir(tmp_path / "out")
 

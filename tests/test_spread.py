@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import warp_stokes as ws
-from conftest import EXAMPLE
+from conftest import EXAMPLE, cli
 from warp_stokes.binding.spread import spread_devices
 
 ARM, ARM_CAGE = EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj"
@@ -30,7 +30,7 @@ def test_device_lists_name_a_spread_bind():
             spread_devices(bad)
 
 
-def test_a_bind_spread_over_two_workers_gives_the_weights_of_one_device():
+def test_a_bind_spread_over_two_workers_gives_the_weights_of_one_device(tmp_path):
     ray = pytest.importorskip("ray")
     from warp_stokes.binding.columns import grid_columns
     from warp_stokes.binding.plan import GridPlan
@@ -47,6 +47,11 @@ def test_a_bind_spread_over_two_workers_gives_the_weights_of_one_device():
         # and a share that cannot give exact weights fails the bind with its own error
         with pytest.raises(ws.ConvergenceError, match="reached its iteration limit"):
             ws.bind(ARM, ARM_CAGE, resolution=20, device="cpu,cpu", max_iterations=1)
+        # every GPU of a cluster that has none: the command (in process, on this cluster: no other one started for
+        # it) says so in one line, exit 2, no file
+        failed = cli("bind", ARM, ARM_CAGE, "-o", tmp_path / "no.npz", "--resolution", "16", "--device", "cuda:all")
+        assert failed.returncode == 2 and "the Ray cluster has no GPU" in failed.stderr, failed.stderr[-2000:]
+        assert failed.stderr.strip().count("\n") == 0 and not (tmp_path / "no.npz").exists()
         assert ray.is_initialized()
     finally:
         ray.shutdown()
@@ -63,20 +68,20 @@ def test_a_bind_spread_over_two_workers_gives_the_weights_of_one_device():
     assert np.abs(two.weights - one.weights).max() < 1e-5
 
 
-def test_the_command_spreads_a_bind_and_says_what_it_cannot(tmp_path):
+def test_the_command_spreads_a_bind_and_says_what_it_cannot(tmp_path, arm_npz):
     pytest.importorskip("ray")
     out = tmp_path / "arm.npz"
     done = bind_command("-o", out, "--resolution", "16", "--device", "cpu,cpu")
     assert done.returncode == 0, done.stderr[-2000:]
     binding = ws.load_binding(out, device="cpu")
     assert len(binding.stats.solver.devices) == 2 and binding.stats.partition_of_unity_error < 1e-5
-    alone = ws.bind(ARM, ARM_CAGE, resolution=16, device="cpu")
+    alone = ws.load_binding(arm_npz, device="cpu")  # the session's bind of the arm at 16 on one device
     assert np.abs(binding.weights - alone.weights).max() < 1e-5
-    # every GPU of a cluster that has none; a mixed list: one line each, exit 2, no file
-    for device, message in (("cuda:all", "the Ray cluster has no GPU"), ("cpu,cuda:0", "of one kind")):
-        failed = bind_command("-o", tmp_path / "no.npz", "--resolution", "16", "--device", device)
-        assert failed.returncode == 2 and message in failed.stderr, failed.stderr[-2000:]
-        assert failed.stderr.strip().count("\n") == 0 and not (tmp_path / "no.npz").exists()
+    # a mixed list: one line, exit 2, no file (in process; every GPU of a cluster that has none is refused above,
+    # on a running cluster)
+    failed = cli("bind", ARM, ARM_CAGE, "-o", tmp_path / "no.npz", "--resolution", "16", "--device", "cpu,cuda:0")
+    assert failed.returncode == 2 and "of one kind" in failed.stderr, failed.stderr[-2000:]
+    assert failed.stderr.strip().count("\n") == 0 and not (tmp_path / "no.npz").exists()
 
 
 def test_without_ray_a_spread_bind_is_one_line_and_exit_2(tmp_path):

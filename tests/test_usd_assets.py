@@ -3,8 +3,6 @@ overrides only, composed over the asset and read back with pxr. Also OBJ/glTF so
 their polygons, UVs and per-frame normals."""
 
 import os
-import subprocess
-import sys
 import warnings
 
 import numpy as np
@@ -12,7 +10,7 @@ import pytest
 from pxr import Sdf, Usd, UsdGeom, UsdShade, UsdValidation
 
 import warp_stokes as ws
-from conftest import EXAMPLE, float32_rounding
+from conftest import EXAMPLE, cli, float32_rounding
 from usd_assets import BAND, BODY, CAGE, TIMES, box_quads, cage_animation, write_asset
 
 RESOLUTION = 16
@@ -192,19 +190,17 @@ def test_layer_refuses_what_it_cannot_honour(asset, tmp_path):
 
 def test_usd_workflow_from_the_command_line(asset, tmp_path):
     path, _, geometry, diagonal = asset
-    run = [sys.executable, "-m", "warp_stokes.cli"]
-    bound = subprocess.run(run + ["bind", str(path), "--cage-prim", CAGE, "-o", str(tmp_path / "b.npz"),
-                                  "--resolution", str(RESOLUTION), "--device", "cpu"], capture_output=True, text=True)
+    bound = cli("bind", path, "--cage-prim", CAGE, "-o", tmp_path / "b.npz", "--resolution", RESOLUTION, "--device",
+                "cpu")
     assert bound.returncode == 0, bound.stderr
     assert "2 meshes" in bound.stdout
-    animated = subprocess.run(run + ["animate", str(tmp_path / "b.npz"), str(path), "--cage-prim", CAGE, "-o",
-                                     str(tmp_path / "anim.usdc"), "--device", "cpu"], capture_output=True, text=True)
+    animated = cli("animate", tmp_path / "b.npz", path, "--cage-prim", CAGE, "-o", tmp_path / "anim.usdc", "--device",
+                   "cpu")
     assert animated.returncode == 0, animated.stderr
     assert "3 frames (101 to 104) at 30 fps" in animated.stdout
     stage = Usd.Stage.Open(str(tmp_path / "anim.usdc"))
     np.testing.assert_allclose(_world(stage, BAND, TIMES[0]), geometry["band"], atol=1e-5 * diagonal)
-    bad = subprocess.run(run + ["bind", str(path), "--cage-prim", "/Char/Nope", "-o", str(tmp_path / "c.npz"),
-                                "--device", "cpu"], capture_output=True, text=True)
+    bad = cli("bind", path, "--cage-prim", "/Char/Nope", "-o", tmp_path / "c.npz", "--device", "cpu")
     assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and "no prim /Char/Nope" in bad.stderr
     assert not (tmp_path / "c.npz").exists()
 

@@ -1,7 +1,8 @@
 """Nothing a user owns is ever overwritten (issue 30, data loss): a batch's outputs never replace its inputs (files,
 the manifest, the layers a USD asset is made of), animate never writes over a layer of its asset, an output that
 is not a regular file (a device, a pipe, a link to one) is refused, and a save killed with SIGKILL leaves nothing
-that a later save does not remove. Each case runs ``warp-stokes`` as a subprocess, as a user runs it."""
+that a later save does not remove. Each case runs the command line, in process (``main(argv)``, its output
+captured) where a fresh process adds nothing, as a subprocess where another process is the subject."""
 
 import hashlib
 import json
@@ -14,7 +15,7 @@ import time
 
 import pytest
 
-from conftest import EXAMPLE, one_error_line, warp_stokes
+from conftest import EXAMPLE, cli, one_error_line, warp_stokes
 from warp_stokes.io.outputs import host_name, is_temporary
 
 MESH, CAGE = str(EXAMPLE / "arm.obj"), str(EXAMPLE / "arm_cage.obj")
@@ -33,7 +34,7 @@ def test_a_batch_never_writes_over_its_inputs(tmp_path):
     (assets / "hero.toml").write_text('[[asset]]\nname = "hero"\nmesh = "hero.usd"\ncage_prim = "/Arm/Rig/Cage"\n'
                                       'poses = "hero.usd"\nresolution = 16\n')
     before = digest(assets / "hero.usd")
-    proc = warp_stokes("batch", str(assets / "hero.toml"), "-o", str(assets), "--device", "cpu")
+    proc = cli("batch", str(assets / "hero.toml"), "-o", str(assets), "--device", "cpu")
     assert proc.returncode == 2
     assert one_error_line(proc) == (f"warp-stokes: error: {assets / 'hero.usd'}: asset 'hero''s output would replace "
                                     f"the mesh of asset 'hero' {assets / 'hero.usd'}; write the batch to another "
@@ -46,13 +47,13 @@ def test_a_batch_never_writes_over_its_inputs(tmp_path):
     manifest = tmp_path / "m.toml"
     manifest.write_text(f'[[asset]]\nname = "armp"\nmesh = "{MESH}"\ncage = "{CAGE}"\nposes = "out/armp.npz"\n')
     before = digest(out / "armp.npz")
-    proc = warp_stokes("batch", str(manifest), "-o", str(out), "--device", "cpu")
+    proc = cli("batch", str(manifest), "-o", str(out), "--device", "cpu")
     assert proc.returncode == 2 and "would replace the poses of asset 'armp'" in one_error_line(proc)
     assert digest(out / "armp.npz") == before
 
     summary = out / "summary.json"
     summary.write_text(json.dumps({"assets": [{"name": "a", "mesh": MESH, "cage": CAGE, "resolution": 16}]}))
-    proc = warp_stokes("batch", str(summary), "-o", str(out), "--device", "cpu")
+    proc = cli("batch", str(summary), "-o", str(out), "--device", "cpu")
     assert proc.returncode == 2 and "the batch's summary would replace the manifest" in one_error_line(proc)
     assert json.loads(summary.read_text())["assets"][0]["name"] == "a"
 
@@ -63,12 +64,12 @@ def test_animate_never_writes_over_a_layer_of_its_asset(tmp_path):
     shutil.copy(EXAMPLE / "arm.usda", tmp_path / "arm.usda")
     (tmp_path / "root.usda").write_text('#usda 1.0\n(\n    subLayers = [@./arm.usda@]\n)\n')
     binding = tmp_path / "r.npz"
-    proc = warp_stokes("bind", str(tmp_path / "root.usda"), "--cage-prim", "/Arm/Rig/Cage", "-o", str(binding),
-                       "--resolution", "16", "--device", "cpu")
+    proc = cli("bind", str(tmp_path / "root.usda"), "--cage-prim", "/Arm/Rig/Cage", "-o", str(binding), "--resolution",
+               "16", "--device", "cpu")
     assert proc.returncode == 0, proc.stderr
     before = digest(tmp_path / "arm.usda")
-    proc = warp_stokes("animate", str(binding), str(tmp_path / "root.usda"), "--cage-prim", "/Arm/Rig/Cage", "-o",
-                       str(tmp_path / "arm.usda"), "--device", "cpu")
+    proc = cli("animate", str(binding), str(tmp_path / "root.usda"), "--cage-prim", "/Arm/Rig/Cage", "-o",
+               str(tmp_path / "arm.usda"), "--device", "cpu")
     assert proc.returncode == 2
     # (the binding records the layers it was bound from: it names one of its sources)
     assert one_error_line(proc) == (f"warp-stokes: error: {tmp_path / 'arm.usda'}: the output would replace a source "
@@ -82,8 +83,8 @@ def test_animate_never_writes_over_a_layer_of_its_asset(tmp_path):
     del meta["sources"]
     arrays["meta"] = np.array(json.dumps(meta))
     np.savez(tmp_path / "old.npz", **arrays)
-    proc = warp_stokes("animate", str(tmp_path / "old.npz"), str(tmp_path / "root.usda"), "--cage-prim",
-                       "/Arm/Rig/Cage", "-o", str(tmp_path / "arm.usda"), "--device", "cpu")
+    proc = cli("animate", str(tmp_path / "old.npz"), str(tmp_path / "root.usda"), "--cage-prim", "/Arm/Rig/Cage", "-o",
+               str(tmp_path / "arm.usda"), "--device", "cpu")
     assert proc.returncode == 2
     assert one_error_line(proc) == (f"warp-stokes: error: {tmp_path / 'arm.usda'}: the output would replace a layer "
                                     f"of the input {tmp_path / 'root.usda'} ({tmp_path / 'arm.usda'}); choose another "
@@ -103,7 +104,7 @@ def test_an_output_that_is_not_a_regular_file_is_refused(tmp_path, kind):
     else:
         os.symlink(tmp_path / "nowhere", target)
         expected = "the output is a link to nothing"
-    proc = warp_stokes("bind", MESH, CAGE, "-o", str(target), "--resolution", "16", "--device", "cpu")
+    proc = cli("bind", MESH, CAGE, "-o", str(target), "--resolution", "16", "--device", "cpu")
     assert proc.returncode == 2 and one_error_line(proc).startswith(f"warp-stokes: error: {target}: {expected}")
     if kind == "fifo":
         assert os.path.exists(target) and not os.path.isfile(target) and not os.path.islink(target)
@@ -126,6 +127,7 @@ def test_the_temporary_file_of_a_killed_save_is_removed_by_the_next(tmp_path):
     notes = tmp_path / ".tmp-notes.txt"  # the user's, in no pattern of the package's
     for path in (stale, live, other, elsewhere, notes):
         path.write_bytes(b"half a binding")
+    # in a process of its own, as a user runs it: the live pid above (this one's) is then another process's
     proc = warp_stokes("bind", MESH, CAGE, "-o", str(out), "--resolution", "16", "--device", "cpu")
     assert proc.returncode == 0, proc.stderr
     assert not stale.exists() and not other.exists() and out.exists()
@@ -144,13 +146,13 @@ def test_the_temporary_file_of_a_killed_save_is_removed_by_the_next(tmp_path):
     left = [p for p in os.listdir(tmp_path) if is_temporary(p) and p.endswith("~k.npz")]
     assert len(left) == 1 and not (tmp_path / "k.npz").exists()
     time.sleep(0.1)
-    proc = warp_stokes("bind", MESH, CAGE, "-o", str(tmp_path / "k.npz"), "--resolution", "16", "--device", "cpu")
+    proc = cli("bind", MESH, CAGE, "-o", str(tmp_path / "k.npz"), "--resolution", "16", "--device", "cpu")
     assert proc.returncode == 0 and not [p for p in os.listdir(tmp_path) if p.endswith("~k.npz")]
 
 
 def test_a_binding_carries_its_format_s_extension(tmp_path):
     # bind -o x.obj wrote the .npz binding under an OBJ name, which mesh readers then took for an empty scene
-    proc = warp_stokes("bind", MESH, CAGE, "-o", str(tmp_path / "x.obj"), "--resolution", "16", "--device", "cpu")
+    proc = cli("bind", MESH, CAGE, "-o", str(tmp_path / "x.obj"), "--resolution", "16", "--device", "cpu")
     assert proc.returncode == 2
     assert one_error_line(proc) == f"warp-stokes: error: {tmp_path / 'x.obj'}: a binding is written as .npz"
     assert os.listdir(tmp_path) == []

@@ -1,8 +1,6 @@
 """Thin wedges of outside space where the cage folds back on itself: interior nodes that such a wedge cuts off from a
 stencil neighbour take the boundary data (issue 19's folded-edge growth)."""
 
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -10,7 +8,7 @@ import pytest
 import warp_stokes as ws
 from warp_stokes.geometry import grid as grid_module
 from warp_stokes.kernels import labels as L
-from conftest import EXAMPLE, box_cage, slit_cage, write_obj
+from conftest import EXAMPLE, box_cage, cli, slit_cage, write_obj
 
 
 def points_around_the_slit(rotation, count=3000):
@@ -97,9 +95,8 @@ def test_bind_reports_the_cut_off_nodes(tmp_path):
     write_obj(tmp_path / "slit.obj", cage.vertices, cage.faces)
     hull = np.array([[0, 1, 2], [0, 2, 3], [0, 3, 1], [1, 3, 2]])
     write_obj(tmp_path / "points.obj", points, hull)  # a point cloud with a token face: what bind reads
-    proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", "bind", str(tmp_path / "points.obj"),
-                           str(tmp_path / "slit.obj"), "-o", str(tmp_path / "b.npz"), "--resolution", "24",
-                           "--device", "cpu"], capture_output=True, text=True)
+    proc = cli("bind", str(tmp_path / "points.obj"), str(tmp_path / "slit.obj"), "-o", str(tmp_path / "b.npz"),
+               "--resolution", "24", "--device", "cpu")
     assert proc.returncode == 0, proc.stderr
     line = next(line for line in proc.stdout.splitlines() if line.startswith("nodes"))
     count = ws.load_binding(tmp_path / "b.npz", device="cpu").stats.grid.cut_off_nodes
