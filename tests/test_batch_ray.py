@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import warp_stokes as ws
-from conftest import EXAMPLE, write_obj
+from conftest import EXAMPLE, cli, write_obj
 
 ray = pytest.importorskip("ray")
 
@@ -46,7 +46,7 @@ def summary(folder):
 
 def test_workers_give_the_serial_batch_s_files_and_weights(tmp_path):
     path = manifest(tmp_path, made=True)
-    serial = batch(path, "-o", tmp_path / "serial", "--device", "cpu")
+    serial = cli("batch", path, "-o", tmp_path / "serial", "--device", "cpu")  # in process: no Ray
     parallel = batch(path, "-o", tmp_path / "ray", "--device", "cpu", "--workers", "2")
     assert serial.returncode == parallel.returncode == 1, parallel.stderr  # the broken asset fails in both
     assert sorted(os.listdir(tmp_path / "ray")) == sorted(os.listdir(tmp_path / "serial"))
