@@ -3,7 +3,6 @@
 import os
 import pty
 import shutil
-import subprocess
 import sys
 
 import warp_stokes as ws

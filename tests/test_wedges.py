@@ -7,7 +7,6 @@ import pytest
 
 import warp_stokes as ws
 from warp_stokes.geometry import grid as grid_module
-from warp_stokes.kernels import labels as L
 from conftest import EXAMPLE, box_cage, cli, slit_cage, write_obj
 
 
