@@ -44,9 +44,9 @@ def main(argv=None) -> int:
     if args.write:
         Path(args.write).mkdir(parents=True, exist_ok=True)
         for name, (w, s) in bind_all("cpu").items():
-            np.savez(Path(args.write) / f"{name}.npz", weights=w, iterations=s["iterations"],
-                     interior=s["interior_nodes"])
-            print(f"{name}: {w.shape}, {s['iterations']} iterations on the CPU")
+            np.savez(Path(args.write) / f"{name}.npz", weights=w, iterations=s.solver.iterations,
+                     interior=s.grid.interior_nodes)
+            print(f"{name}: {w.shape}, {s.solver.iterations} iterations on the CPU")
         return 0
     worst = 0.0
     for name, (w, s) in bind_all(args.device).items():
@@ -54,8 +54,8 @@ def main(argv=None) -> int:
         diff = float(np.abs(ref["weights"] - w).max())
         worst = max(worst, diff)
         print(f"{name} n={RESOLUTION}: max |w_cpu - w_{args.device}| = {diff:.2e}; interior nodes "
-              f"{int(ref['interior'])} / {s['interior_nodes']}; iterations cpu {int(ref['iterations'])}, "
-              f"{args.device} {s['iterations']}")
+              f"{int(ref['interior'])} / {s.grid.interior_nodes}; iterations cpu {int(ref['iterations'])}, "
+              f"{args.device} {s.solver.iterations}")
     print("agree (<= 1e-5)" if worst <= 1e-5 else "DISAGREE")
     return 0 if worst <= 1e-5 else 1
 

@@ -49,9 +49,10 @@ class Jacobi:
     def __init__(self, grid: Grid, equation: str = "biharmonic", device=None):
         self.backend, self.equation = Backend.of(device), equation_of(equation)
         self.level_sizes, self.seconds = [grid.n_interior], {}
+        self._step = jacobi_step(self.equation, self.backend)
 
     def apply(self, r: wp.array, z: wp.array) -> None:
-        jacobi_step(self.equation, self.backend)(r, z)
+        self._step(r, z)
 
     def lane(self) -> "Jacobi":
         return self

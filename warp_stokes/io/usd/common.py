@@ -3,16 +3,39 @@ with the layer saved after each (bounded memory)."""
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 
 from ...errors import WarpStokesError
 
 __all__ = ["FRAMES_PER_CHUNK", "animation_rate", "extent", "vec3f", "define_mesh", "set_timing", "deformed_frames",
-           "new_stage", "save_layer"]
+           "new_stage", "save_layer", "prim_name"]
 
 #: frames deformed per device launch (bounded so that frames x vertices x 12 bytes stays small)
 FRAMES_PER_CHUNK = 64
 
+
+
+def prim_name(text, fallback: str, taken: set) -> str:
+    """A valid USD prim name from ``text`` (or ``fallback`` where nothing of it is left), not among ``taken`` (then
+    added to it): other characters become underscores, a leading digit gets one, a taken name a number.
+
+    Examples
+    --------
+    >>> taken = set()
+    >>> prim_name("arm mesh", "Mesh", taken), prim_name("arm_mesh", "Mesh", taken), prim_name("7", "Mesh", taken)
+    ('arm_mesh', 'arm_mesh_2', '_7')
+    """
+    name = re.sub(r"[^A-Za-z0-9_]", "_", str(text or "")) or fallback
+    if name[0].isdigit():
+        name = "_" + name
+    base, k = name, 1
+    while name in taken:
+        k += 1
+        name = f"{base}_{k}"
+    taken.add(name)
+    return name
 
 def extent(points: np.ndarray):
     """The (2,) Vec3fArray [min, max] of points."""

@@ -13,7 +13,6 @@ A layer over a USD asset writes none of this: the asset's own materials come thr
 from __future__ import annotations
 
 import os
-import re
 import warnings
 
 import numpy as np
@@ -21,6 +20,7 @@ import numpy as np
 from ..load import polygons_by_part
 from ..looks import IMAGE_SUFFIXES
 from ..outputs import atomic_output
+from .common import prim_name
 
 __all__ = ["StageLooks"]
 
@@ -34,19 +34,6 @@ _SLOTS = (("baseColorTexture", "pbr", "diffuseColor", "rgb", "sRGB"),
           ("occlusionTexture", "material", "occlusion", "r", "raw"))
 # UsdPreviewSurface's inputs that are not floats, by their type's name
 _INPUT_TYPES = {"diffuseColor": "Color3f", "emissiveColor": "Color3f", "normal": "Normal3f"}
-
-
-def _prim_name(text, fallback: str, taken: set) -> str:
-    """A valid USD prim name from ``text`` (or ``fallback``), not among ``taken`` (then added to it)."""
-    name = re.sub(r"[^A-Za-z0-9_]", "_", str(text or "")) or fallback
-    if name[0].isdigit():
-        name = "_" + name
-    base, k = name, 1
-    while name in taken:
-        k += 1
-        name = f"{base}_{k}"
-    taken.add(name)
-    return name
 
 
 class StageLooks:
@@ -78,7 +65,7 @@ class StageLooks:
                 continue
             label = image.name or f"image{k}"
             label = os.path.splitext(label)[0] if label.lower().endswith((".png", ".jpg", ".jpeg")) else label
-            name = f"{stem}.{_prim_name(label, f'image{k}', taken)}{IMAGE_SUFFIXES[image.mime]}"
+            name = f"{stem}.{prim_name(label, f'image{k}', taken)}{IMAGE_SUFFIXES[image.mime]}"
             self.images[k] = (os.path.join(folder, name), f"./{name}")
 
     def outputs(self) -> list[str]:
@@ -103,7 +90,7 @@ class StageLooks:
         taken: set = set()
         materials = []
         for k, material in enumerate(self.looks.materials):
-            name = _prim_name(material.get("name"), f"Material{k}", taken)
+            name = prim_name(material.get("name"), f"Material{k}", taken)
             materials.append(self._material(stage, material, f"/Root/Looks/{name}"))
         slices = binding.part_slices()
         polygons = polygons_by_part(binding.mesh_face_counts, binding.mesh_face_indices, slices)

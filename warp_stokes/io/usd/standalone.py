@@ -4,7 +4,6 @@ polygons as read, face-varying UVs and per-frame normals, and the input's materi
 
 from __future__ import annotations
 
-import re
 
 import numpy as np
 
@@ -12,23 +11,11 @@ from ...errors import WarpStokesError
 from ..outputs import atomic_output, together
 from ..load import polygons_by_part
 from ..normals import NormalsPlan
-from .common import animation_rate, define_mesh, deformed_frames, extent, new_stage, save_layer, set_timing, vec3f
+from .common import (animation_rate, define_mesh, deformed_frames, extent, new_stage, prim_name, save_layer,
+                     set_timing, vec3f)
 from .looks import StageLooks
 
 __all__ = ["write_standalone", "write_cage_poses"]
-
-
-def _prim_name(path: str, taken: set) -> str:
-    """A valid, unused USD prim name for a part (its node name or path's last element)."""
-    name = re.sub(r"[^A-Za-z0-9_]", "_", str(path).rstrip("/").split("/")[-1].split(":")[-1]) or "Mesh"
-    if name[0].isdigit():
-        name = "_" + name
-    base, k = name, 1
-    while name in taken:
-        k += 1
-        name = f"{base}_{k}"
-    taken.add(name)
-    return name
 
 
 def write_standalone(path, ext, binding, positions, frames, poses, fps, with_cage, with_weights, up_axis,
@@ -87,7 +74,7 @@ def _define_parts(stage, binding, normals, with_weights: bool) -> list:
     taken, writers = set(), []
     for (part, rows), (faces, corners) in zip(zip(binding.parts, slices), polygons_by_part(counts, indices, slices)):
         part_counts, part_indices = counts[faces], indices[corners] - rows.start
-        name = "Mesh" if len(slices) == 1 else _prim_name(part["path"], taken)
+        name = "Mesh" if len(slices) == 1 else prim_name(str(part["path"]).rstrip("/").split("/")[-1].split(":")[-1], "Mesh", taken)
         mesh = define_mesh(stage, f"/Root/{name}", part_counts, part_indices, binding.mesh_vertices[rows])
         if binding.mesh_uvs is not None:
             st, st_indices = binding.mesh_uvs
