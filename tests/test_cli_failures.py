@@ -1,7 +1,7 @@
 """The command as a user meets it when something is wrong: each case runs the command line (CPU, small grids) and
 checks the exit code, the one-line message and the files left behind (issue 13). In process (``main(argv)``, its
 output captured) where a fresh process would add only its start; as a subprocess where the process is the subject:
-Ctrl-C, the warnings a fresh process prints, a writer failing in the installed command."""
+Ctrl-C, the warnings a fresh process prints, a writer failing in a process of its own."""
 
 import hashlib
 import re
