@@ -124,8 +124,9 @@ class CageFollow:
         degenerate = np.flatnonzero(double_area <= DEGENERATE_AREA * diagonal ** 2)
         if len(degenerate):
             t = int(degenerate[0])
-            raise CageError(f"triangle {t} (vertices {faces[t].tolist()}) is degenerate: area {0.5 * double_area[t]:.3g}"
-                            f" for a cage of diagonal {diagonal:.6g}; its cotangent weights are unbounded")
+            raise CageError(f"triangle {t} (vertices {faces[t].tolist()}) is degenerate: area "
+                            f"{0.5 * double_area[t]:.3g} for a cage of diagonal {diagonal:.6g}; its cotangent weights "
+                            f"are unbounded")
         #: libigl's cotmatrix_entries: half the cotangent of the angle opposite each edge (negative when obtuse)
         weights = 0.5 * np.einsum("tci,tci->tc", to_next, to_last) / double_area[:, None]
 
@@ -364,10 +365,12 @@ class CageFollow:
         if targets.size == 0 and len(handles) == 0:
             targets = targets.reshape(0, 3)
         if targets.shape != (len(handles), 3):
-            raise WarpStokesError(f"targets must have shape ({len(handles)}, 3), one row per handle, got {targets.shape}")
+            raise WarpStokesError(f"targets must have shape ({len(handles)}, 3), one row per handle, "
+                                  f"got {targets.shape}")
         bad = np.flatnonzero(~np.isfinite(targets).all(axis=1))
         if len(bad):
-            raise WarpStokesError(f"the target of handle {int(handles[bad[0]])} is not finite: {targets[bad[0]].tolist()}")
+            raise WarpStokesError(f"the target of handle {int(handles[bad[0]])} is not finite: "
+                                  f"{targets[bad[0]].tolist()}")
         # one order for the cache's key and the coupling's columns, whatever order the caller gives
         order = np.argsort(handles)
         return handles[order], targets[order]
