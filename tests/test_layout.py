@@ -11,7 +11,7 @@ PACKAGE = ROOT / "warp_stokes"
 #: each folder's place in the flow; a module may import from its own place and the ones before it
 LAYERS = {"errors": 0, "arguments": 0, "lazy": 0, "threads": 0, "memory": 0, "kernel_cache": 0, "cluster": 0,
           "device": 0, "kernels": 0, "io": 1, "geometry": 2, "solver": 3,
-          "binding": 4, "quality": 5, "batch": 5, "sweep": 5, "show": 5, "cli": 5}
+          "binding": 4, "quality": 5, "batch": 5, "sweep": 5, "show": 5, "edit": 5, "cli": 5}
 
 
 def layer_of(parts: tuple[str, ...]) -> int:

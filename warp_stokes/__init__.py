@@ -32,10 +32,11 @@ _PUBLIC = {
                  "skin_weights", "skin_error", "SkinWeights", "SkinError", "SkinReport"],
     ".quality": ["deformation_quality", "mean_value_quality"],
     ".batch": ["read_manifest", "run_batch"],
+    ".edit": ["CageEditor"],
 }
 _HOME = {name: module for module, names in _PUBLIC.items() for name in names}
 _SUBPACKAGES = {"errors", "device", "threads", "memory", "kernel_cache", "cluster", "io", "geometry", "solver",
-                "binding", "quality", "batch", "cli", "kernels"}
+                "binding", "quality", "batch", "edit", "cli", "kernels"}
 
 __all__ = [
     "bind", "load_binding", "Binding",
@@ -46,7 +47,7 @@ __all__ = [
     "sample_weights", "deform_vertices", "deformation_quality", "mean_value_quality",
     "MemoryEstimate", "estimate_memory", "available_memory", "plan_chunks",
     "Backend", "resolve_device", "device_name",
-    "Poses", "load_poses", "load_frames", "write_animation", "inbetween", "read_manifest", "run_batch",
+    "Poses", "load_poses", "load_frames", "write_animation", "inbetween", "read_manifest", "run_batch", "CageEditor",
     "write_skin", "skin_weights", "skin_error", "SkinWeights", "SkinError", "SkinReport",
     "WarpStokesError", "MeshError", "CageError", "BindingError", "ResolutionError", "ConvergenceError",
 ]

@@ -1,4 +1,4 @@
-"""Command line: ``warp-stokes cage | bind | deform | animate | encode | batch | sweep | show``."""
+"""Command line: ``warp-stokes cage | bind | deform | animate | encode | batch | sweep | show | edit``."""
 
 from __future__ import annotations
 
@@ -171,7 +171,8 @@ def _parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="warp-stokes", description="Stokes cage coordinates with NVIDIA Warp.")
     parser.add_argument("--version", action="version", version=f"warp-stokes {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
-    for add in (_add_cage, _add_bind, _add_deform, _add_animate, _add_encode, _add_batch, _add_sweep, _add_show):
+    for add in (_add_cage, _add_bind, _add_deform, _add_animate, _add_encode, _add_batch, _add_sweep, _add_show,
+                _add_edit):
         add(sub)
     return parser
 
@@ -375,6 +376,26 @@ def _add_batch(sub) -> None:
                    help="join this Ray cluster (e.g. auto) instead of starting one")
     p.add_argument("--device", default=None, help="cpu, cuda or cuda:N")
     p.set_defaults(run=commands.batch_command)
+
+
+def _add_edit(sub) -> None:
+    p = sub.add_parser("edit", help="edit the bound mesh by its cage, live, in the browser (needs pip install "
+                                    "'warp-stokes[edit]')")
+    p.add_argument("binding", help="binding file written by 'warp-stokes bind'")
+    p.add_argument("poses", nargs="?", default=None,
+                   help="cage poses to start from, each a key at its frame (what 'animate' takes)")
+    p.add_argument("-o", "--output", default=None,
+                   help="where the page's Save writes: poses (.npy, .npz) for 'animate', or the mesh as USD or a "
+                        "glTF skin (default edited.npz)")
+    p.add_argument("--cage-prim", default=None, metavar="PATH", help="the cage's prim in the poses' USD file")
+    p.add_argument("--scheme", choices=["arap", "laplacian", "none"], default="arap",
+                   help="how the handles neither moved nor pinned follow a move (default arap: as rigid as possible)")
+    p.add_argument("--interpolation", choices=["linear", "spline"], default="linear",
+                   help="how the timeline in-betweens keys")
+    p.add_argument("--host", default="127.0.0.1",
+                   help="the address the page is served on (default 127.0.0.1: this machine only)")
+    p.add_argument("--port", type=_number(int, 1, 65535), default=8080, help="the port (the next free one if taken)")
+    p.set_defaults(run=commands.edit_command)
 
 
 def _main(argv) -> int:

@@ -455,3 +455,32 @@ def batch_command(args) -> int:
           + (f", {short} written without reaching the solver's tolerance" if short else "")
           + f"; summary in {os.path.join(args.output, 'summary.json')}")
     return 1 if failed or short else 0
+
+
+def edit_command(args) -> int:
+    import time
+
+    from warp_stokes.edit.server import require_viser
+
+    require_viser()  # before any work
+    import warp_stokes as ws
+    from warp_stokes.edit import CageEditor
+    from warp_stokes.edit.server import EditorServer
+    from warp_stokes.io.outputs import check_output_target
+
+    output = args.output or "edited.npz"
+    check_output_target(output)
+    binding = ws.load_binding(args.binding, device="cpu")
+    poses = None if args.poses is None else ws.load_poses(args.poses, binding.cage_faces, binding.n_handles,
+                                                           binding.cage_source_index, cage_prim=args.cage_prim)
+    editor = CageEditor(binding, poses, scheme=args.scheme, interpolation=args.interpolation)
+    editor.binding_path = args.binding
+    server = EditorServer(editor, host=args.host, port=args.port, output=output)
+    where = "" if args.host in ("127.0.0.1", "localhost", "::1") else " (reachable from other machines)"
+    print(f"editing {args.binding} ({binding.n_vertices} vertices, {binding.n_handles} handles) at {server.url}"
+          f"{where}; the page's Save writes {output}; Ctrl-C stops", flush=True)
+    try:
+        while True:
+            time.sleep(0.5)
+    finally:
+        server.stop()
