@@ -234,3 +234,30 @@ def test_random_edit_sessions_keep_their_promises(binding):
     runner.settings = settings(max_examples=25, stateful_step_count=12, deadline=None,
                                suppress_health_check=[HealthCheck.too_slow])
     runner("runTest").runTest()
+
+
+def test_the_page_paints_each_material_in_its_colour_and_its_textures_mean(tmp_path, monkeypatch):
+    """The editor's page shows a textured character in colour: each triangle in its material's group, a group's
+    colour its base colour factor times its texture's mean (here an image of one colour with a darker diagonal), one grey group for a
+    mesh without looks."""
+    from conftest import box_cage, write_obj
+    from looks_inputs import LooksCase, write_gltf_case
+    from warp_stokes.cli import main
+    from warp_stokes.edit.server import MESH, material_colours
+
+    monkeypatch.chdir(tmp_path)
+    vertices, faces = box_cage((-2.0, -1.0, -1.0), (2.0, 1.5, 1.0))
+    write_obj(tmp_path / "cage.obj", vertices, faces)
+    case = LooksCase((0, 1, 0), (True, False))
+    write_gltf_case(tmp_path / "two.glb", case)
+    assert main(["bind", "two.glb", "cage.obj", "-o", "b.npz", "--resolution", "8", "--device", "cpu", "--quiet"]) == 0
+    binding = ws.load_binding("b.npz")
+    groups, colours = material_colours(binding)
+    darkened = tuple(int(round(c * 14 / 16)) for c in case.colours[0])  # the image's diagonal is half as bright
+    assert colours == [darkened, case.colours[1], MESH]
+    per_part = len(binding.mesh_faces) // 3
+    assert groups.tolist() == [0] * per_part + [1] * per_part + [0] * per_part
+    assert material_colours(CageEditor(binding).binding)[1] == colours
+    plain = ws.Binding(binding.weights, binding.cage_vertices, binding.cage_faces, binding.mesh_vertices,
+                       binding.mesh_faces, binding.settings, binding.stats)
+    assert material_colours(plain)[1] == [MESH]

@@ -63,47 +63,44 @@ def weight_colours(weights: np.ndarray) -> np.ndarray:
 def material_colours(binding) -> tuple[np.ndarray, list]:
     """Each mesh triangle's material group and each group's RGB (uint8): a material's base colour factor times the
     mean colour of its base colour texture where the image can be read; one grey group without looks."""
+    import warnings
+
     triangles = len(binding.mesh_faces)
     looks, per_polygon = binding.looks, binding.mesh_face_materials
     counts = binding.mesh_face_counts
     if looks is None or per_polygon is None or int(np.sum(counts - 2)) != triangles:
         return np.zeros(triangles, dtype=np.int64), [MESH]
     per_triangle = np.repeat(per_polygon, counts - 2)
-    images = _mean_image_colours(looks)
+    with warnings.catch_warnings():  # an image not found: the material's own colour (saving says so, not this)
+        warnings.simplefilter("ignore")
+        resolved = looks.resolved(has_uvs=binding.mesh_uvs is not None)
+    means = [_mean_colour(data) for _, data in resolved.images]
     colours = []
-    for material in looks.materials:
-        pbr = material.get("pbrMetallicRoughness", {}) if isinstance(material, dict) else {}
-        factor = np.asarray(pbr.get("baseColorFactor", [1.0, 1.0, 1.0, 1.0])[:3], dtype=np.float64)
-        texture = pbr.get("baseColorTexture", {}).get("index") if isinstance(pbr.get("baseColorTexture"), dict) \
-            else None
-        source = looks.textures[texture].get("source") if texture is not None and texture < len(looks.textures) \
-            else None
-        mean = images.get(source, np.ones(3))
-        colours.append(tuple(int(c) for c in np.clip(255.0 * factor * mean, 0, 255)))
+    for material in resolved.materials:
+        pbr = material.get("pbrMetallicRoughness") or {}
+        factor = np.asarray((pbr.get("baseColorFactor") or [1.0, 1.0, 1.0])[:3], dtype=np.float64)
+        slot = pbr.get("baseColorTexture") or {}
+        texture = resolved.textures[slot["index"]] if "index" in slot else {}
+        source = texture.get("source")
+        mean = means[source] if source is not None and means[source] is not None else np.ones(3)
+        colours.append(tuple(int(round(c)) for c in np.clip(255.0 * factor * mean, 0, 255)))
     groups = np.where(per_triangle >= 0, per_triangle, len(colours))
     return groups, colours + [MESH]
 
 
-def _mean_image_colours(looks) -> dict:
-    """Image index -> mean RGB in [0, 1] of the images that can be read (others are left out)."""
-    import warnings
+def _mean_colour(data: bytes):
+    """An image's mean RGB in [0, 1], or None where Pillow cannot decode it."""
+    try:
+        from PIL import Image
 
-    out = {}
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        resolved = looks.resolved()
-    for k, data in enumerate(resolved.images):
-        if not data:
-            continue
-        try:
-            from PIL import Image
-
-            with Image.open(io.BytesIO(data)) as image:
-                pixels = np.asarray(image.convert("RGB").resize((64, 64)), dtype=np.float64) / 255.0
-            out[k] = pixels.reshape(-1, 3).mean(axis=0)
-        except Exception:  # an image the viewer cannot decode: the factor alone
-            continue
-    return out
+        with Image.open(io.BytesIO(data)) as image:
+            image = image.convert("RGB")
+            if max(image.size) > 256:  # a box filter keeps the mean; a large texture need not be read whole
+                image = image.resize((256, 256), Image.Resampling.BOX)
+            pixels = np.asarray(image, dtype=np.float64) / 255.0
+    except Exception:  # a format the viewer cannot decode: the material's factor alone
+        return None
+    return pixels.reshape(-1, 3).mean(axis=0)
 
 
 class EditorServer:
@@ -152,13 +149,16 @@ class EditorServer:
     def _build_scene(self) -> None:
         ed, scene = self.editor, self.server.scene
         diagonal = ed.diagonal
-        # the camera in front of the character, as `show` draws it: along -z with +y up (a Z-up asset: along +y)
-        z_up = (ed.binding.asset or {}).get("up_axis") == "Z"
-        scene.set_up_direction("+z" if z_up else "+y")
+        # +y up (a Z-up asset's +z), the camera on the horizontal axis along which the cage is thinner: the
+        # character's broad side faces it (a four-legged one is seen from the side, a standing one from the front)
+        up = 2 if (ed.binding.asset or {}).get("up_axis") == "Z" else 1
+        scene.set_up_direction("+z" if up == 2 else "+y")
+        extent = np.ptp(ed.rest, axis=0)
+        across = min((a for a in range(3) if a != up), key=lambda a: extent[a])
         centre = 0.5 * (ed.rest.min(axis=0) + ed.rest.max(axis=0))
         camera = self.server.initial_camera
         camera.look_at = centre
-        camera.position = centre + (np.array([0.0, -1.2, 0.0]) if z_up else np.array([0.0, 0.0, 1.2])) * diagonal
+        camera.position = centre + 1.2 * diagonal * np.eye(3)[across]
         camera.near, camera.far = 0.01 * diagonal, 100.0 * diagonal
         self.radius = 0.012 * diagonal
         faces = ed.binding.mesh_faces
