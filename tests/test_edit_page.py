@@ -61,12 +61,13 @@ def editing(arm_npz, tmp_path):
                                                                                      if proc.poll() is not None else "")
         yield proc, f"http://127.0.0.1:{port}", output
     finally:
-        proc.send_signal(signal.SIGINT)
+        proc.send_signal(signal.SIGINT)  # Ctrl-C: how an editor is left, exit 0
         try:
-            proc.wait(timeout=20)
+            out, err = proc.communicate(timeout=20)
         except subprocess.TimeoutExpired:
             proc.kill()
             raise
+    assert proc.returncode == 0 and out.strip().splitlines()[-1] == "stopped", (proc.returncode, out, err)
 
 
 def panel_input(page, label: str):
@@ -191,3 +192,31 @@ def test_a_gizmo_drag_moves_and_turns_the_selection_in_one_undo_step(arm_npz):
         assert server._weights is None and server._parts[0][1].visible
     finally:
         server.stop()
+
+
+@pytest.mark.parametrize("case", ["no binding", "a folder as the binding", "text as the binding",
+                                  "poses of another cage", "output over the binding", "output over the poses",
+                                  "output a folder", "an unknown scheme", "a port out of range"])
+def test_bad_input_is_one_line_before_anything_is_served(arm_npz, tmp_path, monkeypatch, case):
+    """What the editor reads and writes is checked before it serves: one line, exit 2, nothing made."""
+    import warp_stokes.edit.server as server_module
+
+    def served(*args, **kwargs):
+        raise AssertionError(f"{case}: served")
+
+    monkeypatch.setattr(server_module, "EditorServer", served)
+    shutil.copy(arm_npz, tmp_path / "arm.npz")
+    np.save(tmp_path / "poses.npy", np.zeros((2, 58, 3)))
+    np.save(tmp_path / "other.npy", np.zeros((2, 12, 3)))
+    (tmp_path / "text.npz").write_text("not a binding")
+    (tmp_path / "folder").mkdir()
+    argv = {"no binding": ["missing.npz"], "a folder as the binding": ["folder"], "text as the binding": ["text.npz"],
+            "poses of another cage": ["arm.npz", "other.npy"], "output over the binding": ["arm.npz", "-o", "arm.npz"],
+            "output over the poses": ["arm.npz", "poses.npy", "-o", "poses.npy"],
+            "output a folder": ["arm.npz", "-o", "folder"], "an unknown scheme": ["arm.npz", "--scheme", "bendy"],
+            "a port out of range": ["arm.npz", "--port", "70000"]}[case]
+    before = sorted(p.name for p in tmp_path.iterdir())
+    proc = cli("edit", *argv, cwd=tmp_path)
+    assert proc.returncode == 2, (proc.stdout, proc.stderr)
+    assert len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == before

@@ -468,8 +468,10 @@ def edit_command(args) -> int:
     from warp_stokes.edit.server import EditorServer
     from warp_stokes.io.outputs import check_output_target
 
+    from warp_stokes.io.inputs import inputs_of
+
     output = args.output or "edited.npz"
-    check_output_target(output)
+    check_output_target(output, inputs_of(args.binding, args.poses, error=ws.BindingError))
     binding = ws.load_binding(args.binding, device="cpu")
     poses = None if args.poses is None else ws.load_poses(args.poses, binding.cage_faces, binding.n_handles,
                                                            binding.cage_source_index, cage_prim=args.cage_prim)
@@ -482,5 +484,9 @@ def edit_command(args) -> int:
     try:
         while True:
             time.sleep(0.5)
+    except KeyboardInterrupt:  # how an editor is left: not an error
+        unsaved = editor.unsaved
+        print("stopped" + (f"; {unsaved} edit(s) since the last save were not written" if unsaved else ""))
+        return 0
     finally:
         server.stop()

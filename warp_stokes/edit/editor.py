@@ -112,6 +112,7 @@ class CageEditor:
         self.frame = 0.0
         self._undo: list[_State] = []
         self._redo: list[_State] = []
+        self._changes = 0
         self.poses_name = None
         if poses is not None:
             loaded = self._poses(poses)
@@ -152,7 +153,13 @@ class CageEditor:
         self._pinned = state.pinned
         self._keys = {f: c.copy() for f, c in state.keys}
 
+    @property
+    def unsaved(self) -> int:
+        """Steps (moves, pins, keys, undos ...) since the last :meth:`save` (or the start)."""
+        return self._changes
+
     def _record(self) -> None:
+        self._changes += 1
         self._undo.append(self._state())
         del self._undo[:-HISTORY]
         self._redo.clear()
@@ -165,6 +172,7 @@ class CageEditor:
         """Go back one step (a move, a pin, a key, a reset); False when there is none."""
         if not self._undo:
             return False
+        self._changes += 1
         self._redo.append(self._state())
         self._restore(self._undo.pop())
         return True
@@ -173,6 +181,7 @@ class CageEditor:
         """Go forward one undone step; False when there is none."""
         if not self._redo:
             return False
+        self._changes += 1
         self._undo.append(self._state())
         self._restore(self._redo.pop())
         return True
@@ -382,6 +391,7 @@ class CageEditor:
             else:
                 raise WarpStokesError(f"{path}: save poses as .npy or .npz, the mesh as USD (.usd, .usda, .usdc) or "
                                       "a glTF skin (.glb, .gltf)")
+        self._changes = 0
         return poses
 
     def _poses(self, poses) -> Poses:

@@ -383,7 +383,8 @@ class EditorServer:
 
     def stop(self) -> None:
         self._play.value = False
-        self.server.stop()
+        with contextlib.redirect_stdout(io.StringIO()):  # viser says it stopped; the command says so itself
+            self.server.stop()
 
 
 def _quaternion_matrix(wxyz) -> np.ndarray:
