@@ -19,6 +19,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from conftest import cli
@@ -112,6 +113,21 @@ def test_the_readmes_commands_run_as_written_without_a_warning(tour):
     for written in ("arm.npz", "bent_arm.obj", "arm_bend.usd", "arm_usd.npz", "arm_bend_layer.usda",
                     "out/summary.json", "weights.png", "deformed.png", "arm_bend_py.usda", "arm_py.npz"):
         assert (workdir / written).is_file(), written
+
+
+def test_the_readmes_pictures_are_what_its_commands_draw_now(tour):
+    """The pictures the README shows (examples/arm/pictures) are the ones its tour draws: a change that alters them
+    fails here until ``python examples/arm/make_pictures.py`` draws them again. Compared decoded, allowing what
+    another matplotlib's anti-aliasing or a GPU's last bits move (a few pixels), not a changed drawing."""
+    from matplotlib.image import imread
+
+    workdir, _ = tour
+    for name in ("weights.png", "deformed.png", "made_cage.png"):
+        drawn, committed = imread(workdir / name), imread(ROOT / "examples" / "arm" / "pictures" / name)
+        assert drawn.shape == committed.shape, name
+        changed = float(np.mean(np.abs(drawn - committed).max(axis=-1) > 8 / 255))
+        assert changed < 0.005, (f"{name}: {100 * changed:.2f} % of its pixels differ from the README's picture; "
+                                 "python examples/arm/make_pictures.py draws them again")
 
 
 @pytest.mark.parametrize("guide", GUIDES)
