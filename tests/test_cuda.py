@@ -47,3 +47,21 @@ def test_a_threaded_cpu_bind_on_a_gpu_host_stays_on_the_cpu():
     assert four.stats.solver.threads == 4 and four.stats.device == "cpu"
     np.testing.assert_allclose(four.weights, one.weights, atol=1e-6)
     assert wp.get_device().is_cuda  # and the default is left as it was
+
+
+@pytest.mark.parametrize("case", [dict(resolution=24), dict(resolution=48, memory_budget=14 * 2**20),
+                                  dict(resolution=24, method="harmonic")], ids=["one chunk", "chunks", "harmonic"])
+def test_v_cycles_replayed_as_cuda_graphs_give_the_weights_of_plain_launches(monkeypatch, case):
+    """On a GPU each V-cycle is recorded once per pair of arrays and replayed (solver.multigrid.GRAPHS): the same
+    kernels, arguments and order, so the same weights bit for bit, one chunk or many (where the work vectors are
+    reused or made again)."""
+    import warp_stokes.solver.multigrid as multigrid
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        monkeypatch.setattr(multigrid, "GRAPHS", False)
+        plain = ws.bind(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", device="cuda:0", **case)
+        monkeypatch.setattr(multigrid, "GRAPHS", True)
+        replayed = ws.bind(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", device="cuda:0", **case)
+    assert replayed.stats.solver.chunks == plain.stats.solver.chunks
+    np.testing.assert_array_equal(replayed.weights, plain.weights)

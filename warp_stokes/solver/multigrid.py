@@ -74,6 +74,8 @@ SMOOTHER_DEGREES = (3, 3, 8)
 #: about 8, so hierarchies of 8 levels come only beyond n = 512 (not measured since)
 DEEP_LEVELS = 8
 DEEP_SMOOTHER_DEGREES = (4, 4, 12)
+#: replay each V-cycle as a recorded CUDA graph on a GPU (Multigrid.apply); False launches every kernel each time
+GRAPHS = True
 #: the Chebyshev interval is [lmax / SMOOTHING_RANGE, lmax]: the upper part of the spectrum is smoothed
 SMOOTHING_RANGE = 30.0
 POWER_ITERATIONS = 40
@@ -117,6 +119,8 @@ class Multigrid:
         #: where the smoothers' upper ends come from: "power iteration" estimates, or guaranteed "row sums"
         self.smoother_bounds = "power iteration"
         self._coarsest = None
+        #: on a GPU, each V-cycle's launches recorded once as a CUDA graph per (r, z) pair and replayed (see apply)
+        self._graphs: dict = {}
         with wp.ScopedDevice(self.device):
             self.table = wp.empty(64, dtype=wp.mat44d)
             wp.launch(self.equation.prolongation_table, dim=64, outputs=[self.table])
@@ -196,6 +200,7 @@ class Multigrid:
         for depth, lev in enumerate(self.levels[:-1]):
             lev.lmax = self.equation.row_sum_bound if depth == 0 else float(bounds[depth])
         self.smoother_bounds = "row sums"
+        self._graphs = {}  # they hold the smoothers' old coefficients
 
     def _dense(self, depth: int) -> np.ndarray:
         rows, cols, blocks = self.operator_triplets(depth)
@@ -230,6 +235,7 @@ class Multigrid:
             wp.launch(cg.column_dots, dim=(threads, 1), inputs=[v, v, threads], outputs=[norms[depth : depth + 1]])
         for lev, squared in zip(self.levels[:-1], norms.numpy()):
             lev.lmax = LMAX_SAFETY * float(np.sqrt(squared))
+        self._graphs = {}
         self.seconds["eigenvalues"] = time.perf_counter() - start
 
     # -- inspection -----------------------------------------------------------------------------------------------
@@ -304,6 +310,7 @@ class Multigrid:
         so that the memory planner's figure holds."""
         lev = self.levels[depth]
         if lev.work.get("n_cols", 0) < n_cols:
+            self._graphs = {}  # recorded with the vectors about to be released
             lev.work = {}
             shape = (lev.n, n_cols)
             names = ("r", "d") if depth == 0 else ("r", "d", "x", "b")
@@ -321,6 +328,7 @@ class Multigrid:
         view = copy.copy(self)
         view.levels = [dataclasses.replace(lev, work={}) for lev in self.levels]
         view.seconds = dict(self.seconds)
+        view._graphs = {}
         return view
 
     def _smooth(self, depth: int, b: wp.array, x: wp.array, r: wp.array, d: wp.array, x_is_zero: bool,
@@ -412,9 +420,38 @@ class Multigrid:
         self._smooth(depth, b, x, r, d, x_is_zero=False, residual=False)
 
     def apply(self, r: wp.array, z: wp.array) -> None:
-        """z = one V-cycle applied to r (both (n_interior, handles) vec4 arrays on this device)."""
+        """z = one V-cycle applied to r (both (n_interior, handles) vec4 arrays on this device).
+
+        On a GPU the cycle's launches (about fifty, each costing the host more than the GPU at these sizes) are
+        recorded once per pair of arrays as a CUDA graph and replayed: the same kernels with the same arguments in
+        the same order, so the same numbers. A CG solve applies it to the same two arrays every iteration."""
         with wp.ScopedDevice(self.device):
+            if self.backend.on_cpu or not GRAPHS:
+                self._cycle(0, r, z)
+                return
+            key = (r.ptr, z.ptr, r.shape, r.strides, z.strides)
+            graph = self._graphs.get(key)
+            if graph is None:  # the first cycle on these arrays: launched as it is (its modules load, its vectors
+                self._cycle(0, r, z)  # are made); recorded at the second, when a solve is using them again
+                self._graphs[key] = "seen"
+            elif graph == "seen":
+                self._graphs[key] = self._record_cycle(r, z)
+            elif graph is False:  # this device cannot record (see _record_cycle)
+                self._cycle(0, r, z)
+            else:
+                wp.capture_launch(graph)
+
+    def _record_cycle(self, r: wp.array, z: wp.array):
+        """A CUDA graph of one V-cycle from r into z, the cycle run once by replaying it; False where recording
+        fails (then the cycle is launched as it is, every time: this one too)."""
+        try:  # the modules are loaded and the work vectors made by the first, plain cycle on these arrays
+            with wp.ScopedCapture(device=self.device, force_module_load=False) as capture:
+                self._cycle(0, r, z)
+        except Exception:  # a driver or stream that cannot capture: the plain launches always work
             self._cycle(0, r, z)
+            return False
+        wp.capture_launch(capture.graph)
+        return capture.graph
 
     # -- reporting ------------------------------------------------------------------------------------------------
 
