@@ -1,8 +1,10 @@
 """Batches on Ray: assets bound in parallel by Ray worker processes, on one host or a cluster.
 
-``run_batch(..., workers=N)`` starts a local Ray cluster with N worker slots (on a GPU host, default one per GPU:
+``run_batch(..., workers=N)`` starts a new local Ray cluster with N worker slots (on a GPU host, default one per GPU:
 each task asks for ``num_gpus=1``, Ray sets ``CUDA_VISIBLE_DEVICES``, and the worker's Warp sees only its GPU);
-``ray_address=...`` joins a running cluster instead. The driver reads the manifest, skips up-to-date assets and
+``ray_address=...`` joins a running cluster instead. Ray takes seconds to start (2-4 s on 2 cores): meanwhile this
+process binds the first assets itself, on the device and threads a worker's task would use, so that the batch
+starts working at once; the rest go to the workers once the cluster is up. The driver reads the manifest, skips up-to-date assets and
 holds the folder's lock; each task binds one asset with :func:`warp_stokes.batch.asset.bind_one`, which writes the
 asset's outputs under temporary names in the output folder and renames them together (outputs go to a filesystem
 that the workers share with the driver), and returns its :class:`Result` with the host, process and device.
@@ -20,9 +22,10 @@ import contextlib
 import logging
 import os
 import signal
+import socket
 import time
 
-from ..cluster import require_ray, start_ray
+from ..cluster import RayInBackground, require_ray, start_ray
 from ..threads import cpu_threads
 from ..io.outputs import remove_temporaries_of
 from .asset import Result, bind_one, digest_now, earlier_records, skipped, warn_for
@@ -56,23 +59,35 @@ def _bind_task(asset, outdir: str, device, started=None, k: int = 0, threads: in
     return bind_one(asset, outdir, device, threads=threads, inputs=inputs, unreadable=unreadable, digest=digest)
 
 
-def _start(ray, workers: int | None, address: str | None, device) -> bool:
-    """Connect to Ray; True when this call started a local cluster (which the batch then shuts down)."""
-    if ray.is_initialized():
-        return False
+def _options() -> dict:
     env = {KILL_ONCE_VARIABLE: os.environ[KILL_ONCE_VARIABLE]} if os.environ.get(KILL_ONCE_VARIABLE) else {}
-    options = {"include_dashboard": False, "log_to_driver": False, "logging_level": logging.ERROR,
-               "runtime_env": {"env_vars": env} if env else None}
-    if address is not None:
-        start_ray(ray, address=address, **options)
-        return True
+    return {"include_dashboard": False, "log_to_driver": False, "logging_level": logging.ERROR,
+            "runtime_env": {"env_vars": env} if env else None}
+
+
+def _local_cluster(ray, workers: int | None, device) -> RayInBackground:
+    """A new local cluster of ``workers`` slots (on a GPU host, default one per GPU), started in the background;
+    ``address="local"``: never a cluster that happens to run on this machine already (``ray.init()`` would join
+    one started by ``ray start``, and its slots, GPUs and shutdown are not this batch's)."""
     on_cpu = device is not None and str(device).startswith("cpu")
     if workers is None:
         from ..device import cuda_device_count
 
         workers = (0 if on_cpu else cuda_device_count()) or os.cpu_count() or 1
-    start_ray(ray, num_cpus=int(workers), num_gpus=None if not on_cpu else 0, **options)
-    return True
+    return RayInBackground(ray, address="local", num_cpus=int(workers), num_gpus=None if not on_cpu else 0,
+                           **_options())
+
+
+def _lane(workers: int | None, device) -> tuple[str, int | None]:
+    """The device and CPU threads of the binds this process makes while the local cluster starts: those of a
+    worker's task (:func:`_task_options`), so that every asset is bound alike wherever it is."""
+    from ..device import cuda_device_count
+
+    on_cpu = (device is not None and str(device).startswith("cpu")) or cuda_device_count() == 0
+    if not on_cpu:
+        return "cuda:0", None
+    slots = workers or os.cpu_count() or 1
+    return "cpu" if device is None else device, max(1, cpu_threads() // max(1, int(slots)))
 
 
 def _task_options(ray, workers: int | None, device, local: bool) -> tuple[dict, str | None, int | None]:
@@ -137,26 +152,51 @@ def run_on_ray(assets, outdir: str, manifest, force: bool, device, progress, wor
                address: str | None, inputs: dict | None = None, unreadable: dict | None = None) -> list[Result]:
     """Bind the assets as Ray tasks; the results in manifest order (see the module docstring)."""
     ray = require_ray()
-    ray_started = _start(ray, workers, address, device)
-    started = None
+    cluster, joined, started = None, False, None
+    if ray.is_initialized():
+        pass  # a cluster this process is connected to already: used as it is, left as it is
+    elif address is not None:
+        start_ray(ray, address=address, **_options())
+        joined = True
+    else:
+        cluster = _local_cluster(ray, workers, device)
     try:
-        options, task_device, threads = _task_options(ray, workers, device, local=ray_started and address is None)
-        task = ray.remote(_bind_task).options(max_retries=TASK_RETRIES, retry_exceptions=False, **options)
         results: list[Result | None] = [None] * len(assets)
-        pending = {}
         earlier = earlier_records(outdir)
-        started = _started_queue(ray, progress)
-        running: set[int] = set()
         inputs, unreadable = inputs or {}, unreadable or {}
+        digests = [digest_now(asset, inputs.get(asset.name)) for asset in assets]  # hashed once: skip or record
         for k, asset in enumerate(assets):
-            digest = digest_now(asset, inputs.get(asset.name))  # hashed once: skip or record
-            results[k] = skipped(asset, outdir, force, digest, earlier)
-            if results[k] is None:
-                pending[task.remote(asset, outdir, task_device, started, k, threads, inputs.get(asset.name),
-                                    unreadable.get(asset.name), digest)] = k
-        workers_seen = set()  # (host, pid) of every process that ran a task: their temporaries, once all are done
+            results[k] = skipped(asset, outdir, force, digests[k], earlier)
+        todo = [k for k, r in enumerate(results) if r is None]
         total, failed = len(assets), 0
         done = sum(r is not None for r in results)
+        if cluster is not None:  # while Ray starts, this process binds: the first assets are done at once
+            lane_device, lane_threads = _lane(workers, device)
+            while todo and not cluster.ready:
+                k = todo.pop(0)
+                if progress:
+                    print(f"{_counts(done, total, 1, failed)} {assets[k].name}: started ({socket.gethostname()} pid "
+                          f"{os.getpid()}, this process, while Ray starts)", file=progress, flush=True)
+                results[k] = bind_one(assets[k], outdir, lane_device, threads=lane_threads,
+                                      inputs=inputs.get(assets[k].name), unreadable=unreadable.get(assets[k].name),
+                                      digest=digests[k])
+                done += 1
+                failed += results[k].status == "failed"
+                warn_for(results[k])
+                if progress:
+                    _line(progress, done, total, 0, failed, results[k])
+            cluster.wait()
+        if not todo:  # all bound here (or up to date) before the cluster was up: no task to send
+            return results
+        options, task_device, threads = _task_options(ray, workers, device, local=cluster is not None)
+        task = ray.remote(_bind_task).options(max_retries=TASK_RETRIES, retry_exceptions=False, **options)
+        started = _started_queue(ray, progress) if todo else None
+        running: set[int] = set()
+        pending = {}
+        for k in todo:
+            pending[task.remote(assets[k], outdir, task_device, started, k, threads, inputs.get(assets[k].name),
+                                unreadable.get(assets[k].name), digests[k])] = k
+        workers_seen = set()  # (host, pid) of every process that ran a task: their temporaries, once all are done
         began: dict[int, float] = {}  # asset -> when its task last started (the worker's clock)
         while pending:
             # with progress, every half second what started and finished meanwhile, said in the order it happened
@@ -201,5 +241,7 @@ def run_on_ray(assets, outdir: str, manifest, force: bool, device, progress, wor
         if started is not None:  # the queue's actor, also when the batch fails in a cluster that stays up
             with contextlib.suppress(Exception):
                 started.shutdown()
-        if ray_started:
+        if cluster is not None:
+            cluster.stop()
+        elif joined:
             ray.shutdown()
