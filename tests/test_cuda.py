@@ -55,13 +55,37 @@ def test_v_cycles_replayed_as_cuda_graphs_give_the_weights_of_plain_launches(mon
     """On a GPU each V-cycle is recorded once per pair of arrays and replayed (solver.multigrid.GRAPHS): the same
     kernels, arguments and order, so the same weights bit for bit, one chunk or many (where the work vectors are
     reused or made again)."""
+    import warp as wp
+
     import warp_stokes.solver.multigrid as multigrid
 
+    replays = []
+    launch = wp.capture_launch
+    monkeypatch.setattr(multigrid.wp, "capture_launch", lambda graph, **k: (replays.append(graph), launch(graph, **k)))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         monkeypatch.setattr(multigrid, "GRAPHS", False)
         plain = ws.bind(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", device="cuda:0", **case)
+        assert not replays
         monkeypatch.setattr(multigrid, "GRAPHS", True)
         replayed = ws.bind(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", device="cuda:0", **case)
+    assert len(replays) >= replayed.stats.solver.iterations  # recorded, and replayed at least once an iteration
     assert replayed.stats.solver.chunks == plain.stats.solver.chunks
     np.testing.assert_array_equal(replayed.weights, plain.weights)
+
+
+def test_binds_in_threads_on_one_gpu_record_no_graph_under_each_other():
+    """Two binds at once in threads of one process on one GPU: Warp records every launch on the device's stream
+    and refuses every wait there while a graph is recorded, so neither records while the other runs (they launch
+    plainly): no error, and the weights of a bind alone."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    case = dict(resolution=32, memory_budget=14 * 2**20)  # chunks: many cycles on the same arrays
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        alone = ws.bind(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", device="cuda:0", **case)
+        with ThreadPoolExecutor(2) as pool:
+            both = list(pool.map(lambda _: ws.bind(EXAMPLE / "arm.obj", EXAMPLE / "arm_cage.obj", device="cuda:0",
+                                                   **case), range(2)))
+    for b in both:
+        np.testing.assert_array_equal(b.weights, alone.weights)

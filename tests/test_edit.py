@@ -261,3 +261,30 @@ def test_the_page_paints_each_material_in_its_colour_and_its_textures_mean(tmp_p
     plain = ws.Binding(binding.weights, binding.cage_vertices, binding.cage_faces, binding.mesh_vertices,
                        binding.mesh_faces, binding.settings, binding.stats)
     assert material_colours(plain)[1] == [MESH]
+
+
+def test_an_edit_not_keyed_is_neither_saved_silently_nor_lost_to_a_seek(binding, arm_npz, tmp_path):
+    """With keys on the timeline, saving writes the keys: an edit on top of them not keyed yet is refused with a
+    line saying so, not dropped; a seek away from it is a step of the history, so undo brings it back, at its
+    frame; a save never replaces the poses file the editor started from."""
+    poses = tmp_path / "start.npz"
+    np.savez(poses, poses=np.stack([binding.cage_vertices, binding.cage_vertices + 0.1]), frames=[0.0, 10.0])
+    ed = CageEditor(arm_npz, poses=poses, scheme="none")
+    assert sorted(ed.keys) == [0.0, 10.0] and ed.frame == 0.0
+    ed.seek(5)
+    moved = ed.move([3], [0.0, 0.2, 0.0])
+    with pytest.raises(ws.WarpStokesError, match="the pose at frame 5 is not keyed: key it"):
+        ed.save(tmp_path / "out.npz")
+    assert not (tmp_path / "out.npz").exists()
+    ed.seek(8)  # away from the edit: undoable
+    assert not np.array_equal(ed.cage, moved)
+    assert ed.undo()
+    np.testing.assert_array_equal(ed.cage, moved)
+    assert ed.frame == 5.0
+    ed.key()
+    assert len(ed.save(tmp_path / "out.npz").frames) == 11
+    with pytest.raises(ws.WarpStokesError, match="start.npz"):
+        ed.save(poses)
+    # a seek far along the timeline costs one segment, not every frame between the keys
+    ed.key(90000)
+    np.testing.assert_allclose(ed.pose_at(45005), 0.5 * (ed.keys[10.0] + ed.keys[90000.0]), atol=1e-9)

@@ -56,7 +56,7 @@ def editing(arm_npz, tmp_path):
     proc = subprocess.Popen([*command, "edit", str(arm_npz), "-o", str(output), "--port", str(port)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        line = proc.stdout.readline()  # the command says where it serves once it does
+        line = first_line(proc, seconds=120)  # the command says where it serves once it does
         assert line.startswith("editing ") and f"http://127.0.0.1:{port}" in line, (line, proc.stderr.read()
                                                                                      if proc.poll() is not None else "")
         yield proc, f"http://127.0.0.1:{port}", output
@@ -68,6 +68,16 @@ def editing(arm_npz, tmp_path):
             proc.kill()
             raise
     assert proc.returncode == 0 and out.strip().splitlines()[-1] == "stopped", (proc.returncode, out, err)
+
+
+def first_line(proc, seconds: float) -> str:
+    """The process's first line of stdout, or "" after ``seconds`` (a command that never says it serves fails the
+    test instead of hanging the suite)."""
+    import selectors
+
+    with selectors.DefaultSelector() as waiting:
+        waiting.register(proc.stdout, selectors.EVENT_READ)
+        return proc.stdout.readline() if waiting.select(timeout=seconds) else ""
 
 
 def panel_input(page, label: str):
@@ -93,6 +103,7 @@ def test_the_page_shows_the_mesh_and_an_edit_through_it_is_saved_and_played_back
             assert drawn > 0.005, (drawn, blank)  # the scene's part of the page (the panel left out) shows a mesh
 
             panel_input(page, "Selected handles").fill("40")
+            page.get_by_text("selected 40", exact=True).wait_for(timeout=30_000)  # taken before the move is asked
             offset = panel_input(page, "Offset")
             offset.nth(0).fill("2.5")
             offset.nth(0).press("Tab")

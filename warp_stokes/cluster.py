@@ -56,7 +56,10 @@ class RayInBackground:
             return
         self._started.set()
         self._done.wait()
-        ray.shutdown()
+        try:
+            ray.shutdown()
+        except Exception:  # nothing to report on a thread that ends here: the batch's results are written
+            pass
 
     @property
     def ready(self) -> bool:
@@ -70,6 +73,9 @@ class RayInBackground:
             raise self.error
 
     def stop(self) -> None:
-        """Shut the cluster down (once it has started) and end the thread."""
+        """Shut the cluster down and end the thread; while Ray is still starting (a batch stopped by Ctrl-C, or done
+        before the cluster was up) this returns at once: the thread shuts the cluster down as soon as it is up, and
+        Ray's processes end with this process in any case."""
         self._done.set()
-        self._thread.join()
+        if self._started.is_set():
+            self._thread.join()

@@ -152,6 +152,15 @@ def run_on_ray(assets, outdir: str, manifest, force: bool, device, progress, wor
                address: str | None, inputs: dict | None = None, unreadable: dict | None = None) -> list[Result]:
     """Bind the assets as Ray tasks; the results in manifest order (see the module docstring)."""
     ray = require_ray()
+    results: list[Result | None] = [None] * len(assets)
+    earlier = earlier_records(outdir)
+    inputs, unreadable = inputs or {}, unreadable or {}
+    digests = [digest_now(asset, inputs.get(asset.name)) for asset in assets]  # hashed once: skip or record
+    for k, asset in enumerate(assets):
+        results[k] = skipped(asset, outdir, force, digests[k], earlier)
+    todo = [k for k, r in enumerate(results) if r is None]
+    if not todo:  # everything up to date: no cluster to start or join
+        return results
     cluster, joined, started = None, False, None
     if ray.is_initialized():
         pass  # a cluster this process is connected to already: used as it is, left as it is
@@ -161,13 +170,6 @@ def run_on_ray(assets, outdir: str, manifest, force: bool, device, progress, wor
     else:
         cluster = _local_cluster(ray, workers, device)
     try:
-        results: list[Result | None] = [None] * len(assets)
-        earlier = earlier_records(outdir)
-        inputs, unreadable = inputs or {}, unreadable or {}
-        digests = [digest_now(asset, inputs.get(asset.name)) for asset in assets]  # hashed once: skip or record
-        for k, asset in enumerate(assets):
-            results[k] = skipped(asset, outdir, force, digests[k], earlier)
-        todo = [k for k, r in enumerate(results) if r is None]
         total, failed = len(assets), 0
         done = sum(r is not None for r in results)
         if cluster is not None:  # while Ray starts, this process binds: the first assets are done at once
@@ -185,9 +187,9 @@ def run_on_ray(assets, outdir: str, manifest, force: bool, device, progress, wor
                 warn_for(results[k])
                 if progress:
                     _line(progress, done, total, 0, failed, results[k])
+            if not todo:  # all bound here before the cluster was up: no task to send, and its start no concern
+                return results
             cluster.wait()
-        if not todo:  # all bound here (or up to date) before the cluster was up: no task to send
-            return results
         options, task_device, threads = _task_options(ray, workers, device, local=cluster is not None)
         task = ray.remote(_bind_task).options(max_retries=TASK_RETRIES, retry_exceptions=False, **options)
         started = _started_queue(ray, progress) if todo else None

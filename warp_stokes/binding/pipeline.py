@@ -21,6 +21,7 @@ from ..geometry.mean_value import mean_value_coordinates
 from ..memory import memory_size
 from ..geometry.resolution import AUTO_RESOLUTION, auto_resolution, check_resolution, wedge_resolution
 from ..solver.solve import ACCEPTABLE
+from ..solver.multigrid import solving
 from .bind_inputs import Inputs, load_inputs
 from .columns import grid_columns
 from .plan import METHODS, GridPlan
@@ -131,6 +132,12 @@ def bind(mesh, cage=None, resolution="auto", device=None, tol: float = 1e-6, max
     plan = GridPlan.of(device if devices is None else driver_device(devices), method, boundary, solver, tol,
                        max_iterations, sampling, memory_budget, threads)
     resolution = check_resolution(resolution)  # arguments first: before the inputs are loaded and checked
+    with solving():  # (other binds of this process in threads: no graph recorded meanwhile, see Multigrid.apply)
+        return _bind_planned(mesh, cage, cage_prim, mesh_prims, rest_time, resolution, plan, devices, progress)
+
+
+def _bind_planned(mesh, cage, cage_prim, mesh_prims, rest_time, resolution, plan: GridPlan, devices, progress):
+    """:func:`bind` once its arguments are checked and its plan made."""
     seconds = {}
     inputs = load_inputs(mesh, cage, cage_prim, mesh_prims, rest_time, plan.backend, seconds)
     choice = _choose_resolution(inputs, resolution, plan, devices, progress)

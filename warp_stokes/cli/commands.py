@@ -471,12 +471,16 @@ def edit_command(args) -> int:
     from warp_stokes.io.inputs import inputs_of
 
     output = args.output or "edited.npz"
+    if os.path.splitext(output)[1].lower() not in (".npy", ".npz", ".usd", ".usda", ".usdc", ".glb", ".gltf"):
+        raise ws.WarpStokesError(f"{output}: the editor saves poses as .npy or .npz, the mesh as USD (.usd, .usda, "
+                                 ".usdc) or a glTF skin (.glb, .gltf)")
     check_output_target(output, inputs_of(args.binding, args.poses, error=ws.BindingError))
+    _check_listen(args.host, args.port)
     binding = ws.load_binding(args.binding, device="cpu")
     poses = None if args.poses is None else ws.load_poses(args.poses, binding.cage_faces, binding.n_handles,
                                                            binding.cage_source_index, cage_prim=args.cage_prim)
     editor = CageEditor(binding, poses, scheme=args.scheme, interpolation=args.interpolation)
-    editor.binding_path = args.binding
+    editor.binding_path, editor.poses_path = args.binding, args.poses  # a save never replaces either
     server = EditorServer(editor, host=args.host, port=args.port, output=output)
     where = "" if args.host in ("127.0.0.1", "localhost", "::1") else " (reachable from other machines)"
     print(f"editing {args.binding} ({binding.n_vertices} vertices, {binding.n_handles} handles) at {server.url}"
@@ -490,3 +494,22 @@ def edit_command(args) -> int:
         return 0
     finally:
         server.stop()
+
+
+def _check_listen(host: str, port: int) -> None:
+    """The address can be listened on (a name that resolves, an address of this machine): else one line, before
+    the server starts (viser would wait for it for ever). A port taken is left to the server, which takes the next."""
+    import socket
+
+    from warp_stokes.errors import WarpStokesError
+
+    try:
+        infos = socket.getaddrinfo(host, None, type=socket.SOCK_STREAM)
+    except (socket.gaierror, UnicodeError) as exc:
+        raise WarpStokesError(f"--host {host}: not an address or a name this machine resolves ({exc})") from None
+    family, _, _, _, address = infos[0]
+    with socket.socket(family, socket.SOCK_STREAM) as probe:
+        try:
+            probe.bind((address[0], 0))  # an ephemeral port: whether the address is this machine's
+        except OSError as exc:
+            raise WarpStokesError(f"--host {host}: this machine cannot listen there ({exc.strerror or exc})") from None

@@ -62,6 +62,7 @@ class _State:
     cage: np.ndarray
     pinned: tuple
     keys: tuple  # ((frame, cage), ...) in frame order
+    frame: float
 
 
 class CageEditor:
@@ -114,6 +115,8 @@ class CageEditor:
         self._redo: list[_State] = []
         self._changes = 0
         self.poses_name = None
+        #: the file the poses were read from (a save never replaces it), where they came from one
+        self.poses_path = os.fspath(poses) if isinstance(poses, (str, os.PathLike)) else None
         if poses is not None:
             loaded = self._poses(poses)
             self.poses_name = loaded.name
@@ -146,12 +149,14 @@ class CageEditor:
         return deform_on_host(self.binding.weights, cage)
 
     def _state(self) -> _State:
-        return _State(self._cage.copy(), self._pinned, tuple((f, self._keys[f].copy()) for f in sorted(self._keys)))
+        return _State(self._cage.copy(), self._pinned, tuple((f, self._keys[f].copy()) for f in sorted(self._keys)),
+                      self.frame)
 
     def _restore(self, state: _State) -> None:
         self._cage = state.cage.copy()
         self._pinned = state.pinned
         self._keys = {f: c.copy() for f, c in state.keys}
+        self.frame = state.frame
 
     @property
     def unsaved(self) -> int:
@@ -322,19 +327,23 @@ class CageEditor:
         if frame in self._keys:
             return self._keys[frame].copy()
         keys = Poses(np.stack([self._keys[float(f)] for f in frames]), frames, "keys")
-        between = inbetween(keys, interpolation=self.interpolation)
-        at = np.searchsorted(between.frames, frame)
-        if at < len(between.frames) and between.frames[at] == frame:
-            return between.positions[at].copy()
-        # a frame between integer frames: the interpolation itself, at one more key time
-        return _between(keys, frame, self.interpolation)
+        return _between(keys, frame, self.interpolation)  # the segment's formula alone, as inbetween evaluates it
 
     def seek(self, frame: float) -> np.ndarray:
-        """Go to ``frame``: the cage becomes the timeline's pose there (not a step of the history)."""
+        """Go to ``frame``: the cage becomes the timeline's pose there. Where that replaces a pose not keyed, the
+        seek is a step of the history (undo brings the pose back)."""
         frame = _frame(frame)
-        self._cage = self.pose_at(frame)
+        pose = self.pose_at(frame)
+        if self.pending_pose():
+            self._record()
+        self._cage = pose
         self.frame = frame
         return self.cage
+
+    def pending_pose(self) -> bool:
+        """Whether the current cage differs from what the keys give at the current frame: an edit not keyed yet
+        (never, with no key: the current cage is then what is saved)."""
+        return bool(self._keys) and not np.array_equal(self._cage, self.pose_at(self.frame))
 
     def timeline(self) -> Poses:
         """The poses to write: every integer frame from the first key to the last, in-betweened (the keys exactly);
@@ -367,9 +376,12 @@ class CageEditor:
         from ..io.outputs import atomic_output, writing
 
         path = os.fspath(path)
+        if self.pending_pose():  # saving the keys alone would drop the edit on the screen
+            raise WarpStokesError(f"{path}: the pose at frame {self.frame:g} is not keyed: key it (or undo the edit) "
+                                  "before saving")
         poses = self.timeline()
         ext = os.path.splitext(path)[1].lower()
-        sources = [self.binding_path] if self.binding_path else []
+        sources = [p for p in (self.binding_path, self.poses_path) if p]
         inputs = inputs_of(*sources, *self.binding.sources, error=WarpStokesError)
         with writing([path], inputs):
             if ext in (".npy", ".npz"):
@@ -428,7 +440,8 @@ def _frame(frame) -> float:
 
 
 def _between(keys: Poses, frame: float, interpolation: str) -> np.ndarray:
-    """The in-betweened pose at a frame that is not an integer: :func:`inbetween` with that frame as a step."""
+    """The in-betweened pose at a frame between two keys: the formula :func:`inbetween` evaluates, on that segment
+    alone (a seek costs the same however many frames the keys span)."""
     frames = keys.frames
     at = int(np.searchsorted(frames, frame))
     a, b = frames[at - 1], frames[at]

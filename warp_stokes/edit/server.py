@@ -137,7 +137,7 @@ class EditorServer:
             self.server = viser.ViserServer(host=host, port=port, verbose=False)
         # the page's share button would relay the session through viser's public server: local means local
         self.server.gui.configure_theme(show_share_button=False)
-        self.url = f"http://{host}:{self.server.get_port()}"
+        self.url = f"http://{f'[{host}]' if ':' in host else host}:{self.server.get_port()}"
         self._dragging = None
         self._playing = False
         self._build_scene()
@@ -218,30 +218,45 @@ class EditorServer:
             self._play.on_update(lambda _: self._start_playing())
             self._keys = gui.add_markdown(self._keys_text())
         with gui.add_folder("Save"):
-            self._path = gui.add_text("Save to", initial_value=self.output or "edited.npz")
+            # the output the command was given, not one typed in the page: a page served to other machines must not
+            # write where its visitors choose
+            gui.add_markdown(f"Saves to `{self.output}`" if self.output else "No output given (-o)")
             save = gui.add_button("Save")
-            save.on_click(lambda _: self._act(lambda: self.editor.save(self._path.value), "saved"))
+            save.on_click(lambda _: self._act(self._save, "saved"))
 
     # -- actions -------------------------------------------------------------------------------------------------
 
     def _act(self, action, said: str) -> None:
-        """Run a panel action; its error is said in the status line, not raised into the server's thread."""
+        """Run a panel action; its error is said in the status line, not raised into the server's thread, and so
+        are its warnings (a skin's error, an image left out)."""
+        import warnings
+
         with self.lock:
-            try:
-                action()
-            except WarpStokesError as exc:
-                self._status.content = f"**error:** {exc}"
-                return
-            self._status.content = f"{said}"
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                try:
+                    action()
+                except (WarpStokesError, OSError) as exc:
+                    self._status.content = f"**error:** {exc}"
+                    return
+            notes = list(dict.fromkeys(str(w.message) for w in caught))
+            self._status.content = said + "".join(f"  \n**warning:** {note}" for note in notes)
             self.update()
 
-    def select(self, handles) -> tuple:
-        """Make ``handles`` the selection (the gizmo goes to their centroid)."""
+    def _save(self) -> None:
+        if not self.output:
+            raise WarpStokesError("no output: start the editor with -o OUT")
+        self.editor.save(self.output)
+
+    def select(self, handles, picked: int | None = None) -> tuple:
+        """Make ``handles`` the selection (the gizmo goes to their centroid); ``picked``: the handle whose weights
+        are shown (default: the last selected)."""
         with self.lock:
             self.selection = tuple(int(h) for h in self.editor.handles(handles))
-            if self.selection:
-                self.picked = self.selection[-1]
+            if picked is not None or self.selection:
+                self.picked = self.selection[-1] if picked is None else int(picked)
             self._selected.value = ", ".join(str(h) for h in self.selection)
+            self._status.content = f"selected {self._selected.value}" if self.selection else "nothing selected"
             self.update()
             return self.selection
 
@@ -249,8 +264,7 @@ class EditorServer:
         with self.lock:
             chosen = list(self.selection)
             chosen.remove(handle) if handle in chosen else chosen.append(handle)
-            self.select(chosen)
-            self.picked = handle
+            self.select(chosen, picked=handle)
 
     def _typed_selection(self) -> None:
         text = self._selected.value.replace(",", " ").split()
@@ -277,7 +291,9 @@ class EditorServer:
             if not self.selection:
                 return
             phase = getattr(event, "phase", "update")
-            if self._dragging is None or phase == "start":
+            if self._dragging is None and phase != "start":
+                return  # viser may hand a drag's last updates over after its end: the drag is over
+            if phase == "start":
                 self._dragging = (self.editor.cage, np.array(self._gizmo.position), np.array(self._gizmo.wxyz))
                 self.editor.checkpoint()
             start_cage, start_position, start_wxyz = self._dragging

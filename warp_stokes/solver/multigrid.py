@@ -39,8 +39,10 @@ No general sparse matrix is involved: warp.sparse addresses block values with 32
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import dataclasses
+import threading
 import time
 from concurrent.futures import Future
 
@@ -76,6 +78,24 @@ DEEP_LEVELS = 8
 DEEP_SMOOTHER_DEGREES = (4, 4, 12)
 #: replay each V-cycle as a recorded CUDA graph on a GPU (Multigrid.apply); False launches every kernel each time
 GRAPHS = True
+#: held while a graph is recorded and while a solve announces itself (solving): Warp records every launch on the
+#: device's stream and refuses every wait on the device while it records, so no other solve of this process may
+#: run meanwhile
+_RECORDING = threading.Lock()
+_SOLVES = [0]  # solves in progress in this process
+
+
+@contextlib.contextmanager
+def solving():
+    """Around a solve that may launch on a GPU: while more than one runs in this process (threads), no V-cycle is
+    recorded as a graph (they are launched as they are), and none starts while one is being recorded."""
+    with _RECORDING:
+        _SOLVES[0] += 1
+    try:
+        yield
+    finally:
+        with _RECORDING:
+            _SOLVES[0] -= 1
 #: the Chebyshev interval is [lmax / SMOOTHING_RANGE, lmax]: the upper part of the spectrum is smoothed
 SMOOTHING_RANGE = 30.0
 POWER_ITERATIONS = 40
@@ -444,12 +464,16 @@ class Multigrid:
     def _record_cycle(self, r: wp.array, z: wp.array):
         """A CUDA graph of one V-cycle from r into z, the cycle run once by replaying it; False where recording
         fails (then the cycle is launched as it is, every time: this one too)."""
-        try:  # the modules are loaded and the work vectors made by the first, plain cycle on these arrays
-            with wp.ScopedCapture(device=self.device, force_module_load=False) as capture:
+        with _RECORDING:
+            if _SOLVES[0] > 1:  # another solve of this process runs (a thread): not now, maybe at a later apply
                 self._cycle(0, r, z)
-        except Exception:  # a driver or stream that cannot capture: the plain launches always work
-            self._cycle(0, r, z)
-            return False
+                return "seen"
+            try:  # the modules are loaded and the work vectors made by the first, plain cycle on these arrays
+                with wp.ScopedCapture(device=self.device, force_module_load=False) as capture:
+                    self._cycle(0, r, z)
+            except Exception:  # a driver or stream that cannot capture: the plain launches always work
+                self._cycle(0, r, z)
+                return False
         wp.capture_launch(capture.graph)
         return capture.graph
 
