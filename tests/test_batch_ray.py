@@ -114,36 +114,23 @@ def test_without_ray_workers_is_one_line_and_exit_2(tmp_path, monkeypatch):
     assert not (tmp_path / "out").exists()
 
 
-def test_while_ray_starts_this_process_binds_and_a_local_cluster_is_a_new_one(tmp_path, monkeypatch):
-    """A local cluster is started with ``address="local"`` (``ray.init()`` alone joins a cluster that happens to
-    run on the machine, whose slots and shutdown are not the batch's), in the background; until it is up the
-    batch binds in this process, with a worker task's threads, and it sends no task when nothing is left. A cluster
-    that never comes up before the work is done: every asset bound here, the cluster stopped."""
+def test_a_local_cluster_is_a_new_one_and_nothing_to_do_starts_none(tmp_path, monkeypatch):
+    """``--workers`` starts a new local cluster (``address="local"``: ``ray.init()`` alone joins a cluster that
+    happens to run on the machine, whose slots and shutdown are not the batch's); a batch whose assets are all up
+    to date starts none."""
     import warp_stokes.batch.distributed as distributed
 
-    made = []
+    calls = []
 
-    class NeverReady:
-        def __init__(self, ray, **options):
-            self.options, self.stopped, self.ready = options, False, False
-            made.append(self)
+    def start(ray, **options):
+        calls.append(options)
+        raise ws.WarpStokesError("not started in this test")
 
-        def wait(self):
-            pass
-
-        def stop(self):
-            self.stopped = True
-
-    monkeypatch.setattr(distributed, "RayInBackground", NeverReady)
-    monkeypatch.setattr(distributed, "_task_options", lambda *a, **k: pytest.fail("a task was sent"))
+    monkeypatch.setattr(distributed, "start_ray", start)
     path = manifest(tmp_path, broken=False)
-    results = ws.run_batch(path, tmp_path / "out", device="cpu", workers=2, progress=None)
-    assert [r.status for r in results] == ["ok", "ok"] and {r.pid for r in results} == {os.getpid()}
-    (cluster,) = made
-    assert cluster.options["address"] == "local" and cluster.options["num_cpus"] == 2 and cluster.stopped
-    serial = ws.run_batch(path, tmp_path / "serial", device="cpu", progress=None)
-    for name in ("arm_a", "arm_b"):
-        here = ws.load_binding(tmp_path / "out" / f"{name}.npz")
-        assert here.stats.solver.threads == max(1, ws.threads.cpu_threads() // 2)  # a worker's share, as a task's
-        np.testing.assert_array_equal(here.weights, ws.load_binding(tmp_path / "serial" / f"{name}.npz").weights)
-    assert [r.status for r in serial] == ["ok", "ok"]
+    with pytest.raises(ws.WarpStokesError, match="not started"):
+        ws.run_batch(path, tmp_path / "out", device="cpu", workers=2, progress=None)
+    assert calls[0]["address"] == "local" and calls[0]["num_cpus"] == 2
+    assert [r.status for r in ws.run_batch(path, tmp_path / "out", device="cpu", progress=None)] == ["ok", "ok"]
+    again = ws.run_batch(path, tmp_path / "out", device="cpu", workers=2, progress=None)
+    assert [r.status for r in again] == ["skipped", "skipped"] and len(calls) == 1

@@ -2,9 +2,10 @@
 
 ``run_batch(..., workers=N)`` starts a new local Ray cluster with N worker slots (on a GPU host, default one per GPU:
 each task asks for ``num_gpus=1``, Ray sets ``CUDA_VISIBLE_DEVICES``, and the worker's Warp sees only its GPU);
-``ray_address=...`` joins a running cluster instead. Ray takes seconds to start (2-4 s on 2 cores): meanwhile this
-process binds the first assets itself, on the device and threads a worker's task would use, so that the batch
-starts working at once; the rest go to the workers once the cluster is up. The driver reads the manifest, skips up-to-date assets and
+``ray_address=...`` joins a running cluster instead. A batch with nothing to do (everything up to date) starts or
+joins no cluster. (Binding the first assets in this process while Ray starts was tried and taken out: Ray starts its
+processes by forking, and a fork while this process is inside a multithreaded BLAS call can leave that call waiting
+for ever, which it did twice in about a dozen batches on 2 cores.) The driver reads the manifest, skips up-to-date assets and
 holds the folder's lock; each task binds one asset with :func:`warp_stokes.batch.asset.bind_one`, which writes the
 asset's outputs under temporary names in the output folder and renames them together (outputs go to a filesystem
 that the workers share with the driver), and returns its :class:`Result` with the host, process and device.
@@ -22,10 +23,9 @@ import contextlib
 import logging
 import os
 import signal
-import socket
 import time
 
-from ..cluster import RayInBackground, require_ray, start_ray
+from ..cluster import require_ray, start_ray
 from ..threads import cpu_threads
 from ..io.outputs import remove_temporaries_of
 from .asset import Result, bind_one, digest_now, earlier_records, skipped, warn_for
@@ -65,29 +65,16 @@ def _options() -> dict:
             "runtime_env": {"env_vars": env} if env else None}
 
 
-def _local_cluster(ray, workers: int | None, device) -> RayInBackground:
-    """A new local cluster of ``workers`` slots (on a GPU host, default one per GPU), started in the background;
-    ``address="local"``: never a cluster that happens to run on this machine already (``ray.init()`` would join
-    one started by ``ray start``, and its slots, GPUs and shutdown are not this batch's)."""
+def _start_local(ray, workers: int | None, device) -> None:
+    """A new local cluster of ``workers`` slots (on a GPU host, default one per GPU); ``address="local"``: never a
+    cluster that happens to run on this machine already (``ray.init()`` would join one started by ``ray start``, and
+    its slots, GPUs and shutdown are not this batch's)."""
     on_cpu = device is not None and str(device).startswith("cpu")
     if workers is None:
         from ..device import cuda_device_count
 
         workers = (0 if on_cpu else cuda_device_count()) or os.cpu_count() or 1
-    return RayInBackground(ray, address="local", num_cpus=int(workers), num_gpus=None if not on_cpu else 0,
-                           **_options())
-
-
-def _lane(workers: int | None, device) -> tuple[str, int | None]:
-    """The device and CPU threads of the binds this process makes while the local cluster starts: those of a
-    worker's task (:func:`_task_options`), so that every asset is bound alike wherever it is."""
-    from ..device import cuda_device_count
-
-    on_cpu = (device is not None and str(device).startswith("cpu")) or cuda_device_count() == 0
-    if not on_cpu:
-        return "cuda:0", None
-    slots = workers or os.cpu_count() or 1
-    return "cpu" if device is None else device, max(1, cpu_threads() // max(1, int(slots)))
+    start_ray(ray, address="local", num_cpus=int(workers), num_gpus=None if not on_cpu else 0, **_options())
 
 
 def _task_options(ray, workers: int | None, device, local: bool) -> tuple[dict, str | None, int | None]:
@@ -161,36 +148,17 @@ def run_on_ray(assets, outdir: str, manifest, force: bool, device, progress, wor
     todo = [k for k, r in enumerate(results) if r is None]
     if not todo:  # everything up to date: no cluster to start or join
         return results
-    cluster, joined, started = None, False, None
-    if ray.is_initialized():
-        pass  # a cluster this process is connected to already: used as it is, left as it is
-    elif address is not None:
-        start_ray(ray, address=address, **_options())
-        joined = True
-    else:
-        cluster = _local_cluster(ray, workers, device)
+    started, ours = None, False
+    if not ray.is_initialized():  # else: a cluster this process is connected to already, used and left as it is
+        if address is not None:
+            start_ray(ray, address=address, **_options())
+        else:
+            _start_local(ray, workers, device)
+        ours = True
     try:
         total, failed = len(assets), 0
         done = sum(r is not None for r in results)
-        if cluster is not None:  # while Ray starts, this process binds: the first assets are done at once
-            lane_device, lane_threads = _lane(workers, device)
-            while todo and not cluster.ready:
-                k = todo.pop(0)
-                if progress:
-                    print(f"{_counts(done, total, 1, failed)} {assets[k].name}: started ({socket.gethostname()} pid "
-                          f"{os.getpid()}, this process, while Ray starts)", file=progress, flush=True)
-                results[k] = bind_one(assets[k], outdir, lane_device, threads=lane_threads,
-                                      inputs=inputs.get(assets[k].name), unreadable=unreadable.get(assets[k].name),
-                                      digest=digests[k])
-                done += 1
-                failed += results[k].status == "failed"
-                warn_for(results[k])
-                if progress:
-                    _line(progress, done, total, 0, failed, results[k])
-            if not todo:  # all bound here before the cluster was up: no task to send, and its start no concern
-                return results
-            cluster.wait()
-        options, task_device, threads = _task_options(ray, workers, device, local=cluster is not None)
+        options, task_device, threads = _task_options(ray, workers, device, local=ours and address is None)
         task = ray.remote(_bind_task).options(max_retries=TASK_RETRIES, retry_exceptions=False, **options)
         started = _started_queue(ray, progress) if todo else None
         running: set[int] = set()
@@ -243,7 +211,5 @@ def run_on_ray(assets, outdir: str, manifest, force: bool, device, progress, wor
         if started is not None:  # the queue's actor, also when the batch fails in a cluster that stays up
             with contextlib.suppress(Exception):
                 started.shutdown()
-        if cluster is not None:
-            cluster.stop()
-        elif joined:
+        if ours:
             ray.shutdown()
