@@ -14,8 +14,9 @@ Per pair and scale (handles asked = scale x the artist's count, at least 8):
 - handles made; the package's cage checks (``check_cage``: closed, outward, manifold) and crossing face pairs (must
   be 0); vertices inside by the package's inside test (must be all);
 - tightness: mean and max distance from the mesh's vertices to the cage over the mesh's diagonal, and the volume
-  between them over the mesh's volume (both volumes counted on a 96-cell grid of the cage's box, the mesh's inside
-  by its winding number, so open meshes have one);
+  between them over the mesh's volume (both volumes counted on a grid of the cage's box, 96 cells along its longest
+  side or ``--volume-cells``; the mesh's inside by its winding number, so open meshes have one, on the artist's
+  cage's grid);
 - expression: the artist's deformation (SMPL: ``cage_rpose`` -> ``cage_tpose``; the ogre: ``cage_deformed_tri``; the
   arm: every frame of ``bend_poses.npy``) applied with the artist's binding, then encoded with a binding to the made
   cage (least squares, every frame): RMS and max error over the mesh's diagonal (the source paper's Table 1 measure),
@@ -72,8 +73,9 @@ def artist_frames(name: str, artist_cage) -> np.ndarray:
     raise ValueError(name)
 
 
-def volumes(mesh, cage, device, cells: int = 96) -> tuple[float, float]:
-    """(mesh volume, cage volume) counted on a grid over the cage's box: the mesh's inside by its winding number."""
+def volumes(mesh, cage, device, cells: int = 96) -> tuple[float | None, float]:
+    """(mesh volume, cage volume) counted on a grid over the cage's box, ``cells`` along its longest side: the mesh's
+    inside by its winding number (None for ``mesh=None``: the cage's alone)."""
     from warp_stokes.geometry.cage import Cage
 
     lo, hi = cage.vertices.min(axis=0), cage.vertices.max(axis=0)
@@ -81,6 +83,8 @@ def volumes(mesh, cage, device, cells: int = 96) -> tuple[float, float]:
     axes = [np.arange(lo[k] + 0.5 * h, hi[k], h) for k in range(3)]
     grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
     in_cage, _ = ws.classify_points(cage, grid, device=device)
+    if mesh is None:
+        return None, float(in_cage.sum() * h ** 3)
     body = Cage(vertices=mesh.vertices, faces=mesh.faces, name="mesh")  # no checks: the inside test only
     in_mesh, _ = ws.classify_points(body, grid, device=device)
     return float(in_mesh.sum() * h ** 3), float(in_cage.sum() * h ** 3)
@@ -105,9 +109,9 @@ def artist_poses(path, artist_cage) -> np.ndarray:
     return poses.reshape(-1, artist_cage.n_handles, 3)
 
 
-def measure(name: str, scales, device, resolution: int, offsets=(None,), files=None) -> list[dict]:
+def measure(name: str, scales, device, resolution: int, offsets=(None,), files=None, cells: int = 96) -> list[dict]:
     """Rows of the artist's cage and the made ones for pair ``name``: one of PAIRS, or ``files`` = (mesh, cage,
-    poses) as ``--artist`` takes them."""
+    poses) as ``--artist`` takes them; volumes on grids of ``cells`` along the longest side."""
     from warp_stokes.geometry.cage import crossing_faces
     from warp_stokes.geometry.topology import bounding_diagonal
 
@@ -119,7 +123,7 @@ def measure(name: str, scales, device, resolution: int, offsets=(None,), files=N
     poses = artist_frames(name, artist) if files is None else artist_poses(files[2], artist)
     targets = np.stack([reference.deform(pose) for pose in poses])
     artist_rms, artist_max = expression(reference, targets, diag)
-    mesh_volume, artist_volume = volumes(mesh, artist, device)
+    mesh_volume, artist_volume = volumes(mesh, artist, device, cells)
     held, _ = ws.classify_points(artist, mesh.vertices, device=device)
     rows = [dict(pair=name, cage="artist", asked=artist.n_handles, handles=artist.n_handles, seconds=None,
                  inside=float(held.mean()), crossing=0, mean_distance=None, max_distance=None,
@@ -134,7 +138,7 @@ def measure(name: str, scales, device, resolution: int, offsets=(None,), files=N
         seconds = time.perf_counter() - t
         cage = made.cage
         inside, _ = ws.classify_points(cage, mesh.vertices, device=device)
-        _, cage_volume = volumes(mesh, cage, device)
+        _, cage_volume = volumes(None, cage, device, cells)  # (the mesh's volume is the artist's row's)
         binding = ws.bind(mesh_path, cage, resolution=resolution, device=device)
         rms, worst = expression(binding, targets, diag)
         label = f"made x{scale:g}" + ("" if offset is None else f" at {100 * offset:g} %")
@@ -221,6 +225,8 @@ def main(argv=None) -> int:
                         help="offsets (fractions of the diagonal) to make each pair's cages at, e.g. "
                              "0.019,0.0195,0.02,0.0205,0.021: how much the expression moves with small changes of the "
                              "cage, with a summary per pair and scale (default: the default offset only)")
+    parser.add_argument("--volume-cells", type=int, default=96,
+                        help="cells along the longest side of the grid the volumes are counted on (default 96)")
     parser.add_argument("--json", default=None)
     args = parser.parse_args(argv)
     device, device_label = select_device(args.device)
@@ -232,12 +238,12 @@ def main(argv=None) -> int:
     scales = [float(x) for x in args.scales.split(",")]
     rows = []
     for name in filter(None, args.pairs.split(",")):
-        rows += measure(name, scales, device, args.resolution, offsets)
+        rows += measure(name, scales, device, args.resolution, offsets, cells=args.volume_cells)
     for files in args.artist:
         name = Path(files[0]).stem
         while name in {row["pair"] for row in rows}:  # each pair's rows and summary under a name of its own
             name += "'"
-        rows += measure(name, scales, device, args.resolution, offsets, files=files)
+        rows += measure(name, scales, device, args.resolution, offsets, files=files, cells=args.volume_cells)
 
     def pct(x):
         return "" if x is None else f"{100 * x:.2f}"

@@ -7,7 +7,9 @@ per GPU, each a share of the handles), the spread's phases, and the largest weig
     python benchmarks/bench_spread.py --device cpu --pair arm --resolutions 24 --shares 2   # the CPU path
 
 ``--shares K`` runs K shares per GPU (Ray's fractional GPUs; on the CPU, K worker processes) instead of one per GPU:
-a functional check on a one-GPU machine, not a speed-up. Needs the ray extra.
+a functional check on a one-GPU machine, not a speed-up. Needs the ray extra. Run from a process connected to a Ray
+cluster (``main(argv)`` after ``ray.init(address=...)``), it runs on that cluster and leaves it running; otherwise it
+starts a local one.
 """
 
 from __future__ import annotations
@@ -71,8 +73,10 @@ def main(argv=None) -> int:
     on_cpu = resolved.is_cpu
     mesh, cage = PAIRS[args.pair]
     warm_up(resolved.alias)
-    ray.init(num_cpus=max(2, args.shares) if on_cpu else None, num_gpus=0 if on_cpu else None,
-             include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR)
+    started = not ray.is_initialized()
+    if started:
+        ray.init(num_cpus=max(2, args.shares) if on_cpu else None, num_gpus=0 if on_cpu else None,
+                 include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR)
     gpus = int(ray.cluster_resources().get("GPU", 0))
     devices = 1 if on_cpu else gpus
     print(f"device: {name}; Ray cluster: {gpus} GPU(s); {devices} device(s) x {args.shares} share(s)")
@@ -92,7 +96,8 @@ def main(argv=None) -> int:
                          len(many.stats.solver.devices), f"{wall:.2f}", f"{wall / single:.2f}",
                          f"{s['voxelize'] + s['setup']:.2f}", f"{s['solve']:.2f}", f"{s['spread']:.2f}",
                          many.stats.solver.iterations, f"{np.abs(many.weights - one.weights).max():.1e}"))
-    ray.shutdown()
+    if started:
+        ray.shutdown()
     print()
     print(markdown_table(["n", "handles", "interior nodes", "one device s", "shares", "spread s", "ratio",
                           "slowest share: voxelize + setup s", "solve s", "Ray and transfers s", "its",

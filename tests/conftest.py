@@ -1,9 +1,12 @@
 """Shared fixtures and helpers: the Warp device(s) to test on, the real mesh/cage pairs of ../shared/data, the bundled
-example and small cages built in code.
+example and small cages built in code, and one Ray cluster for the tests that run on a running cluster.
 
-Test modules import helpers from here (``from conftest import ...``), never from one another."""
+Test modules import helpers from here (``from conftest import ...``), never from one another. The modules with a test
+that takes ``ray_cluster`` run one after another, where the first of them comes in the usual order, so that the
+session's Ray cluster is started once and shut down after the last test on it, not left idle in between."""
 
 import contextlib
+import importlib
 import io
 import os
 import shutil
@@ -60,14 +63,73 @@ def device(request):
     return request.param
 
 
+def _takes_ray_cluster(item) -> bool:
+    return "ray_cluster" in getattr(item, "fixturenames", ())
+
+
 def pytest_collection_modifyitems(config, items):
-    """Tests marked `cuda` (pyproject's marker) are skipped on a machine without a CUDA device."""
+    """The modules with tests on the session's Ray cluster run one after another (each module whole, in its own
+    order), from where the first of them is; tests marked `cuda` (pyproject's marker) are skipped on a machine without
+    a CUDA device."""
+    on_ray = {item.path for item in items if _takes_ray_cluster(item)}
+    if on_ray:
+        first = next(k for k, item in enumerate(items) if item.path in on_ray)
+        rest = [item for item in items if item.path not in on_ray]
+        items[:] = rest[:first] + [item for item in items if item.path in on_ray] + rest[first:]
+        _RAY["last"] = [item for item in items if _takes_ray_cluster(item)][-1]
     if cuda_available():
         return
     skip = pytest.mark.skip(reason="no CUDA device")
     for item in items:
         if item.get_closest_marker("cuda") is not None:
             item.add_marker(skip)
+
+
+_RAY = {}  # "cluster": the session's Ray cluster while it runs; "last": the last test on it
+
+
+@pytest.fixture
+def ray_cluster():
+    """The address of the session's Ray cluster: a simulated two-node cluster on this host
+    (``ray.cluster_utils.Cluster``, one CPU per node), started by the first test that takes it and shut down after
+    the last test that takes it (its idle processes take CPU). A test joins it (``ray.init(address=...)``,
+    or ``ray_address=``) and leaves it with ``ray.shutdown()``, which disconnects and leaves it running. Starting Ray
+    takes seconds on 2 cores. A command that starts a cluster of its own (the subprocesses of tests/test_batch_ray.py
+    and test_spread.py, as a user runs them) still does, also while this one runs: the address that a plain
+    ``ray.init()`` would join instead is removed."""
+    ray = pytest.importorskip("ray")
+    if "cluster" not in _RAY:
+        from ray.cluster_utils import Cluster
+
+        _RAY["cluster"] = Cluster(initialize_head=True, head_node_args={"num_cpus": 1, "include_dashboard": False})
+        _RAY["cluster"].add_node(num_cpus=1)
+        _RAY["cluster"].wait_for_nodes()
+        # Cluster writes its address where ray.init() without one looks first (/tmp/ray/ray_current_cluster):
+        # removed, as it is when the cluster shuts down
+        for module in ("ray._common.utils", "ray._private.utils"):
+            with contextlib.suppress(ImportError, AttributeError):
+                importlib.import_module(module).reset_ray_address()
+                break
+    yield _RAY["cluster"].address
+    if ray.is_initialized():  # a test that failed before it left the cluster
+        ray.shutdown()
+
+
+def _shut_down_ray_cluster():
+    cluster = _RAY.pop("cluster", None)
+    if cluster is not None:
+        cluster.shutdown()
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_runtest_teardown(item, nextitem):
+    """The session's Ray cluster is shut down once the last test on it is done."""
+    if item is _RAY.get("last"):
+        _shut_down_ray_cluster()
+
+
+def pytest_sessionfinish(session):
+    _shut_down_ray_cluster()
 
 
 @pytest.fixture(scope="session")

@@ -14,6 +14,7 @@ inside it (the centre, or the axis of a surface of revolution): inside by constr
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -119,11 +120,19 @@ def box_pair(extents=(1.0, 1.0, 1.0), rotation=None) -> SyntheticPair:
     return _pair(name, corners, faces, _star_points(corners, faces), rotation)
 
 
-def _icosphere(subdivisions: int) -> tuple[np.ndarray, np.ndarray]:
+@functools.lru_cache(maxsize=None)
+def _icosphere_made(subdivisions: int) -> tuple[np.ndarray, np.ndarray]:
     import trimesh
 
     sphere = trimesh.creation.icosphere(subdivisions=subdivisions)
     return np.asarray(sphere.vertices, np.float64), np.asarray(sphere.faces, np.int64)
+
+
+def _icosphere(subdivisions: int) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices, faces) of trimesh's icosphere, copies of one made once per count (trimesh takes tens of ms each
+    time, and the family asks for the same few dozens of times)."""
+    vertices, faces = _icosphere_made(subdivisions)
+    return vertices.copy(), faces.copy()
 
 
 def ellipsoid_pair(radii=(1.0, 1.0, 1.0), noise: float = 0.0, subdivisions: int = 2, seed: int = 0,

@@ -1,5 +1,6 @@
-"""Batches on Ray (the optional extra): a local cluster, a simulated multi-node cluster, a worker killed mid-asset,
-and the one-line error without Ray. Few and small: each starts Ray (a few seconds on 2 cores)."""
+"""Batches on Ray (the optional extra): a local cluster the command starts, a simulated multi-node cluster (the
+session's, tests/conftest.py: ray_cluster), a worker killed mid-asset, and the one-line error without Ray. Few and
+small: each start of Ray takes seconds on 2 cores."""
 
 import json
 import os
@@ -74,28 +75,20 @@ def test_workers_give_the_serial_batch_s_files_and_weights(tmp_path):
         assert start < end and f"pid {got[name]['pid']}" in lines[start], parallel.stderr
 
 
-def test_a_multi_node_cluster_retries_a_worker_killed_mid_asset(tmp_path, monkeypatch):
-    """A batch on a simulated two-node cluster, one of whose workers is killed mid-asset (the first task to find the
-    marker file removes it and kills its own process, as a crash would): Ray runs that task again, the batch
-    completes and nothing half-written is left. One cluster for both (each start of Ray takes seconds on 2 cores);
-    its workers inherit the marker's variable from this process."""
+def test_a_multi_node_cluster_retries_a_worker_killed_mid_asset(tmp_path, monkeypatch, ray_cluster):
+    """A batch that joins a simulated two-node cluster (the session's: one start of Ray for the tests that run on a
+    cluster), one of whose workers is killed mid-asset (the first task to find the marker file removes it and kills
+    its own process, as a crash would): Ray runs that task again, the batch completes and nothing half-written is
+    left. The workers get the marker's variable from this process through the batch's runtime environment."""
     import io
-
-    from ray.cluster_utils import Cluster
 
     path = manifest(tmp_path, names=("arm_a", "arm_b"), broken=False)
     marker = tmp_path / "kill-once"
     marker.write_text("")
     monkeypatch.setenv("WARP_STOKES_KILL_WORKER_ONCE", str(marker))
     progress = io.StringIO()
-    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1})
-    try:
-        cluster.add_node(num_cpus=1)
-        cluster.wait_for_nodes()
-        results = ws.run_batch(path, tmp_path / "out", device="cpu", ray_address=cluster.address, progress=progress)
-    finally:
-        ray.shutdown()
-        cluster.shutdown()
+    results = ws.run_batch(path, tmp_path / "out", device="cpu", ray_address=ray_cluster, progress=progress)
+    assert not ray.is_initialized()  # the batch left the cluster it joined
     assert [r.status for r in results] == ["ok", "ok"]
     assert all(r.pid not in (None, os.getpid()) for r in results)
     assert (tmp_path / "out" / "arm_b.usd").exists()

@@ -1,6 +1,7 @@
 """One bind spread over several devices (Ray tasks, each a share of the handles): on the CPU here, two worker
-processes standing for two GPUs. The weights against a bind on one device, the command as a user runs it, and the
-one-line errors. Few: each run starts Ray (a few seconds on 2 cores)."""
+processes standing for two GPUs. The weights against a bind on one device, the command as a user runs it (it starts
+its own Ray cluster), the benchmark, and the one-line errors. Few: each start of Ray takes seconds on 2 cores, so the
+binds in this process and the benchmark join the session's cluster (tests/conftest.py: ray_cluster)."""
 
 import os
 import subprocess
@@ -30,14 +31,14 @@ def test_device_lists_name_a_spread_bind():
             spread_devices(bad)
 
 
-def test_a_bind_spread_over_two_workers_gives_the_weights_of_one_device(tmp_path):
+def test_a_bind_spread_over_two_workers_gives_the_weights_of_one_device(tmp_path, ray_cluster):
     ray = pytest.importorskip("ray")
     from warp_stokes.binding.columns import grid_columns
     from warp_stokes.binding.plan import GridPlan
 
     one = ws.bind(ARM, ARM_CAGE, resolution=20, device="cpu")
     assert ws.bind(ARM, ARM_CAGE, resolution=12, device=["cpu"]).stats.device == "cpu"  # a list of one device
-    ray.init(num_cpus=2, include_dashboard=False)  # a running cluster: the binds use it and leave it running
+    ray.init(address=ray_cluster)  # a running cluster (two nodes): the binds use it and leave it running
     try:
         two = ws.bind(ARM, ARM_CAGE, resolution=20, device=["cpu", "cpu"])
         # what a share warns of in its worker is warned of by the bind (a tolerance float32 cannot reach)
@@ -91,15 +92,24 @@ def test_without_ray_a_spread_bind_is_one_line_and_exit_2(tmp_path, monkeypatch)
     assert failed.stderr.strip().count("\n") == 0 and not (tmp_path / "a.npz").exists()
 
 
-def test_bench_spread_tabulates_a_spread_bind_against_one_device():
-    # the harness that measures issue 15's target on a host with several GPUs, here on the CPU with two shares
-    pytest.importorskip("ray")
+def test_bench_spread_tabulates_a_spread_bind_against_one_device(capsys, ray_cluster):
+    # the harness that measures issue 15's target on a host with several GPUs, here on the CPU with two shares: its
+    # own run and table, in this process on the session's cluster (the script joins a running one)
+    ray = pytest.importorskip("ray")
     from pathlib import Path
 
-    repo = Path(__file__).resolve().parents[1]
-    proc = subprocess.run([sys.executable, str(repo / "benchmarks" / "bench_spread.py"), "--device", "cpu", "--pair",
-                           "arm", "--resolutions", "16", "--shares", "2"], capture_output=True, text=True, timeout=600)
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    row = next(line for line in proc.stdout.splitlines() if line.startswith("| 16 | 58 |"))
+    benchmarks = str(Path(__file__).resolve().parents[1] / "benchmarks")
+    sys.path.insert(0, benchmarks)
+    try:
+        import bench_spread
+    finally:
+        sys.path.remove(benchmarks)
+    ray.init(address=ray_cluster)
+    try:
+        assert bench_spread.main(["--device", "cpu", "--pair", "arm", "--resolutions", "16", "--shares", "2"]) == 0
+        assert ray.is_initialized()  # the cluster it joined, left to this process
+    finally:
+        ray.shutdown()
+    row = next(line for line in capsys.readouterr().out.splitlines() if line.startswith("| 16 | 58 |"))
     cells = [c.strip() for c in row.strip("|").split("|")]
     assert cells[4] == "2" and float(cells[-1]) < 1e-5
