@@ -175,20 +175,19 @@ class CageEditor:
 
     def undo(self) -> bool:
         """Go back one step (a move, a pin, a key, a reset); False when there is none."""
-        if not self._undo:
-            return False
-        self._changes += 1
-        self._redo.append(self._state())
-        self._restore(self._undo.pop())
-        return True
+        return self._step(self._undo, self._redo)
 
     def redo(self) -> bool:
         """Go forward one undone step; False when there is none."""
-        if not self._redo:
+        return self._step(self._redo, self._undo)
+
+    def _step(self, source: list, other: list) -> bool:
+        """Restore the last state of ``source``, keeping the current one on ``other``."""
+        if not source:
             return False
         self._changes += 1
-        self._undo.append(self._state())
-        self._restore(self._redo.pop())
+        other.append(self._state())
+        self._restore(source.pop())
         return True
 
     def reset(self) -> np.ndarray:
