@@ -7,8 +7,9 @@ rotated about the vertical axis and scaled together, so every asset is a differe
 the kernel cache with a one-asset batch, then times each run as a user runs it: ``warp-stokes batch`` in a fresh
 process (``serial``: in-process on the default device; ``ray:N``: ``--workers N``, a local Ray cluster). The wall
 time includes starting Python, Ray and its workers; the table also gives the time from the command's start to its
-first asset written, and the rate from the first asset finished to the last (the steady state: from the times the
-bindings were written, first to last).
+first asset written, the rate from the first asset finished to the last (the steady state: from the times the
+bindings were written, first to last), and how busy each GPU was over the run and over its steady state (the share of
+time a kernel ran, from ``nvidia-smi``).
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import PAIRS, WORK, markdown_table  # noqa: E402
+from common import PAIRS, WORK, GpuBusy, busy_text, markdown_table  # noqa: E402
 
 
 def make_assets(folder: Path, n_assets: int) -> list[tuple[str, Path, Path]]:
@@ -66,9 +67,10 @@ def write_manifest(path: Path, assets, resolution: int) -> Path:
 
 def run(manifest: Path, outdir: Path, extra: list[str]) -> dict:
     command = [sys.executable, "-m", "warp_stokes.cli", "batch", str(manifest), "-o", str(outdir), "--force", *extra]
-    start, began = time.perf_counter(), time.time()
-    result = subprocess.run(command, capture_output=True, text=True)
-    wall = time.perf_counter() - start
+    with GpuBusy() as busy:
+        start, began = time.perf_counter(), time.time()
+        result = subprocess.run(command, capture_output=True, text=True)
+        wall = time.perf_counter() - start
     if result.returncode not in (0, 1):
         raise SystemExit(f"{' '.join(command)} failed ({result.returncode}):\n{result.stderr[-3000:]}")
     assets = json.loads((outdir / "summary.json").read_text())["assets"]
@@ -81,7 +83,10 @@ def run(manifest: Path, outdir: Path, extra: list[str]) -> dict:
     span = finished[-1] - finished[0] if len(finished) > 1 else 0.0
     steady = 60.0 * (len(finished) - 1) / span if span > 0 else float("nan")
     first = finished[0] - began if finished else float("nan")  # the command's start to its first asset written
+    steady_busy = busy.fraction(finished[0], finished[-1]) if len(finished) > 1 else {}
     return {"wall_s": wall, "first_s": first, "ok": len(done), "failed": sum(a["status"] == "failed" for a in assets),
+            "busy": busy_text(busy.fraction(began, began + wall)), "steady_busy": busy_text(steady_busy),
+            "pace": next((line for line in result.stdout.splitlines() if line.startswith("first asset done")), ""),
             "bind_s": sum(a["seconds"] for a in done), "devices": devices, "processes": len(pids),
             "steady": steady, "errors": [a["error"] for a in assets if a["status"] == "failed"][:3]}
 
@@ -105,11 +110,12 @@ def main() -> None:
         rows.append((spec, args.assets, args.resolution, measured["ok"], measured["failed"], measured["processes"],
                      ", ".join(measured["devices"]), f"{measured['wall_s']:.1f}", f"{measured['first_s']:.1f}",
                      f"{60.0 * measured['ok'] / measured['wall_s']:.0f}", f"{measured['steady']:.0f}",
-                     f"{measured['bind_s']:.1f}"))
-        print(rows[-1], measured["errors"], file=sys.stderr, flush=True)
+                     f"{measured['bind_s']:.1f}", measured["busy"], measured["steady_busy"]))
+        print(rows[-1], measured["pace"], measured["errors"], file=sys.stderr, flush=True)
     base = next((float(r[7]) for r in rows if r[0] in ("serial", "ray:1")), None)
     print(markdown_table(("run", "assets", "n", "ok", "failed", "processes", "devices", "wall s", "first asset s",
-                          "assets / min", "steady assets / min", "sum of bind s"), rows))
+                          "assets / min", "steady assets / min", "sum of bind s", "GPU busy %",
+                          "GPU busy % (steady)"), rows))
     if base:
         for r in rows:
             print(f"{r[0]}: wall {float(r[7]) / base:.2f}x that of {rows[0][0]}")

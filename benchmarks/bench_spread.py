@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import PAIRS, markdown_table, select_device, warm_up  # noqa: E402
+from common import PAIRS, GpuBusy, busy_text, markdown_table, select_device, warm_up  # noqa: E402
 
 
 def spread_bind(mesh, cage, resolution, on_cpu: bool, shares_per_device: int, devices: int):
@@ -88,20 +88,22 @@ def main(argv=None) -> int:
             t = time.perf_counter()
             one = ws.bind(mesh, cage, resolution=n, device=resolved.alias)
             single = time.perf_counter() - t
-            t = time.perf_counter()
-            many = spread_bind(mesh, cage, n, on_cpu, args.shares, devices)
-            wall = time.perf_counter() - t
+            with GpuBusy(period_ms=50) as busy:
+                t = time.perf_counter()
+                many = spread_bind(mesh, cage, n, on_cpu, args.shares, devices)
+                wall = time.perf_counter() - t
             s = many.stats.seconds
             rows.append((n, one.stats.handles, f"{one.stats.grid.interior_nodes:,}", f"{single:.2f}",
                          len(many.stats.solver.devices), f"{wall:.2f}", f"{wall / single:.2f}",
                          f"{s['voxelize'] + s['setup']:.2f}", f"{s['solve']:.2f}", f"{s['spread']:.2f}",
-                         many.stats.solver.iterations, f"{np.abs(many.weights - one.weights).max():.1e}"))
+                         many.stats.solver.iterations, f"{np.abs(many.weights - one.weights).max():.1e}",
+                         busy_text(busy.fraction())))
     if started:
         ray.shutdown()
     print()
     print(markdown_table(["n", "handles", "interior nodes", "one device s", "shares", "spread s", "ratio",
                           "slowest share: voxelize + setup s", "solve s", "Ray and transfers s", "its",
-                          "max |w_spread - w_one|"], rows))
+                          "max |w_spread - w_one|", "GPU busy %"], rows))
     return 0
 
 

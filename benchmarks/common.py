@@ -168,6 +168,57 @@ class DevicePeak:
         return False
 
 
+class GpuBusy:
+    """How busy each GPU was over a ``with`` block, from ``nvidia-smi``'s ``utilization.gpu`` (the share of its last
+    sample period in which a kernel ran, as NVML counts it) read every ``period_ms``; :meth:`fraction` averages it per
+    GPU over a window of the block (seconds since the epoch). Empty where there is no ``nvidia-smi``. A coarse
+    figure (NVML's own sample period is 1/6 s to 1 s), for telling an idle GPU from a busy one."""
+
+    def __init__(self, period_ms: int = 100):
+        self.period_ms = period_ms
+        self.samples: list[tuple[float, int, float]] = []  # (time, GPU index, busy 0..1)
+
+    def __enter__(self):
+        import shutil
+        import subprocess
+        import threading
+
+        self._process = None
+        if shutil.which("nvidia-smi"):
+            self._process = subprocess.Popen(
+                ["nvidia-smi", "--query-gpu=index,utilization.gpu", "--format=csv,noheader,nounits",
+                 f"-lms={self.period_ms}"], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+            self._reader = threading.Thread(target=self._read, daemon=True)
+            self._reader.start()
+        return self
+
+    def _read(self) -> None:
+        for line in self._process.stdout:
+            cells = [c.strip() for c in line.split(",")]
+            if len(cells) == 2 and cells[0].isdigit() and cells[1].replace(".", "", 1).isdigit():
+                self.samples.append((time.time(), int(cells[0]), float(cells[1]) / 100.0))
+
+    def __exit__(self, *exc):
+        if self._process is not None:
+            self._process.terminate()
+            self._process.wait()
+            self._reader.join(timeout=2)
+        return False
+
+    def fraction(self, start: float | None = None, end: float | None = None) -> dict[int, float]:
+        """The mean busy share per GPU index over [start, end] (the whole block by default)."""
+        by_gpu: dict[int, list[float]] = {}
+        for when, gpu, busy in self.samples:
+            if (start is None or when >= start) and (end is None or when <= end):
+                by_gpu.setdefault(gpu, []).append(busy)
+        return {gpu: sum(v) / len(v) for gpu, v in sorted(by_gpu.items())}
+
+
+def busy_text(fractions: dict[int, float]) -> str:
+    """``{0: 0.62, 1: 0.58}`` as ``"62 / 58"`` (per cent, GPU by GPU); "-" without samples."""
+    return " / ".join(f"{100 * f:.0f}" for f in fractions.values()) or "-"
+
+
 def max_rss() -> int:
     """The process's maximum resident set size so far, in bytes (``ru_maxrss`` is in KiB on Linux)."""
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024

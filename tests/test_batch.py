@@ -2,6 +2,7 @@
 
 import json
 import os
+import re
 
 import numpy as np
 import pytest
@@ -87,6 +88,8 @@ def test_batch_keeps_going_and_reports(manifest, tmp_path, capsys, device):
     assert [os.path.basename(p) for p in summary["arm_b"]["outputs"]] == ["arm_b.npz", "arm_b.usd"]
     # the table and the progress lines
     assert "open" in captured.out and "failed" in captured.out and "3 of 5 assets done, 2 failed" in captured.out
+    # how soon and how fast: the failed count as bound (they were tried)
+    assert re.search(r"first asset done \d+\.\d s after the start; then \d+ assets a minute \(5 bound\)", captured.out)
     assert "arm_b: binding at resolution 20" in captured.err
     # the warnings at the end name their asset, once per asset (the resolutions 16 and 20 are too coarse for the
     # arm's folded edges; the cage's note on the folds is recorded, not warned of)

@@ -79,7 +79,8 @@ def test_a_multi_node_cluster_retries_a_worker_killed_mid_asset(tmp_path, monkey
     """A batch that joins a simulated two-node cluster (the session's: one start of Ray for the tests that run on a
     cluster), one of whose workers is killed mid-asset (the first task to find the marker file removes it and kills
     its own process, as a crash would): Ray runs that task again, the batch completes and nothing half-written is
-    left. The workers get the marker's variable from this process through the batch's runtime environment."""
+    left. The workers get the marker's variable from this process through the batch's runtime environment. The output
+    folder is given relative to this process's working folder, which the cluster's workers do not share."""
     import io
 
     path = manifest(tmp_path, names=("arm_a", "arm_b"), broken=False)
@@ -87,11 +88,12 @@ def test_a_multi_node_cluster_retries_a_worker_killed_mid_asset(tmp_path, monkey
     marker.write_text("")
     monkeypatch.setenv("WARP_STOKES_KILL_WORKER_ONCE", str(marker))
     progress = io.StringIO()
-    results = ws.run_batch(path, tmp_path / "out", device="cpu", ray_address=ray_cluster, progress=progress)
+    monkeypatch.chdir(tmp_path)
+    results = ws.run_batch(path, "out", device="cpu", ray_address=ray_cluster, progress=progress)
     assert not ray.is_initialized()  # the batch left the cluster it joined
     assert [r.status for r in results] == ["ok", "ok"]
     assert all(r.pid not in (None, os.getpid()) for r in results)
-    assert (tmp_path / "out" / "arm_b.usd").exists()
+    assert (tmp_path / "out" / "arm_b.usd").exists() and results[1].outputs == ["out/arm_b.npz", "out/arm_b.usd"]
     assert not marker.exists()  # a worker found it and killed itself; Ray ran the task again
     text = progress.getvalue()
     assert "arm_a: started (" in text and "arm_b: started (" in text and "started again (" in text, text

@@ -34,7 +34,7 @@ processes (:mod:`.distributed`; the optional extra ``warp-stokes[ray]``).
 
 from .lock import LOCK_NAME, folder_lock
 from .manifest import ASSET_KEYS, Asset, ManifestError, read_manifest
-from .run import Result, format_summary, run_batch
+from .run import Result, format_summary, pace, run_batch
 
-__all__ = ["Asset", "Result", "ManifestError", "read_manifest", "run_batch", "format_summary", "folder_lock",
+__all__ = ["Asset", "Result", "ManifestError", "read_manifest", "run_batch", "format_summary", "pace", "folder_lock",
            "LOCK_NAME", "ASSET_KEYS"]

@@ -37,6 +37,7 @@ class Result:
     pid: int | None = None
     device: str = ""
     skin_error: dict | None = None  # a skin's distance from the deformation: max, rms (over the diagonal), influences
+    finished: float | None = None  # when its bind ended (seconds since the epoch, the binding host's clock)
 
 
 def asset_inputs(asset: Asset) -> InputSet:
@@ -176,6 +177,7 @@ def bind_one(asset: Asset, outdir: str, device, progress=None, k: int = 0, total
             traceback.print_exc(file=progress)
     result.warnings = list(dict.fromkeys(str(w.message) for w in caught))
     result.seconds = time.perf_counter() - start
+    result.finished = time.time()
     return result
 
 

@@ -1,25 +1,32 @@
-"""Batches on Ray: assets bound in parallel by Ray worker processes, on one host or a cluster.
+"""Batches on Ray: assets bound in parallel by long-lived Ray worker processes, on one host or a cluster.
 
 ``run_batch(..., workers=N)`` starts a new local Ray cluster with N worker slots (on a GPU host, default one per GPU:
-each task asks for ``num_gpus=1``, Ray sets ``CUDA_VISIBLE_DEVICES``, and the worker's Warp sees only its GPU);
-``ray_address=...`` joins a running cluster instead. A batch with nothing to do (everything up to date) starts or
-joins no cluster. (Binding the first assets in this process while Ray starts was tried and taken out: Ray starts its
-processes by forking, and a fork while this process is inside a multithreaded BLAS call can leave that call waiting
-for ever, which it did twice in about a dozen batches on 2 cores.) The driver reads the manifest, skips up-to-date assets and
-holds the folder's lock; each task binds one asset with :func:`warp_stokes.batch.asset.bind_one`, which writes the
-asset's outputs under temporary names in the output folder and renames them together (outputs go to a filesystem
-that the workers share with the driver), and returns its :class:`Result` with the host, process and device.
+each worker asks for ``num_gpus=1``, Ray sets ``CUDA_VISIBLE_DEVICES``, and the worker's Warp sees only its GPU);
+``ray_address=...`` joins a running cluster instead (one worker per CPU slot, or per GPU). A batch with nothing to do
+(everything up to date) starts or joins no cluster. (Binding the first assets in this process while Ray starts was
+tried and taken out: Ray starts its processes by forking, and a fork while this process is inside a multithreaded
+BLAS call can leave that call waiting for ever, which it did twice in about a dozen batches on 2 cores.)
+
+The driver reads the manifest, skips up-to-date assets and holds the folder's lock. Each worker is a Ray actor
+(:class:`BindWorker`) made at the start: it imports, starts Warp on its device and loads the kernels once, while the
+others do the same, then takes assets as it frees up (the driver keeps :data:`QUEUED` assets handed to each, so that
+none waits between two). It binds one asset with :func:`warp_stokes.batch.asset.bind_one`, which writes the asset's
+outputs under temporary names in the output folder and renames them together (outputs go to a filesystem that the
+workers share with the driver), and returns its :class:`Result` with the host, process and device.
 
 Failures stay per asset: an error in a bind is that asset's result; a worker that dies (killed, out of memory) is
-retried by Ray (:data:`TASK_RETRIES` times), and then reported as failed. Progress goes to stderr, one line per
-asset as it starts (the task says so on a Ray queue) and as it finishes, with the counts done / running / failed.
+started again by Ray and its asset bound again (:data:`TASK_RETRIES` times), and then reported as failed. Progress
+goes to stderr, one line per asset as it starts (the worker says so on a Ray queue) and as it finishes, with the
+counts done / running / failed.
 
 Ray is an optional extra: ``pip install "warp-stokes[ray]"``.
 """
 
 from __future__ import annotations
 
+import collections
 import contextlib
+import importlib
 import logging
 import os
 import signal
@@ -28,35 +35,66 @@ import time
 from ..cluster import require_ray, start_ray
 from ..threads import cpu_threads
 from ..io.outputs import remove_temporaries_of
-from .asset import Result, bind_one, digest_now, earlier_records, skipped, warn_for
+from .asset import Result, bind_one, digest_now, earlier_records, outputs_of, skipped, warn_for
 
-__all__ = ["run_on_ray", "require_ray", "TASK_RETRIES", "KILL_ONCE_VARIABLE"]
+__all__ = ["run_on_ray", "require_ray", "BindWorker", "TASK_RETRIES", "QUEUED", "KILL_ONCE_VARIABLE"]
 
-#: times Ray runs a task again after its worker process died
+#: times Ray binds an asset again after its worker process died
 TASK_RETRIES = 2
-#: for fault-tolerance tests: a path in this environment variable makes the first task that finds the file there
+#: calls handed to a worker at a time: the asset it binds and the next, so that it never waits for the driver
+QUEUED = 2
+#: for fault-tolerance tests: a path in this environment variable makes the first asset's call that finds the file there
 #: remove it and kill its own worker process (SIGKILL), as a crash would
 KILL_ONCE_VARIABLE = "WARP_STOKES_KILL_WORKER_ONCE"
 
 
-def _bind_task(asset, outdir: str, device, started=None, k: int = 0, threads: int | None = None, inputs=None,
-               unreadable: str | None = None, digest: str | None = None) -> Result:
-    """One asset, in a Ray worker process; it says it started on ``started`` (a Ray queue, or None). ``threads``: a
-    CPU bind's threads."""
-    if started is not None:
+class BindWorker:
+    """One worker slot of a batch on Ray, as a Ray actor: a process started once per slot that warms up as soon as it
+    is made (imports the bind's modules, starts Warp on its device, loads a bind's kernels), then binds the assets it
+    is handed one after another. Ray restarts it when its process dies (then the call it was running and the one
+    waiting run again, up to :data:`TASK_RETRIES` times each).
+
+    Parameters
+    ----------
+    device : str, the device the worker binds on (``"cuda:0"``: the GPU Ray gave it)
+    threads : int | None, a CPU bind's threads
+    harmonic : bool, load the Laplace kernels too (an asset of the batch binds harmonic coordinates)
+    """
+
+    def __init__(self, device: str, threads: int | None = None, harmonic: bool = False):
         import socket
 
-        with contextlib.suppress(Exception):  # a lost progress line must not fail the asset
-            started.put_nowait((k, socket.gethostname(), os.getpid(), time.time()))
-    marker = os.environ.get(KILL_ONCE_VARIABLE)
-    if marker:
-        try:
-            os.unlink(marker)
-        except FileNotFoundError:
-            pass
-        else:
-            os.kill(os.getpid(), signal.SIGKILL)
-    return bind_one(asset, outdir, device, threads=threads, inputs=inputs, unreadable=unreadable, digest=digest)
+        self.device, self.threads = device, threads
+        self.host, self.pid = socket.gethostname(), os.getpid()
+        with contextlib.suppress(Exception):  # a worker that cannot warm up says why in its first asset's result
+            from ..device import Backend
+            from ..kernel_cache import BIND_MODULES, compile_kernels
+
+            backend = Backend.of(device, threads)
+            compile_kernels(backend.device, BIND_MODULES + (("laplace",) if harmonic else ()))
+            importlib.import_module("..binding.pipeline", __package__)  # a bind's other imports: now, not at the first
+
+    def where(self) -> tuple[str, int]:
+        """(host, pid): once it answers, the worker is up and warm."""
+        return self.host, self.pid
+
+    def bind(self, asset, outdir: str, started=None, k: int = 0, inputs=None, unreadable: str | None = None,
+             digest: str | None = None) -> Result:
+        """One asset (:func:`warp_stokes.batch.asset.bind_one`); it says it started on ``started`` (a Ray queue, or
+        None)."""
+        if started is not None:
+            with contextlib.suppress(Exception):  # a lost progress line must not fail the asset
+                started.put_nowait((k, self.host, self.pid, time.time()))
+        marker = os.environ.get(KILL_ONCE_VARIABLE)
+        if marker:
+            try:
+                os.unlink(marker)
+            except FileNotFoundError:
+                pass
+            else:
+                os.kill(os.getpid(), signal.SIGKILL)
+        return bind_one(asset, outdir, self.device, threads=self.threads, inputs=inputs, unreadable=unreadable,
+                        digest=digest)
 
 
 def _options() -> dict:
@@ -77,18 +115,20 @@ def _start_local(ray, workers: int | None, device) -> None:
     start_ray(ray, address="local", num_cpus=int(workers), num_gpus=None if not on_cpu else 0, **_options())
 
 
-def _task_options(ray, workers: int | None, device, local: bool) -> tuple[dict, str | None, int | None]:
-    """Ray resources per task, the device the task binds on, and a CPU bind's threads: a whole GPU each when the
-    cluster has GPUs (a share when more workers than GPUs are asked for), one CPU slot otherwise. On a local
-    cluster of CPU workers, each bind's threads are this host's cores over the workers (the machine full, not
-    oversubscribed); on a joined cluster one thread per task, as its slot says."""
-    gpus = float(ray.cluster_resources().get("GPU", 0))
+def _slots(ray, workers: int | None, device, local: bool) -> tuple[int, dict, str | None, int | None]:
+    """How many workers, the Ray resources of each, the device each binds on, and a CPU bind's threads: a whole GPU
+    each when the cluster has GPUs (a share when more workers than GPUs are asked for), one CPU slot otherwise. On a
+    local cluster of CPU workers, each bind's threads are this host's cores over the workers (the machine full, not
+    oversubscribed); on a joined cluster one thread per worker, as its slot says."""
+    resources = ray.cluster_resources()
+    gpus = float(resources.get("GPU", 0))
     if gpus > 0 and not (device is not None and str(device).startswith("cpu")):
-        share = 1.0 if workers is None else min(1.0, gpus / max(1, int(workers)))
-        return {"num_gpus": share, "num_cpus": 1}, "cuda:0", None  # CUDA_VISIBLE_DEVICES leaves one: cuda:0
-    slots = int(ray.cluster_resources().get("CPU", 1))
-    threads = max(1, cpu_threads() // max(1, slots)) if local else 1
-    return {"num_gpus": 0, "num_cpus": 1}, "cpu" if device is None else device, threads
+        count = int(gpus) if workers is None else max(1, int(workers))
+        share = min(1.0, gpus / count)
+        return count, {"num_gpus": share, "num_cpus": 1}, "cuda:0", None  # CUDA_VISIBLE_DEVICES leaves one: cuda:0
+    slots = max(1, int(resources.get("CPU", 1)))
+    threads = max(1, cpu_threads() // slots) if local else 1
+    return slots, {"num_gpus": 0, "num_cpus": 1}, "cpu" if device is None else device, threads
 
 
 def _counts(done: int, total: int, running: int, failed: int) -> str:
@@ -103,13 +143,14 @@ def _line(stream, done: int, total: int, running: int, failed: int, result: Resu
 
 
 def _result(ray, ref, asset) -> Result:
-    """A finished task's Result; a failed one when the task could not run (its worker died every time, or it failed
-    to start)."""
+    """A finished call's Result; a failed one when it could not run (its worker died every time, or it failed to
+    start)."""
     try:
         return ray.get(ref)
     except Exception as exc:
         reason = " ".join(str(exc).split())[:300]
-        died = isinstance(exc, (ray.exceptions.WorkerCrashedError, ray.exceptions.NodeDiedError))
+        died = isinstance(exc, (ray.exceptions.WorkerCrashedError, ray.exceptions.NodeDiedError,
+                                ray.exceptions.RayActorError))
         what = f"its worker died ({TASK_RETRIES + 1} tries)" if died else "the Ray task failed"
         return Result(asset.name, "failed", resolution=asset.resolution, outputs=[],
                       error=f"{what}: {type(exc).__name__}: {reason}")
@@ -148,7 +189,7 @@ def run_on_ray(assets, outdir: str, manifest, force: bool, device, progress, wor
     todo = [k for k, r in enumerate(results) if r is None]
     if not todo:  # everything up to date: no cluster to start or join
         return results
-    started, ours = None, False
+    started, ours, pool = None, False, []
     if not ray.is_initialized():  # else: a cluster this process is connected to already, used and left as it is
         if address is not None:
             start_ray(ray, address=address, **_options())
@@ -158,39 +199,66 @@ def run_on_ray(assets, outdir: str, manifest, force: bool, device, progress, wor
     try:
         total, failed = len(assets), 0
         done = sum(r is not None for r in results)
-        options, task_device, threads = _task_options(ray, workers, device, local=ours and address is None)
-        task = ray.remote(_bind_task).options(max_retries=TASK_RETRIES, retry_exceptions=False, **options)
-        started = _started_queue(ray, progress) if todo else None
+        count, options, worker_device, threads = _slots(ray, workers, device, local=ours and address is None)
+        harmonic = any(assets[k].method == "harmonic" for k in todo)
+        folder = os.path.abspath(outdir)  # a worker's working folder is not this process's (another host's, even)
+        worker = ray.remote(BindWorker).options(max_restarts=-1, max_task_retries=TASK_RETRIES, **options)
+        pool = [worker.remote(worker_device, threads, harmonic) for _ in range(min(count, len(todo)))]
+        started = _started_queue(ray, progress)
+        # an asset goes to a worker once it has answered (is up and warm: a worker a joined cluster has no room for
+        # gets none), then as its calls finish
+        greetings = {w.where.remote(): i for i, w in enumerate(pool)}
+        waiting, load = collections.deque(todo), [0] * len(pool)
+        pending = {}  # call -> (asset, worker)
+
+        def hand(i: int) -> None:
+            # a second asset only while there are more than workers to take them: a short batch is spread out
+            while waiting and load[i] < (QUEUED if len(waiting) > len(pool) else 1):
+                k = waiting.popleft()
+                call = pool[i].bind.remote(assets[k], folder, started, k, inputs.get(assets[k].name),
+                                           unreadable.get(assets[k].name), digests[k])
+                pending[call] = (k, i)
+                load[i] += 1
+
         running: set[int] = set()
-        pending = {}
-        for k in todo:
-            pending[task.remote(assets[k], outdir, task_device, started, k, threads, inputs.get(assets[k].name),
-                                unreadable.get(assets[k].name), digests[k])] = k
-        workers_seen = set()  # (host, pid) of every process that ran a task: their temporaries, once all are done
-        began: dict[int, float] = {}  # asset -> when its task last started (the worker's clock)
-        while pending:
+        workers_seen = set()  # (host, pid) of every process that bound an asset: their temporaries, once all are done
+        began: dict[int, float] = {}  # asset -> when it last started (the worker's clock)
+        while pending or (waiting and greetings):
+            calls = list(pending) + list(greetings)
             # with progress, every half second what started and finished meanwhile, said in the order it happened
             if started is None:
-                finished, _ = ray.wait(list(pending), num_returns=1)
+                finished, _ = ray.wait(calls, num_returns=1)
             else:
-                finished, _ = ray.wait(list(pending), num_returns=len(pending), timeout=0.5)
+                finished, _ = ray.wait(calls, num_returns=len(calls), timeout=0.5)
             events = []
             for k, host, pid, when in _drain(started):
                 events.append((when, 0, k, (host, pid)))
                 began[k] = when
                 workers_seen.add((host, pid))
-            for ref in finished:
-                k = pending.pop(ref)
-                result = _result(ray, ref, assets[k])
+            for call in finished:
+                if call in greetings:
+                    i = greetings.pop(call)
+                    try:
+                        workers_seen.add(tuple(ray.get(call)))
+                    except Exception:  # it could not start: the assets go to the others
+                        continue
+                    hand(i)
+                    continue
+                k, i = pending.pop(call)
+                load[i] -= 1
+                hand(i)  # its next asset before this one's result is looked at: the worker never waits
+                result = _result(ray, call, assets[k])
+                if result.outputs:  # as this process names them
+                    result.outputs = outputs_of(assets[k], outdir)
                 if result.host and result.pid:
                     workers_seen.add((result.host, result.pid))
                 # it ended its bind's seconds after it started (the same clock), else now
                 events.append((began[k] + result.seconds if k in began else time.time(), 1, k, result))
             for _, _, k, what in sorted(events, key=lambda e: e[:3]):
                 if isinstance(what, tuple):  # started
-                    if results[k] is not None:  # Ray ran a finished task again (to rebuild a lost result): not said
+                    if results[k] is not None:  # Ray ran a finished call again (to rebuild a lost result): not said
                         continue
-                    again = k in running  # Ray runs a task again after its worker died
+                    again = k in running  # Ray runs a call again after its worker died
                     running.add(k)
                     print(f"{_counts(done, total, len(running), failed)} {assets[k].name}: "
                           f"{'started again' if again else 'started'} ({what[0]} pid {what[1]})", file=progress,
@@ -203,11 +271,17 @@ def run_on_ray(assets, outdir: str, manifest, force: bool, device, progress, wor
                 warn_for(what)
                 if progress:
                     _line(progress, done, total, len(running), failed, what)
-        # no task runs any more and the folder is locked: what this batch's workers left (a worker killed
+        for k in waiting:  # no worker ever started
+            results[k] = Result(assets[k].name, "failed", resolution=assets[k].resolution, outputs=[],
+                                error="no Ray worker could start")
+        # no worker binds any more and the folder is locked: what this batch's workers left (a worker killed
         # mid-write, on any host) is removed; nothing of anyone else's
         remove_temporaries_of(outdir, workers_seen)
         return results
     finally:
+        for actor in pool:  # on a cluster that stays up, the slots are given back
+            with contextlib.suppress(Exception):
+                ray.kill(actor)
         if started is not None:  # the queue's actor, also when the batch fails in a cluster that stays up
             with contextlib.suppress(Exception):
                 started.shutdown()

@@ -8,7 +8,6 @@ import os
 import sys
 
 from .. import __version__
-from ..kernel_cache import BIND_MODULES, KERNEL_MODULES, announce_compilation
 from ..errors import WarpStokesError
 from ..io.inputs import InputSet, inputs_of
 from ..io.outputs import atomic_output, check_output_target, output_folder, remove_stale_temporaries
@@ -18,7 +17,7 @@ from .distributed import require_ray, run_on_ray
 from .lock import folder_lock
 from .manifest import Asset, read_manifest
 
-__all__ = ["Result", "run_batch", "bind_one", "skipped", "earlier_records", "outputs_of", "format_summary",
+__all__ = ["Result", "run_batch", "bind_one", "skipped", "earlier_records", "outputs_of", "format_summary", "pace",
            "warn_for", "refuse_outputs_over_inputs", "asset_inputs"]
 
 
@@ -112,6 +111,8 @@ def _run_assets(assets, outdir, force, device, progress, inputs: dict, unreadabl
     up_to_date = [skipped(asset, outdir, force, digest, earlier) for asset, digest in zip(assets, digests)]
     todo = [asset for asset, done in zip(assets, up_to_date) if done is None]
     if progress and todo:  # once the folder is ours (Ray workers compile in their own processes)
+        from ..kernel_cache import BIND_MODULES, KERNEL_MODULES, announce_compilation  # (Warp: not for a Ray driver)
+
         announce_compilation(device, harmonic=any(a.method == "harmonic" for a in todo), stream=progress,
                              # a CPU deforms with BLAS: the deform kernels are a GPU's only
                              modules=KERNEL_MODULES if any(a.poses for a in todo) and getattr(device, "is_cuda", False)
@@ -145,3 +146,23 @@ def format_summary(results: list[Result]) -> str:
     widths = [max(len(row[c]) for row in rows) for c in range(len(head) - 1)]
     lines = ["  ".join(cell.ljust(w) for cell, w in zip(row[:-1], widths)) + "  " + row[-1] for row in rows]
     return "\n".join(line.rstrip() for line in lines)
+
+
+def pace(results: list[Result], started: float) -> str | None:
+    """How soon and how fast the batch bound: the time from ``started`` (seconds since the epoch: the command's
+    start) to the first asset done, and the assets a minute from then to the last (the steady pace, without the
+    start of Python, Warp or Ray's workers); None when nothing was bound.
+
+    Examples
+    --------
+    >>> pace([Result("a", "ok", finished=12.0), Result("b", "ok", finished=13.0), Result("c", "ok", finished=14.0)],
+    ...      started=10.0)
+    'first asset done 2.0 s after the start; then 60 assets a minute (3 bound)'
+    """
+    ends = sorted(r.finished for r in results if r.finished is not None and r.status != "skipped")
+    if not ends:
+        return None
+    text = f"first asset done {ends[0] - started:.1f} s after the start"
+    if len(ends) > 1 and ends[-1] > ends[0]:
+        text += f"; then {60.0 * (len(ends) - 1) / (ends[-1] - ends[0]):.0f} assets a minute"
+    return text + f" ({len(ends)} bound)"

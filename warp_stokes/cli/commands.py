@@ -6,6 +6,7 @@ from __future__ import annotations
 import importlib.util
 import os
 import sys
+import time
 import warnings
 
 __all__ = ["format_stats", "listed", "announce_compilation", "cage_command", "bind_command",
@@ -444,11 +445,14 @@ def show_command(args) -> int:
 
 
 def batch_command(args) -> int:
-    from warp_stokes.batch import format_summary, run_batch
+    from warp_stokes.batch import format_summary, pace, run_batch
 
     results = run_batch(args.manifest, args.output, force=args.force, device=args.device, workers=args.workers,
                         ray_address=args.ray_address)
     print(format_summary(results))
+    timing = pace(results, process_started())
+    if timing:
+        print(timing)
     failed = sum(r.status == "failed" for r in results)
     short = sum(r.status == "not converged" for r in results)
     print(f"{len(results) - failed} of {len(results)} assets done, {failed} failed"
@@ -513,3 +517,19 @@ def _check_listen(host: str, port: int) -> None:
             probe.bind((address[0], 0))  # an ephemeral port: whether the address is this machine's
         except OSError as exc:
             raise WarpStokesError(f"--host {host}: this machine cannot listen there ({exc.strerror or exc})") from None
+
+
+def process_started() -> float:
+    """When this process started, in seconds since the epoch (Linux's ``/proc``: the command's start, Python's
+    included); elsewhere when this module was imported."""
+    try:
+        with open("/proc/self/stat", encoding="ascii") as fh:
+            ticks = int(fh.read().rsplit(")", 1)[1].split()[19])  # field 22, starttime: clock ticks after boot
+        with open("/proc/uptime", encoding="ascii") as fh:  # seconds after boot, to the hundredth (btime: whole ones)
+            now, uptime = time.time(), float(fh.read().split()[0])
+        return now - uptime + ticks / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        return _IMPORTED
+
+
+_IMPORTED = time.time()
