@@ -110,22 +110,61 @@ def test_without_ray_workers_is_one_line_and_exit_2(tmp_path, monkeypatch):
 
 
 def test_a_local_cluster_is_a_new_one_and_nothing_to_do_starts_none(tmp_path, monkeypatch):
-    """``--workers`` starts a new local cluster (``address="local"``: ``ray.init()`` alone joins a cluster that
-    happens to run on the machine, whose slots and shutdown are not the batch's); a batch whose assets are all up
-    to date starts none."""
+    """``--workers`` starts a new local cluster in a child process (``address="local"``: ``ray.init()`` alone joins a
+    cluster that happens to run on the machine, whose slots and shutdown are not the batch's), and ends it whatever
+    happens; a cluster that cannot start is one error; a batch whose assets are all up to date starts none."""
     import warp_stokes.batch.distributed as distributed
 
-    calls = []
+    assert 'ray.init(address="local"' in distributed._HEAD
+    heads = []
 
-    def start(ray, **options):
-        calls.append(options)
-        raise ws.WarpStokesError("not started in this test")
+    class Head:  # a cluster that never starts
+        def __init__(self, cpus, gpus):
+            heads.append({"cpus": cpus, "gpus": gpus, "closed": False})
 
-    monkeypatch.setattr(distributed, "start_ray", start)
+        def address(self, wait=0.0):
+            raise ws.WarpStokesError("not started in this test")
+
+        def close(self):
+            heads[-1]["closed"] = True
+
+    monkeypatch.setattr(distributed, "LocalHead", Head)
     path = manifest(tmp_path, broken=False)
     with pytest.raises(ws.WarpStokesError, match="not started"):
         ws.run_batch(path, tmp_path / "out", device="cpu", workers=2, progress=None)
-    assert calls[0]["address"] == "local" and calls[0]["num_cpus"] == 2
+    assert heads == [{"cpus": 2, "gpus": 0, "closed": True}]
     assert [r.status for r in ws.run_batch(path, tmp_path / "out", device="cpu", progress=None)] == ["ok", "ok"]
     again = ws.run_batch(path, tmp_path / "out", device="cpu", workers=2, progress=None)
-    assert [r.status for r in again] == ["skipped", "skipped"] and len(calls) == 1
+    assert [r.status for r in again] == ["skipped", "skipped"] and len(heads) == 1
+
+
+def test_the_batch_binds_while_its_cluster_starts(tmp_path, monkeypatch):
+    """A local cluster starts in a child process while the batch binds in its own (a fork of this process in a
+    BLAS call could hang it); what is left when the cluster is up goes to its workers. Here the cluster comes up
+    after two assets: they are bound here, the third by a worker; the weights are those of a batch in process."""
+    import io
+
+    import warp_stokes.batch.distributed as distributed
+
+    class SlowHead(distributed.LocalHead):  # up only after the second asset
+        polls = 0
+
+        def address(self, wait=0.0):
+            SlowHead.polls += 1
+            return None if SlowHead.polls <= 2 else super().address(wait=None)
+
+    monkeypatch.setattr(distributed, "LocalHead", SlowHead)
+    path = manifest(tmp_path, names=("arm_a", "arm_b", "arm_c"), broken=False)
+    progress = io.StringIO()
+    results = ws.run_batch(path, tmp_path / "ray", device="cpu", workers=1, progress=progress)
+    assert [r.status for r in results] == ["ok"] * 3, progress.getvalue()
+    assert [r.pid == os.getpid() for r in results] == [True, True, False], progress.getvalue()
+    assert not ray.is_initialized()
+    serial = ws.run_batch(path, tmp_path / "serial", device="cpu", progress=None)
+    for r, s in zip(results, serial):
+        a = ws.load_binding(r.outputs[0], device="cpu")
+        b = ws.load_binding(s.outputs[0], device="cpu")
+        np.testing.assert_array_equal(a.weights, b.weights)
+    text = progress.getvalue()
+    assert f"arm_a: started ({results[0].host} pid {os.getpid()})" in text
+    assert f"arm_c: started ({results[2].host} pid {results[2].pid})" in text

@@ -33,6 +33,7 @@ import signal
 import time
 
 from ..cluster import require_ray, start_ray
+from ..errors import WarpStokesError
 from ..threads import cpu_threads
 from ..io.outputs import remove_temporaries_of
 from .asset import Result, bind_one, digest_now, earlier_records, outputs_of, skipped, warn_for
@@ -103,23 +104,104 @@ def _options() -> dict:
             "runtime_env": {"env_vars": env} if env else None}
 
 
-def _start_local(ray, workers: int | None, device) -> None:
-    """A new local cluster of ``workers`` slots (on a GPU host, default one per GPU); ``address="local"``: never a
-    cluster that happens to run on this machine already (``ray.init()`` would join one started by ``ray start``, and
-    its slots, GPUs and shutdown are not this batch's)."""
-    on_cpu = device is not None and str(device).startswith("cpu")
-    if workers is None:
-        from ..device import cuda_device_count
+#: the child process that starts a new local cluster for the batch: it prints the cluster's address (or why it could
+#: not start one) and keeps the cluster up until its standard input closes (the batch is done, or gone)
+_HEAD = """
+import json, sys
+options = json.loads(sys.argv[1])
+try:
+    import ray
+    context = ray.init(address="local", **options)
+except Exception as exc:
+    print("error", " ".join(str(exc).split())[:200] or type(exc).__name__, flush=True)
+    sys.exit(1)
+import os
+print("address", context.address_info["gcs_address"], os.environ.get("RAY_AUTH_MODE", ""), flush=True)
+sys.stdin.read()
+ray.shutdown()
+"""
 
-        workers = (0 if on_cpu else cuda_device_count()) or os.cpu_count() or 1
-    start_ray(ray, address="local", num_cpus=int(workers), num_gpus=None if not on_cpu else 0, **_options())
+
+class LocalHead:
+    """A new local Ray cluster for one batch, started by a child process while this one binds the first assets.
+
+    Ray starts its processes by forking; this process may by then be inside a multithreaded BLAS call (a bind's
+    coarsest level), and a fork there can leave that call waiting for ever. The child forks instead, from a single
+    thread. ``address()`` is None until the cluster is up; :meth:`close` ends it (the child shuts the cluster down
+    when its standard input closes, also when this process dies).
+
+    Parameters
+    ----------
+    cpus : int, the cluster's CPU slots: one per worker (Ray starts that many idle worker processes at once, so
+        not every core of a large host)
+    gpus : int | None, its GPUs (None: as many as Ray finds)
+    """
+
+    def __init__(self, cpus: int, gpus: int | None):
+        import json
+        import subprocess
+        import sys
+
+        options = {"num_cpus": int(cpus), "include_dashboard": False, "logging_level": logging.ERROR}
+        if gpus is not None:
+            options["num_gpus"] = int(gpus)
+        self.process = subprocess.Popen([sys.executable, "-c", _HEAD, json.dumps(options)], stdin=subprocess.PIPE,
+                                        stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+        self._address = None
+
+    def address(self, wait: float | None = 0.0) -> str | None:
+        """The cluster's address once it is up, else None (after ``wait`` seconds; None: until it is).
+
+        Raises
+        ------
+        WarpStokesError
+            When the child could not start the cluster.
+        """
+        import select
+
+        if self._address is None and select.select([self.process.stdout], [], [], wait)[0]:
+            line = self.process.stdout.readline().split(maxsplit=1)
+            if len(line) == 2 and line[0] == "address":
+                self._address, *mode = line[1].split()
+                _use_auth_mode(mode[0] if mode else "")
+            else:
+                why = line[1].strip() if len(line) == 2 else f"its process ended, exit code {self.process.wait()}"
+                raise WarpStokesError(f"could not start Ray ({why})")
+        return self._address
+
+    def close(self) -> None:
+        """End the cluster: the child shuts it down and ends by itself, after this returns (a second or two; Ray's
+        processes stop gracefully, which takes that long). The batch does not wait for it."""
+        with contextlib.suppress(OSError):
+            self.process.stdin.close()
+            self.process.stdout.close()
+        _ENDING[:] = [p for p in _ENDING if p.poll() is None] + [self.process]  # reaped here, later
+
+
+#: local clusters' child processes still shutting down after their batch (kept to be reaped, not warned of)
+_ENDING: list = []
+
+
+def _use_auth_mode(mode: str) -> None:
+    """Join a cluster with the authentication it was started with: a new local cluster uses a token by default
+    (Ray 2.5x, ``RAY_AUTH_MODE=token``, the token in ``~/.ray/auth_token``), and ``ray.init(address=...)`` looks for
+    one only when told to. This is what ``ray.init(address="local")`` does in the process that starts a cluster."""
+    if mode != "token" or os.environ.get("RAY_AUTH_MODE") == "token":
+        return
+    os.environ["RAY_AUTH_MODE"] = "token"
+    with contextlib.suppress(ImportError):
+        from ray._raylet import Config
+
+        Config.initialize("")  # Ray's configuration, read once at import, read again
 
 
 def _slots(ray, workers: int | None, device, local: bool) -> tuple[int, dict, str | None, int | None]:
-    """How many workers, the Ray resources of each, the device each binds on, and a CPU bind's threads: a whole GPU
-    each when the cluster has GPUs (a share when more workers than GPUs are asked for), one CPU slot otherwise. On a
-    local cluster of CPU workers, each bind's threads are this host's cores over the workers (the machine full, not
-    oversubscribed); on a joined cluster one thread per worker, as its slot says."""
+    """How many workers, the Ray resources of each, the device each binds on, and a CPU bind's threads: one per GPU
+    when the cluster has GPUs (a share of one when more workers than GPUs are asked for), one per CPU slot
+    otherwise, each taking one CPU slot (Ray sets ``OMP_NUM_THREADS=1`` for it: BLAS on one thread, which gives the
+    weights of a bind in one process bit for bit, measured on one H200). On a local cluster of CPU workers, each
+    bind's threads are this host's cores over the workers (the machine full, not oversubscribed); on a joined
+    cluster one thread per worker, as its slot says."""
     resources = ray.cluster_resources()
     gpus = float(resources.get("GPU", 0))
     if gpus > 0 and not (device is not None and str(device).startswith("cpu")):
@@ -176,9 +258,68 @@ def _drain(queue) -> list:
         return []
 
 
+def _local_slots(workers: int | None, device) -> tuple[int, int | None]:
+    """A new local cluster's workers (on a GPU host, default one per GPU; else one per core) and GPUs (None: as many
+    as Ray finds; 0 for a CPU batch)."""
+    on_cpu = device is not None and str(device).startswith("cpu")
+    if workers is None:
+        from ..device import cuda_device_count
+
+        workers = (0 if on_cpu else cuda_device_count()) or os.cpu_count() or 1
+    return int(workers), 0 if on_cpu else None
+
+
+class _Progress:
+    """The batch's results as they come, and its progress lines: each asset as it starts (on which host and process)
+    and as it finishes, with the counts done / running / failed, in the order it happened."""
+
+    def __init__(self, assets, results: list, stream):
+        self.assets, self.results, self.stream = assets, results, stream
+        self.done, self.failed = sum(r is not None for r in results), 0
+        self.running: set[int] = set()
+        self.began: dict[int, float] = {}  # asset -> when it last started (the binding host's clock)
+        self.workers_seen = set()  # (host, pid) of every process that bound an asset
+
+    def say(self, events) -> None:
+        """``events``: (asset, (host, pid, time)) for a start, (asset, Result) for an end."""
+        timed = []
+        for k, what in events:
+            if isinstance(what, tuple):
+                self.began[k] = what[2]
+                self.workers_seen.add(what[:2])
+                timed.append((what[2], 0, k, what))
+            else:
+                if what.host and what.pid:
+                    self.workers_seen.add((what.host, what.pid))
+                # it ended its bind's seconds after it started (the same clock), else now
+                timed.append((self.began[k] + what.seconds if k in self.began else time.time(), 1, k, what))
+        for _, _, k, what in sorted(timed, key=lambda e: e[:3]):
+            if isinstance(what, tuple):  # started
+                if self.results[k] is not None:  # Ray ran a finished call again (to rebuild a lost result)
+                    continue
+                again = k in self.running  # Ray binds an asset again after its worker died
+                self.running.add(k)
+                if self.stream:
+                    print(f"{self._counts()} {self.assets[k].name}: {'started again' if again else 'started'} "
+                          f"({what[0]} pid {what[1]})", file=self.stream, flush=True)
+                continue
+            self.running.discard(k)
+            self.results[k] = what
+            self.done += 1
+            self.failed += what.status == "failed"
+            warn_for(what)
+            if self.stream:
+                _line(self.stream, self.done, len(self.assets), len(self.running), self.failed, what)
+
+    def _counts(self) -> str:
+        return _counts(self.done, len(self.assets), len(self.running), self.failed)
+
+
 def run_on_ray(assets, outdir: str, manifest, force: bool, device, progress, workers: int | None,
                address: str | None, inputs: dict | None = None, unreadable: dict | None = None) -> list[Result]:
-    """Bind the assets as Ray tasks; the results in manifest order (see the module docstring)."""
+    """Bind the assets on Ray workers; the results in manifest order (see the module docstring)."""
+    import socket
+
     ray = require_ray()
     results: list[Result | None] = [None] * len(assets)
     earlier = earlier_records(outdir)
@@ -189,26 +330,64 @@ def run_on_ray(assets, outdir: str, manifest, force: bool, device, progress, wor
     todo = [k for k, r in enumerate(results) if r is None]
     if not todo:  # everything up to date: no cluster to start or join
         return results
-    started, ours, pool = None, False, []
-    if not ray.is_initialized():  # else: a cluster this process is connected to already, used and left as it is
-        if address is not None:
-            start_ray(ray, address=address, **_options())
-        else:
-            _start_local(ray, workers, device)
-        ours = True
+    said = _Progress(assets, results, progress)
+    waiting = collections.deque(todo)
+    here = (socket.gethostname(), os.getpid())
+    ours, head = not ray.is_initialized(), None  # else: a cluster this process is connected to, left as it is
     try:
-        total, failed = len(assets), 0
-        done = sum(r is not None for r in results)
-        count, options, worker_device, threads = _slots(ray, workers, device, local=ours and address is None)
-        harmonic = any(assets[k].method == "harmonic" for k in todo)
-        folder = os.path.abspath(outdir)  # a worker's working folder is not this process's (another host's, even)
-        worker = ray.remote(BindWorker).options(max_restarts=-1, max_task_retries=TASK_RETRIES, **options)
-        pool = [worker.remote(worker_device, threads, harmonic) for _ in range(min(count, len(todo)))]
-        started = _started_queue(ray, progress)
+        if ours and address is not None:
+            start_ray(ray, address=address, **_options())
+        elif ours:
+            slots, gpus = _local_slots(workers, device)
+            head = LocalHead(slots, gpus)
+            # until the cluster is up, this process binds, as one of its workers would
+            on_cpu = gpus == 0 or not _has_cuda()
+            here_device = (device or "cpu") if on_cpu else (device or "cuda:0")
+            threads = max(1, cpu_threads() // slots) if on_cpu else None
+            while waiting and head.address() is None:
+                k = waiting.popleft()
+                said.say([(k, (*here, time.time()))])
+                said.say([(k, bind_one(assets[k], outdir, here_device, threads=threads,
+                                       inputs=inputs.get(assets[k].name), unreadable=unreadable.get(assets[k].name),
+                                       digest=digests[k]))])
+            if waiting:
+                start_ray(ray, address=head.address(wait=None), **_options())
+        if waiting:
+            _bind_on_workers(ray, assets, outdir, said, waiting, workers, device, local=head is not None,
+                             inputs=inputs, unreadable=unreadable, digests=digests)
+        # no worker binds any more and the folder is locked: what this batch's workers left (a worker killed
+        # mid-write, on any host) is removed; nothing of anyone else's
+        remove_temporaries_of(outdir, said.workers_seen - {here})
+        return results
+    finally:
+        if ours and ray.is_initialized():
+            ray.shutdown()
+        if head is not None:
+            head.close()
+
+
+def _has_cuda() -> bool:
+    from ..device import cuda_device_count
+
+    return cuda_device_count() > 0
+
+
+def _bind_on_workers(ray, assets, outdir: str, said: _Progress, waiting, workers, device, local: bool, inputs,
+                     unreadable, digests) -> None:
+    """The ``waiting`` assets bound by :class:`BindWorker` actors, one per slot of the cluster ``ray`` is connected
+    to, said on ``said`` as they start and end; the actors and the progress queue are ended after (on a cluster
+    that stays up, their slots are given back)."""
+    count, options, worker_device, threads = _slots(ray, workers, device, local=local)
+    harmonic = any(assets[k].method == "harmonic" for k in waiting)
+    folder = os.path.abspath(outdir)  # a worker's working folder is not this process's (another host's, even)
+    worker = ray.remote(BindWorker).options(max_restarts=-1, max_task_retries=TASK_RETRIES, **options)
+    pool = [worker.remote(worker_device, threads, harmonic) for _ in range(min(count, len(waiting)))]
+    started = _started_queue(ray, said.stream)
+    try:
         # an asset goes to a worker once it has answered (is up and warm: a worker a joined cluster has no room for
         # gets none), then as its calls finish
         greetings = {w.where.remote(): i for i, w in enumerate(pool)}
-        waiting, load = collections.deque(todo), [0] * len(pool)
+        load = [0] * len(pool)
         pending = {}  # call -> (asset, worker)
 
         def hand(i: int) -> None:
@@ -220,26 +399,19 @@ def run_on_ray(assets, outdir: str, manifest, force: bool, device, progress, wor
                 pending[call] = (k, i)
                 load[i] += 1
 
-        running: set[int] = set()
-        workers_seen = set()  # (host, pid) of every process that bound an asset: their temporaries, once all are done
-        began: dict[int, float] = {}  # asset -> when it last started (the worker's clock)
         while pending or (waiting and greetings):
             calls = list(pending) + list(greetings)
-            # with progress, every half second what started and finished meanwhile, said in the order it happened
+            # with progress, every half second what started and finished meanwhile
             if started is None:
                 finished, _ = ray.wait(calls, num_returns=1)
             else:
                 finished, _ = ray.wait(calls, num_returns=len(calls), timeout=0.5)
-            events = []
-            for k, host, pid, when in _drain(started):
-                events.append((when, 0, k, (host, pid)))
-                began[k] = when
-                workers_seen.add((host, pid))
+            events = [(k, (host, pid, when)) for k, host, pid, when in _drain(started)]
             for call in finished:
                 if call in greetings:
                     i = greetings.pop(call)
                     try:
-                        workers_seen.add(tuple(ray.get(call)))
+                        said.workers_seen.add(tuple(ray.get(call)))
                     except Exception:  # it could not start: the assets go to the others
                         continue
                     hand(i)
@@ -250,40 +422,16 @@ def run_on_ray(assets, outdir: str, manifest, force: bool, device, progress, wor
                 result = _result(ray, call, assets[k])
                 if result.outputs:  # as this process names them
                     result.outputs = outputs_of(assets[k], outdir)
-                if result.host and result.pid:
-                    workers_seen.add((result.host, result.pid))
-                # it ended its bind's seconds after it started (the same clock), else now
-                events.append((began[k] + result.seconds if k in began else time.time(), 1, k, result))
-            for _, _, k, what in sorted(events, key=lambda e: e[:3]):
-                if isinstance(what, tuple):  # started
-                    if results[k] is not None:  # Ray ran a finished call again (to rebuild a lost result): not said
-                        continue
-                    again = k in running  # Ray runs a call again after its worker died
-                    running.add(k)
-                    print(f"{_counts(done, total, len(running), failed)} {assets[k].name}: "
-                          f"{'started again' if again else 'started'} ({what[0]} pid {what[1]})", file=progress,
-                          flush=True)
-                    continue
-                running.discard(k)
-                results[k] = what
-                done += 1
-                failed += what.status == "failed"
-                warn_for(what)
-                if progress:
-                    _line(progress, done, total, len(running), failed, what)
-        for k in waiting:  # no worker ever started
-            results[k] = Result(assets[k].name, "failed", resolution=assets[k].resolution, outputs=[],
-                                error="no Ray worker could start")
-        # no worker binds any more and the folder is locked: what this batch's workers left (a worker killed
-        # mid-write, on any host) is removed; nothing of anyone else's
-        remove_temporaries_of(outdir, workers_seen)
-        return results
+                events.append((k, result))
+            said.say(events)
+        while waiting:  # no worker ever started
+            k = waiting.popleft()
+            said.say([(k, Result(assets[k].name, "failed", resolution=assets[k].resolution, outputs=[],
+                                 error="no Ray worker could start"))])
     finally:
-        for actor in pool:  # on a cluster that stays up, the slots are given back
+        for actor in pool:
             with contextlib.suppress(Exception):
                 ray.kill(actor)
-        if started is not None:  # the queue's actor, also when the batch fails in a cluster that stays up
+        if started is not None:
             with contextlib.suppress(Exception):
                 started.shutdown()
-        if ours:
-            ray.shutdown()
