@@ -53,29 +53,19 @@ pixels, images with pixels), the printed lines and the importers' warnings.
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
-import os
 import re
-import subprocess
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import DATA, REPO, WORK, table_head, table_row  # noqa: E402
-
-INSTALL = 'pip install "bpy==4.5.*" (Blender 4.5 LTS as a Python module; Python 3.11 only)'
-FOX = DATA / "fox_gltf" / "Fox.glb"
-
-#: the importers' map from Y-up to Blender's Z-up: (x, y, z) -> (x, -z, y)
-Y_UP_TO_Z_UP = np.array([[1.0, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]])
-
-#: importer output lines worth reporting (warnings and errors), and known noise
-_MESSAGE = re.compile(r"warn|error|couldn't|could not|invalid|unsupported|mismatch|fail|ignor", re.I)
-_NOISE = re.compile(r"^\d\d:\d\d:\d\d \| INFO:|took [\d.]+ ms|^Read blend|^Blender quit|pyrna_enum_to_py")
+from blender_common import (FOX, Y_UP_TO_Z_UP, accessor_floats, bpy_missing, cage_skeleton_matrix,  # noqa: E402
+                            evaluated_points_at_frames, fcurve_groups, key_frames, materials_shown, nearest_targets,
+                            open_in_empty_scene, points_in_blender, print_problem_and_messages, run_cli,
+                            usd_stage_to_blender, world_points)
+from common import WORK, table_head, table_row  # noqa: E402
 
 #: what encode and animate print (figures over a diagonal)
 _ENCODED = re.compile(r"RMS error over the cage's diagonal: mean (\S+), max (\S+) \(frame (\S+)\); largest vertex "
@@ -92,15 +82,8 @@ def _child(path: str, frames: list[float], fps: float, action: str, out: str) ->
     objects at ``frames`` (Blender frames); write the points (Blender world space) to ``out`` (npz) and return what
     was found: objects, keys, materials and images."""
     import bpy
-    from check_blender_looks import _base_colour_image
 
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    scene = bpy.context.scene
-    scene.render.fps, scene.render.fps_base = max(1, round(fps)), max(1, round(fps)) / fps
-    if path.endswith((".glb", ".gltf")):
-        result = bpy.ops.import_scene.gltf(filepath=path, disable_bone_shape=True)
-    else:
-        result = bpy.ops.wm.usd_import(filepath=path, apply_unit_conversion_scale=False, scale=1.0)
+    scene, result = open_in_empty_scene(path, fps)
     meshes = sorted((o for o in scene.objects if o.type == "MESH" and o.name != "Cage"), key=lambda o: o.name)
     armatures = [o for o in scene.objects if o.type == "ARMATURE"]
     info = dict(result=sorted(result), objects=sorted(f"{o.name} ({o.type})" for o in scene.objects),
@@ -120,52 +103,18 @@ def _child(path: str, frames: list[float], fps: float, action: str, out: str) ->
         playing = arm.animation_data.action if arm.animation_data else None
         info["action"] = playing.name if playing is not None else None
         if playing is not None:
-            curves = playing.fcurves if hasattr(playing, "fcurves") else []
-            if len(curves) == 0:  # layered actions: the curves of the channel bags
-                curves = [c for layer in getattr(playing, "layers", []) for strip in layer.strips
-                          for bag in strip.channelbags for c in bag.fcurves]
             keys = set()
-            for curve in curves:  # every curve's keys: the Fox's curves are keyed at different frames
-                co = np.zeros(len(curve.keyframe_points) * 2)
-                curve.keyframe_points.foreach_get("co", co)
-                keys.update(np.round(co[0::2], 4).tolist())
+            for curve in (c for group in fcurve_groups(playing) for c in group):
+                # every curve's keys: the Fox's curves are keyed at different frames
+                keys.update(np.round(key_frames(curve), 4).tolist())
             info["keys"] = sorted(keys)
-    used = {slot.material for o in meshes for slot in o.material_slots if slot.material is not None}
-    textured, images = [], {}
-    for material in sorted(used, key=lambda m: m.name):
-        shown = _base_colour_image(material)
-        if shown is not None:
-            textured.append(material.name)
-            pixels = np.empty(len(shown.pixels), dtype=np.float32)
-            shown.pixels.foreach_get(pixels)
-            images[shown.name] = {"size": list(shown.size), "mean": round(float(pixels.mean()), 5)}
-    info.update(materials=sorted(m.name for m in used), textured=textured, images=images,
-                images_in_file=len([i for i in bpy.data.images if i.size[0] > 0]))
+    info.update(**materials_shown(meshes), images_in_file=len([i for i in bpy.data.images if i.size[0] > 0]))
     if not meshes:
         np.savez(out)
         return info
-    rest = []
-    for o in meshes:
-        co = np.empty(3 * len(o.data.vertices))
-        o.data.vertices.foreach_get("co", co)
-        m = np.array(o.matrix_world)
-        rest.append(co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3])
-    arrays = {"rest": np.concatenate(rest)}
+    arrays = {"rest": np.concatenate([world_points(o.data.vertices, o.matrix_world) for o in meshes])}
     info["vertices"] = [len(o.data.vertices) for o in meshes]
-    for k, frame in enumerate(frames):
-        whole = int(np.floor(frame))
-        scene.frame_set(whole, subframe=float(frame - whole))
-        graph = bpy.context.evaluated_depsgraph_get()
-        points = []
-        for o in meshes:
-            evaluated = o.evaluated_get(graph)
-            mesh = evaluated.to_mesh()
-            co = np.empty(3 * len(mesh.vertices))
-            mesh.vertices.foreach_get("co", co)
-            m = np.array(evaluated.matrix_world)
-            points.append(co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3])
-            evaluated.to_mesh_clear()
-        arrays[f"frame{k}"] = np.concatenate(points)
+    arrays.update(evaluated_points_at_frames(scene, meshes, frames))
     np.savez(out, **arrays)
     return info
 
@@ -174,27 +123,18 @@ def _child(path: str, frames: list[float], fps: float, action: str, out: str) ->
 # the parent: the commands, then each file in Blender
 
 
-def _command(folder: Path, *args) -> str:
-    """``warp-stokes ARGS`` in ``folder``, as a user runs it: its printed output (stdout and stderr)."""
-    proc = subprocess.run([sys.executable, "-m", "warp_stokes.cli", *args], cwd=folder, capture_output=True,
-                          text=True, env=dict(os.environ, PYTHONPATH=str(REPO)))
-    if proc.returncode != 0:
-        raise RuntimeError(f"warp-stokes {' '.join(args)} failed:\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
-    return (proc.stdout + proc.stderr).strip()
-
-
 def _usd_file(path: str) -> tuple[np.ndarray, np.ndarray, float, str]:
     """The expected map from the file's world space to Blender's (the importer rotates a Y-up stage to Z-up; with
     ``apply_unit_conversion_scale=False`` it does not scale), the points' time codes and the stage's rate."""
     from pxr import Usd, UsdGeom
 
     stage = Usd.Stage.Open(path)
-    up, mpu = str(UsdGeom.GetStageUpAxis(stage)), float(UsdGeom.GetStageMetersPerUnit(stage))
+    conversion, up, mpu = usd_stage_to_blender(stage)
     mesh = next(UsdGeom.Mesh(p) for p in stage.Traverse() if p.IsA(UsdGeom.Mesh) and p.GetName() != "Cage")
     codes = np.asarray(mesh.GetPointsAttr().GetTimeSamples(), dtype=np.float64)
     rate = float(stage.GetTimeCodesPerSecond())
     del stage
-    return Y_UP_TO_Z_UP if up == "Y" else np.eye(4), codes, rate, f"upAxis {up}, metersPerUnit {mpu:g}, {rate:g} fps"
+    return conversion, codes, rate, f"upAxis {up}, metersPerUnit {mpu:g}, {rate:g} fps"
 
 
 def _usd_points(path: str) -> dict:
@@ -219,47 +159,15 @@ def _gltf_file(path: str, animation: str | None = None) -> tuple[np.ndarray, np.
     from pygltflib import GLTF2
 
     gltf = GLTF2().load(path)
-    root = next((n for n in gltf.nodes if n.name == "CageSkeleton"), None)
-    node = np.eye(4) if root is None or not root.matrix else np.asarray(root.matrix, dtype=np.float64).reshape(4, 4).T
+    found = cage_skeleton_matrix(gltf)
+    node = np.eye(4) if found is None else found
     chosen = next(a for a in gltf.animations if animation is None or a.name == animation)
     blob, times = gltf.binary_blob(), set()
     for sampler in chosen.samplers:
-        accessor = gltf.accessors[sampler.input]
-        view = gltf.bufferViews[accessor.bufferView]
-        times.update(np.frombuffer(blob, dtype=np.float32, count=accessor.count,
-                                   offset=(view.byteOffset or 0) + (accessor.byteOffset or 0)).tolist())
+        times.update(accessor_floats(gltf, blob, sampler.input).tolist())
     scale = np.cbrt(abs(np.linalg.det(node[:3, :3])))
-    space = "no CageSkeleton node" if root is None else f"CageSkeleton matrix: scale {scale:g}"
+    space = "no CageSkeleton node" if found is None else f"CageSkeleton matrix: scale {scale:g}"
     return Y_UP_TO_Z_UP @ node, np.asarray(sorted(times), dtype=np.float64), space
-
-
-def _nearest(points: np.ndarray, targets: np.ndarray, chunk: int = 1024) -> tuple[np.ndarray, np.ndarray]:
-    """Index and distance of each point's nearest target (brute force, in chunks)."""
-    index, distance = np.empty(len(points), dtype=np.int64), np.empty(len(points))
-    t2 = np.sum(targets**2, axis=1)
-    for s in range(0, len(points), chunk):
-        p = points[s : s + chunk]
-        d2 = np.sum(p**2, axis=1)[:, None] + t2[None] - 2 * p @ targets.T
-        k = np.argmin(d2, axis=1)
-        index[s : s + chunk] = k
-        distance[s : s + chunk] = np.linalg.norm(p - targets[k], axis=1)
-    return index, distance
-
-
-def _blender(path: str, frames: np.ndarray, fps: float, action: str = "") -> tuple[dict, dict, list]:
-    """``path`` in Blender, in a child process: (info, arrays, the importer's warnings)."""
-    with tempfile.TemporaryDirectory() as tmp:
-        out = os.path.join(tmp, "points.npz")
-        at = ",".join(repr(float(f)) for f in frames)
-        proc = subprocess.run([sys.executable, __file__, "--child", path, at, repr(fps), action, out],
-                              capture_output=True, text=True)
-        if proc.returncode != 0:
-            raise RuntimeError(f"Blender failed on {path}:\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
-        info = json.loads(proc.stdout.strip().splitlines()[-1])
-        data = dict(np.load(out))
-    messages = [line.strip() for line in (proc.stdout + proc.stderr).splitlines()[:-1]
-                if _MESSAGE.search(line) and not _NOISE.search(line)]
-    return info, data, messages
 
 
 def main(argv=None) -> int:
@@ -276,9 +184,7 @@ def main(argv=None) -> int:
         path, frames, fps, action, out = args.child
         print(json.dumps(_child(path, [float(f) for f in frames.split(",")], float(fps), action, out)))
         return 0
-    # found, not imported: Blender's own USD library must not meet the pxr module that reads the files
-    if importlib.util.find_spec("bpy") is None:
-        print(f"check_blender_fox.py needs Blender's Python module: {INSTALL}", file=sys.stderr)
+    if bpy_missing("check_blender_fox.py"):
         return 2
     import warp_stokes as ws
     from warp_stokes.geometry.topology import bounding_diagonal
@@ -289,11 +195,11 @@ def main(argv=None) -> int:
     stem = f"fox_{args.animation.lower()}"
     poses_file = f"{stem}_poses.{args.poses}"
     binding_file = f"{stem}_poses.binding.npz"
-    printed = {"encode": _command(folder, "encode", "auto", fox, "--animation", args.animation, "-o", poses_file,
-                                  "--device", "cpu")}
+    printed = {"encode": run_cli("encode", "auto", fox, "--animation", args.animation, "-o", poses_file,
+                                 "--device", "cpu", cwd=folder)}
     outputs = [f"{stem}.usda", f"{stem}.glb"]
     for name in outputs:
-        printed[name] = _command(folder, "animate", binding_file, poses_file, "-o", name, "--device", "cpu")
+        printed[name] = run_cli("animate", binding_file, poses_file, "-o", name, "--device", "cpu", cwd=folder)
     encoded = _ENCODED.search(printed["encode"])
     if encoded is None:
         raise RuntimeError(f"encode printed no error figures:\n{printed['encode']}")
@@ -334,7 +240,7 @@ def main(argv=None) -> int:
             conversion, blender_frames, rate, space = _usd_file(path)  # time codes are Blender frames
         if len(blender_frames) != n:
             raise RuntimeError(f"{path}: {len(blender_frames)} frames for {n} poses")
-        info, data, messages = _blender(path, blender_frames[picks], rate, action)
+        info, data, messages = points_in_blender(__file__, path, blender_frames[picks], rate, action)
         note = dict(file=label, path=path, space=space, info=info, messages=messages)
         notes.append(note)
         keys = info.get("keys")
@@ -363,7 +269,7 @@ def main(argv=None) -> int:
         if len(blender_rest) == len(rest) and np.abs(blender_rest - reference).max() < 1e-5 * diagonal:
             match, note["match"] = np.arange(len(rest)), f"in order (Blender's mesh data: the file's {held})"
         else:
-            match, distance = _nearest(blender_rest, reference)
+            match, distance = nearest_targets(blender_rest, reference)
             note["match"] = (f"nearest vertex of the file's {held}: {len(blender_rest)} vertices to {len(rest)}, "
                              f"farthest {distance.max() / diagonal:.1e} of the diagonal, "
                              f"{len(rest) - len(np.unique(match))} binding vertices unmatched")
@@ -405,12 +311,7 @@ def main(argv=None) -> int:
               f"{info.get('action')}, keys {note['keys']}; match {note.get('match')}; materials "
               f"{len(info['materials'])}, textured {len(info['textured'])}, images with pixels "
               f"{info['images_in_file']} ({images or '-'})")
-        if note.get("problem"):
-            print(f"  - PROBLEM: {note['problem']}")
-        for message in note["messages"]:
-            print(f"  - importer: {message}")
-        if not note["messages"]:
-            print("  - importer: no warnings or errors printed")
+        print_problem_and_messages(note)
     if args.json:
         Path(args.json).write_text(json.dumps(dict(columns=columns, rows=rows, notes=notes, printed=printed),
                                               indent=1, default=str))

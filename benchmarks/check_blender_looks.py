@@ -27,7 +27,6 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import json
-import os
 import subprocess
 import sys
 import tempfile
@@ -35,55 +34,18 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-FOX = Path(os.environ.get("WARP_STOKES_DATA", ROOT.parent / "shared" / "data")) / "fox_gltf" / "Fox.glb"
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from blender_common import FOX, INSTALL, materials_shown, open_in_empty_scene, run_cli  # noqa: E402
+from common import REPO  # noqa: E402
 
 
 def _child(path: str, out: str) -> None:
     """Import ``path`` into an empty Blender scene and write what it shows (JSON) to ``out``."""
-    import bpy
-
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    if path.endswith((".glb", ".gltf")):
-        bpy.ops.import_scene.gltf(filepath=path, disable_bone_shape=True)  # (no mesh for the bones' shape)
-    elif path.endswith(".obj"):
-        bpy.ops.wm.obj_import(filepath=path)
-    else:
-        bpy.ops.wm.usd_import(filepath=path)
-    meshes = [o for o in bpy.context.scene.objects if o.type == "MESH" and o.name != "Cage"]
-    used = {slot.material for o in meshes for slot in o.material_slots if slot.material is not None}
-    textured, images = [], {}
-    for material in sorted(used, key=lambda m: m.name):
-        shown = _base_colour_image(material)
-        if shown is not None:
-            textured.append(material.name)
-            pixels = np.empty(len(shown.pixels), dtype=np.float32)
-            shown.pixels.foreach_get(pixels)
-            images[shown.name] = {"size": list(shown.size), "mean": round(float(pixels.mean()), 5)}
-    report = {"materials": sorted(m.name for m in used), "textured": textured, "images": images,
-              "meshes": len(meshes), "bare": sorted(o.name for o in meshes if not any(s.material for s in
-                                                                                      o.material_slots))}
+    scene, _ = open_in_empty_scene(path, keep_units=False)  # USD: the importer's own units
+    meshes = [o for o in scene.objects if o.type == "MESH" and o.name != "Cage"]
+    report = {**materials_shown(meshes), "meshes": len(meshes),
+              "bare": sorted(o.name for o in meshes if not any(s.material for s in o.material_slots))}
     Path(out).write_text(json.dumps(report))
-
-
-def _base_colour_image(material):
-    """The image of an Image Texture node that feeds a Principled BSDF's Base Color (directly or through other
-    nodes), where it has pixels; else None."""
-    if not material.use_nodes:
-        return None
-    for node in material.node_tree.nodes:
-        if node.type != "BSDF_PRINCIPLED":
-            continue
-        todo, seen = [link.from_node for link in node.inputs["Base Color"].links], set()
-        while todo:
-            upstream = todo.pop()
-            if upstream.name in seen:
-                continue
-            seen.add(upstream.name)
-            if upstream.type == "TEX_IMAGE" and upstream.image is not None and upstream.image.size[0] > 0:
-                return upstream.image
-            todo += [link.from_node for socket in upstream.inputs for link in socket.links]
-    return None
 
 
 def blender_sees(path: Path) -> dict:
@@ -96,14 +58,9 @@ def blender_sees(path: Path) -> dict:
         return json.loads(Path(out.name).read_text())
 
 
-def warp_stokes(*args) -> None:
-    subprocess.run([sys.executable, "-m", "warp_stokes.cli", *args], check=True, capture_output=True, text=True,
-                   env=dict(os.environ, PYTHONPATH=str(ROOT)))
-
-
 def made_inputs(folder: Path) -> list[Path]:
     """The two characters made in code (``tests/looks_inputs.py``)."""
-    sys.path.insert(0, str(ROOT / "tests"))
+    sys.path.insert(0, str(REPO / "tests"))
     from looks_inputs import LooksCase, write_gltf_case, write_obj_case
 
     write_gltf_case(folder / "two.glb", LooksCase((0, 1), (True, False)))
@@ -116,15 +73,15 @@ def outputs_of(mesh: Path, folder: Path) -> list[Path]:
     import warp_stokes as ws
 
     stem = folder / mesh.stem
-    warp_stokes("bind", str(mesh), "auto", "-o", f"{stem}.npz", "--handles", "40", "--resolution", "12",
-                "--device", "cpu", "--quiet")
+    run_cli("bind", str(mesh), "auto", "-o", f"{stem}.npz", "--handles", "40", "--resolution", "12",
+            "--device", "cpu", "--quiet")
     cage = ws.load_binding(f"{stem}.npz", device="cpu").cage_vertices
     diagonal = float(np.linalg.norm(np.ptp(cage, axis=0)))
     np.save(f"{stem}_poses.npy", np.stack([cage, cage + [0.0, 0.1 * diagonal, 0.0], cage * 1.1]))
     found = []
     for ext in (".glb", ".usda"):
         output = Path(f"{stem}_out{ext}")
-        warp_stokes("animate", f"{stem}.npz", f"{stem}_poses.npy", "-o", str(output), "--device", "cpu")
+        run_cli("animate", f"{stem}.npz", f"{stem}_poses.npy", "-o", str(output), "--device", "cpu")
         found.append(output)
     return found
 
@@ -148,7 +105,7 @@ def main() -> int:
         _child(*args.child)
         return 0
     if importlib.util.find_spec("bpy") is None:
-        print('needs bpy: pip install "bpy==4.5.*" (Blender 4.5 LTS as a Python module; Python 3.11 only)')
+        print(f"needs bpy: {INSTALL}")
         return 2
     folder = Path(tempfile.mkdtemp(prefix="blender_looks_"))
     inputs = args.inputs or ([FOX] if FOX.exists() else []) + made_inputs(folder)

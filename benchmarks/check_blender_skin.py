@@ -40,25 +40,19 @@ and errors (its printed output filtered), the objects it made, and the fitted si
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
-import os
-import re
-import subprocess
 import sys
-import tempfile
 import warnings
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from blender_common import (Y_UP_TO_Z_UP, accessor_floats, bpy_missing, cage_skeleton_matrix,  # noqa: E402
+                            evaluated_points_at_frames, fcurve_groups, key_frames, nearest_targets,
+                            open_in_empty_scene, points_in_blender, print_problem_and_messages,
+                            usd_stage_to_blender, world_points)
 from common import ARM, OGRE, WORK, table_head, table_row  # noqa: E402
-
-INSTALL = 'pip install "bpy==4.5.*" (Blender 4.5 LTS as a Python module; Python 3.11 only)'
-
-#: the importers' map from Y-up to Blender's Z-up: (x, y, z) -> (x, -z, y)
-Y_UP_TO_Z_UP = np.array([[1.0, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]])
 
 #: the files written per pair: (label, file name after the pair's, write_skin keywords)
 VARIANTS = [
@@ -68,10 +62,6 @@ VARIANTS = [
     ("glTF, 8 influences", "gltf_8.glb", {"influences": 8}),
 ]
 
-#: importer output lines worth reporting (warnings and errors), and known noise
-_MESSAGE = re.compile(r"warn|error|couldn't|could not|invalid|unsupported|mismatch|fail|ignor", re.I)
-_NOISE = re.compile(r"^\d\d:\d\d:\d\d \| INFO:|took [\d.]+ ms|^Read blend|^Blender quit|pyrna_enum_to_py")
-
 
 # ---------------------------------------------------------------------------------------------------------------
 # the child: one file in Blender
@@ -80,15 +70,7 @@ _NOISE = re.compile(r"^\d\d:\d\d:\d\d \| INFO:|took [\d.]+ ms|^Read blend|^Blend
 def _child(path: str, frames: list[float], fps: float, out: str) -> dict:
     """Import ``path`` into an empty scene, evaluate its skinned meshes at ``frames`` (Blender frames); write the
     points (Blender world space) to ``out`` (npz) and return what was found."""
-    import bpy
-
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    scene = bpy.context.scene
-    scene.render.fps, scene.render.fps_base = max(1, round(fps)), max(1, round(fps)) / fps
-    if path.endswith((".glb", ".gltf")):
-        result = bpy.ops.import_scene.gltf(filepath=path, disable_bone_shape=True)
-    else:
-        result = bpy.ops.wm.usd_import(filepath=path, apply_unit_conversion_scale=False, scale=1.0)
+    scene, result = open_in_empty_scene(path, fps)
     skinned = sorted((o for o in scene.objects if o.type == "MESH" and any(m.type == "ARMATURE" for m in o.modifiers)),
                      key=lambda o: o.name)
     armatures = [o for o in scene.objects if o.type == "ARMATURE"]
@@ -100,16 +82,10 @@ def _child(path: str, frames: list[float], fps: float, out: str) -> dict:
         info["bones"] = len(arm.data.bones)
         action = arm.animation_data.action if arm.animation_data else None
         if action is not None:
-            curves = action.fcurves if hasattr(action, "fcurves") else []
-            if len(curves) == 0:  # layered actions: the curves of the first channel bag
-                for layer in getattr(action, "layers", []):
-                    for strip in layer.strips:
-                        for bag in strip.channelbags:
-                            curves = bag.fcurves
+            groups = fcurve_groups(action)
+            curves = groups[-1] if groups else []  # a layered action's: those of its last channel bag
             if len(curves):
-                keys = np.zeros(len(curves[0].keyframe_points) * 2)
-                curves[0].keyframe_points.foreach_get("co", keys)
-                info["keys"] = keys[0::2].tolist()
+                info["keys"] = key_frames(curves[0]).tolist()
                 info["curves"] = len(curves)
     arrays = {}
     if not skinned:
@@ -118,10 +94,7 @@ def _child(path: str, frames: list[float], fps: float, out: str) -> dict:
     rest, counts, negative, assigned, above_one, sums = [], [], 0, 0, 0, []
     for o in skinned:
         data = o.data
-        co = np.empty(3 * len(data.vertices))
-        data.vertices.foreach_get("co", co)
-        m = np.array(o.matrix_world)
-        rest.append(co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3])
+        rest.append(world_points(data.vertices, o.matrix_world))
         counts.append(len(data.vertices))
         for v in data.vertices:
             total = 0.0
@@ -136,20 +109,7 @@ def _child(path: str, frames: list[float], fps: float, out: str) -> dict:
                 weights_above_one=int(above_one), weight_sum_min=float(sums.min()), weight_sum_max=float(sums.max()),
                 matrix_world=[np.array(o.matrix_world).round(6).tolist() for o in skinned])
     arrays["rest"] = np.concatenate(rest)
-    for k, frame in enumerate(frames):
-        whole = int(np.floor(frame))
-        scene.frame_set(whole, subframe=float(frame - whole))
-        graph = bpy.context.evaluated_depsgraph_get()
-        points = []
-        for o in skinned:
-            evaluated = o.evaluated_get(graph)
-            mesh = evaluated.to_mesh()
-            co = np.empty(3 * len(mesh.vertices))
-            mesh.vertices.foreach_get("co", co)
-            m = np.array(evaluated.matrix_world)
-            points.append(co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3])
-            evaluated.to_mesh_clear()
-        arrays[f"frame{k}"] = np.concatenate(points)
+    arrays.update(evaluated_points_at_frames(scene, skinned, frames))
     np.savez(out, **arrays)
     return info
 
@@ -183,12 +143,11 @@ def _load_pair(name: str, resolution: int):
 def _usd_conversion(path: str) -> tuple[np.ndarray, str]:
     """The expected map from the file's world space to Blender's, from the stage's up axis (read from the file):
     the importer rotates a Y-up stage to Z-up; with ``apply_unit_conversion_scale=False`` it does not scale."""
-    from pxr import Usd, UsdGeom
+    from pxr import Usd
 
     stage = Usd.Stage.Open(path)
-    up, mpu = str(UsdGeom.GetStageUpAxis(stage)), float(UsdGeom.GetStageMetersPerUnit(stage))
+    matrix, up, mpu = usd_stage_to_blender(stage)
     del stage
-    matrix = Y_UP_TO_Z_UP if up == "Y" else np.eye(4)
     return matrix, f"stage upAxis {up}, metersPerUnit {mpu:g} (kept: apply_unit_conversion_scale=False)"
 
 
@@ -198,12 +157,10 @@ def _gltf_file(path: str) -> tuple[np.ndarray, np.ndarray, str]:
     from pygltflib import GLTF2
 
     gltf = GLTF2().load(path)
-    root = next(n for n in gltf.nodes if n.name == "CageSkeleton")
-    node = np.eye(4) if not root.matrix else np.asarray(root.matrix, dtype=np.float64).reshape(4, 4).T
-    accessor = gltf.accessors[gltf.animations[0].samplers[0].input]
-    view = gltf.bufferViews[accessor.bufferView]
-    times = np.frombuffer(gltf.binary_blob(), dtype=np.float32, count=accessor.count,
-                          offset=(view.byteOffset or 0) + (accessor.byteOffset or 0)).astype(np.float64)
+    node = cage_skeleton_matrix(gltf)
+    if node is None:
+        raise RuntimeError(f"{path}: no CageSkeleton node (write_skin writes one)")
+    times = accessor_floats(gltf, gltf.binary_blob(), gltf.animations[0].samplers[0].input).astype(np.float64)
     scale = np.cbrt(abs(np.linalg.det(node[:3, :3])))
     space = f"CageSkeleton matrix: scale {scale:g}, rotation {_angle(node[:3, :3] / scale):.0f} deg"
     return Y_UP_TO_Z_UP @ node, times, space
@@ -211,19 +168,6 @@ def _gltf_file(path: str) -> tuple[np.ndarray, np.ndarray, str]:
 
 def _angle(rotation: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip((np.trace(rotation) - 1) / 2, -1, 1))))
-
-
-def _nearest(points: np.ndarray, targets: np.ndarray, chunk: int = 1024) -> tuple[np.ndarray, np.ndarray]:
-    """Index and distance of each point's nearest target (brute force, in chunks)."""
-    index, distance = np.empty(len(points), dtype=np.int64), np.empty(len(points))
-    t2 = np.sum(targets**2, axis=1)
-    for s in range(0, len(points), chunk):
-        p = points[s : s + chunk]
-        d2 = np.sum(p**2, axis=1)[:, None] + t2[None] - 2 * p @ targets.T
-        k = np.argmin(d2, axis=1)
-        index[s : s + chunk] = k
-        distance[s : s + chunk] = np.linalg.norm(p - targets[k], axis=1)
-    return index, distance
 
 
 def _similarity(source: np.ndarray, target: np.ndarray) -> tuple[float, float, np.ndarray]:
@@ -253,17 +197,7 @@ def _check_file(pair: str, label: str, path: str, binding, poses, report, skin) 
     else:
         conversion, space = _usd_conversion(path)
         blender_frames = frames  # USD time codes are Blender frames
-    with tempfile.TemporaryDirectory() as tmp:
-        out = os.path.join(tmp, "points.npz")
-        at = ",".join(repr(float(blender_frames[k])) for k in picks)
-        proc = subprocess.run([sys.executable, __file__, "--child", path, at, repr(rate), out], capture_output=True,
-                              text=True)
-        if proc.returncode != 0:
-            raise RuntimeError(f"Blender failed on {path}:\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
-        info = json.loads(proc.stdout.strip().splitlines()[-1])
-        data = dict(np.load(out))
-    messages = [line.strip() for line in (proc.stdout + proc.stderr).splitlines()[:-1]
-                if _MESSAGE.search(line) and not _NOISE.search(line)]
+    info, data, messages = points_in_blender(__file__, path, blender_frames[picks], rate)
     notes = dict(file=path, space=space, info=info, messages=messages)
     if "rest" not in data:
         notes["problem"] = "no skinned mesh (a mesh object with an Armature modifier) was imported"
@@ -276,7 +210,7 @@ def _check_file(pair: str, label: str, path: str, binding, poses, report, skin) 
     blender_rest = to_binding(data["rest"])
     centre = lambda p: (p.min(axis=0) + p.max(axis=0)) / 2  # noqa: E731
     offset = centre(blender_rest) - centre(rest)
-    match, rest_distance = _nearest(blender_rest - offset, rest)
+    match, rest_distance = nearest_targets(blender_rest - offset, rest)
     s, angle, t = _similarity(blender_rest, rest[match])
     notes.update(rest_match_max=float(rest_distance.max() / diagonal), offset=offset.tolist(),
                  offset_over_diagonal=float(np.linalg.norm(offset) / diagonal),
@@ -316,9 +250,7 @@ def main(argv=None) -> int:
         path, frames, fps, out = args.child
         print(json.dumps(_child(path, [float(f) for f in frames.split(",")], float(fps), out)))
         return 0
-    # found, not imported: Blender's own USD library must not meet the pxr module that writes the files
-    if importlib.util.find_spec("bpy") is None:
-        print(f"check_blender_skin.py needs Blender's Python module: {INSTALL}", file=sys.stderr)
+    if bpy_missing("check_blender_skin.py"):
         return 2
     import warp_stokes as ws
     from warp_stokes.binding.skin import skin_weights
@@ -356,12 +288,7 @@ def main(argv=None) -> int:
         if notes.get("offset_over_diagonal", 0.0) > 1e-4:
             notes["problem"] = (f"Blender places the skinned mesh {np.round(notes['offset'], 4).tolist()} (binding "
                                 "space) away from where the file puts it: the shape plays, the placement does not")
-        if notes.get("problem"):
-            print(f"  - PROBLEM: {notes['problem']}")
-        for message in notes["messages"]:
-            print(f"  - importer: {message}")
-        if not notes["messages"]:
-            print("  - importer: no warnings or errors printed")
+        print_problem_and_messages(notes)
     if args.json:
         Path(args.json).write_text(json.dumps(dict(columns=columns, rows=all_rows, notes=all_notes), indent=1,
                                               default=str))
