@@ -138,33 +138,42 @@ def test_a_local_cluster_is_a_new_one_and_nothing_to_do_starts_none(tmp_path, mo
     assert [r.status for r in again] == ["skipped", "skipped"] and len(heads) == 1
 
 
-def test_the_batch_binds_while_its_cluster_starts(tmp_path, monkeypatch):
+_SLOW_HEAD_BATCH = """
+import json, os, sys
+import warp_stokes as ws
+import warp_stokes.batch.distributed as distributed
+
+class SlowHead(distributed.LocalHead):  # up only after the second asset
+    polls = 0
+
+    def address(self, wait=0.0):
+        SlowHead.polls += 1
+        return None if SlowHead.polls <= 2 else super().address(wait=None)
+
+distributed.LocalHead = SlowHead
+results = ws.run_batch(sys.argv[1], sys.argv[2], device="cpu", workers=1, progress=sys.stderr)
+print(json.dumps({"pid": os.getpid(), "results": [r.__dict__ for r in results]}))
+"""
+
+
+def test_the_batch_binds_while_its_cluster_starts(tmp_path):
     """A local cluster starts in a child process while the batch binds in its own (a fork of this process in a
     BLAS call could hang it); what is left when the cluster is up goes to its workers. Here the cluster comes up
-    after two assets: they are bound here, the third by a worker; the weights are those of a batch in process."""
-    import io
-
-    import warp_stokes.batch.distributed as distributed
-
-    class SlowHead(distributed.LocalHead):  # up only after the second asset
-        polls = 0
-
-        def address(self, wait=0.0):
-            SlowHead.polls += 1
-            return None if SlowHead.polls <= 2 else super().address(wait=None)
-
-    monkeypatch.setattr(distributed, "LocalHead", SlowHead)
+    after two assets: they are bound here, the third by a worker; the weights are those of a batch in process. (In
+    a process of its own: joining a new local cluster puts a process in Ray's token mode, as ``ray.init`` does, and
+    this session's cluster has none.)"""
     path = manifest(tmp_path, names=("arm_a", "arm_b", "arm_c"), broken=False)
-    progress = io.StringIO()
-    results = ws.run_batch(path, tmp_path / "ray", device="cpu", workers=1, progress=progress)
-    assert [r.status for r in results] == ["ok"] * 3, progress.getvalue()
-    assert [r.pid == os.getpid() for r in results] == [True, True, False], progress.getvalue()
-    assert not ray.is_initialized()
+    run = subprocess.run([sys.executable, "-c", _SLOW_HEAD_BATCH, str(path), str(tmp_path / "ray")],
+                         capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr[-3000:]
+    out = json.loads(run.stdout.strip().splitlines()[-1])
+    results, here = out["results"], out["pid"]
+    assert [r["status"] for r in results] == ["ok"] * 3, run.stderr
+    assert [r["pid"] == here for r in results] == [True, True, False], run.stderr
     serial = ws.run_batch(path, tmp_path / "serial", device="cpu", progress=None)
     for r, s in zip(results, serial):
-        a = ws.load_binding(r.outputs[0], device="cpu")
+        a = ws.load_binding(r["outputs"][0], device="cpu")
         b = ws.load_binding(s.outputs[0], device="cpu")
         np.testing.assert_array_equal(a.weights, b.weights)
-    text = progress.getvalue()
-    assert f"arm_a: started ({results[0].host} pid {os.getpid()})" in text
-    assert f"arm_c: started ({results[2].host} pid {results[2].pid})" in text
+    assert f"arm_a: started ({results[0]['host']} pid {here})" in run.stderr
+    assert f"arm_c: started ({results[2]['host']} pid {results[2]['pid']})" in run.stderr

@@ -148,6 +148,7 @@ class LocalHead:
         self.process = subprocess.Popen([sys.executable, "-c", _HEAD, json.dumps(options)], stdin=subprocess.PIPE,
                                         stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
         self._address = None
+        self.auth_mode = ""  # the cluster's RAY_AUTH_MODE, once it is up
 
     def address(self, wait: float | None = 0.0) -> str | None:
         """The cluster's address once it is up, else None (after ``wait`` seconds; None: until it is).
@@ -163,7 +164,7 @@ class LocalHead:
             line = self.process.stdout.readline().split(maxsplit=1)
             if len(line) == 2 and line[0] == "address":
                 self._address, *mode = line[1].split()
-                _use_auth_mode(mode[0] if mode else "")
+                self.auth_mode = mode[0] if mode else ""
             else:
                 why = line[1].strip() if len(line) == 2 else f"its process ended, exit code {self.process.wait()}"
                 raise WarpStokesError(f"could not start Ray ({why})")
@@ -185,7 +186,8 @@ _ENDING: list = []
 def _use_auth_mode(mode: str) -> None:
     """Join a cluster with the authentication it was started with: a new local cluster uses a token by default
     (Ray 2.5x, ``RAY_AUTH_MODE=token``, the token in ``~/.ray/auth_token``), and ``ray.init(address=...)`` looks for
-    one only when told to. This is what ``ray.init(address="local")`` does in the process that starts a cluster."""
+    one only when told to. The process stays in token mode after, as one that ran ``ray.init(address="local")``
+    does (Ray keeps what it read)."""
     if mode != "token" or os.environ.get("RAY_AUTH_MODE") == "token":
         return
     os.environ["RAY_AUTH_MODE"] = "token"
@@ -351,7 +353,9 @@ def run_on_ray(assets, outdir: str, manifest, force: bool, device, progress, wor
                                        inputs=inputs.get(assets[k].name), unreadable=unreadable.get(assets[k].name),
                                        digest=digests[k]))])
             if waiting:
-                start_ray(ray, address=head.address(wait=None), **_options())
+                address = head.address(wait=None)
+                _use_auth_mode(head.auth_mode)
+                start_ray(ray, address=address, **_options())
         if waiting:
             _bind_on_workers(ray, assets, outdir, said, waiting, workers, device, local=head is not None,
                              inputs=inputs, unreadable=unreadable, digests=digests)
