@@ -3,9 +3,10 @@
 ``run_batch(..., workers=N)`` starts a new local Ray cluster with N worker slots (on a GPU host, default one per GPU:
 each worker asks for ``num_gpus=1``, Ray sets ``CUDA_VISIBLE_DEVICES``, and the worker's Warp sees only its GPU);
 ``ray_address=...`` joins a running cluster instead (one worker per CPU slot, or per GPU). A batch with nothing to do
-(everything up to date) starts or joins no cluster. (Binding the first assets in this process while Ray starts was
-tried and taken out: Ray starts its processes by forking, and a fork while this process is inside a multithreaded
-BLAS call can leave that call waiting for ever, which it did twice in about a dozen batches on 2 cores.)
+(everything up to date) starts or joins no cluster. A new local cluster is started by a child process
+(:class:`LocalHead`) while this one binds the first assets itself: Ray starts its processes by forking, and a fork
+while this process is inside a multithreaded BLAS call can leave that call waiting for ever (it did, twice in about
+a dozen batches on 2 cores, when this process started Ray on a thread of its own while binding).
 
 The driver reads the manifest, skips up-to-date assets and holds the folder's lock. Each worker is a Ray actor
 (:class:`BindWorker`) made at the start: it imports, starts Warp on its device and loads the kernels once, while the
@@ -107,7 +108,7 @@ def _options() -> dict:
 #: the child process that starts a new local cluster for the batch: it prints the cluster's address (or why it could
 #: not start one) and keeps the cluster up until its standard input closes (the batch is done, or gone)
 _HEAD = """
-import json, sys
+import json, os, sys
 options = json.loads(sys.argv[1])
 try:
     import ray
@@ -115,7 +116,6 @@ try:
 except Exception as exc:
     print("error", " ".join(str(exc).split())[:200] or type(exc).__name__, flush=True)
     sys.exit(1)
-import os
 print("address", context.address_info["gcs_address"], os.environ.get("RAY_AUTH_MODE", ""), flush=True)
 sys.stdin.read()
 ray.shutdown()
@@ -353,9 +353,9 @@ def run_on_ray(assets, outdir: str, manifest, force: bool, device, progress, wor
                                        inputs=inputs.get(assets[k].name), unreadable=unreadable.get(assets[k].name),
                                        digest=digests[k]))])
             if waiting:
-                address = head.address(wait=None)
+                up = head.address(wait=None)
                 _use_auth_mode(head.auth_mode)
-                start_ray(ray, address=address, **_options())
+                start_ray(ray, address=up, **_options())
         if waiting:
             _bind_on_workers(ray, assets, outdir, said, waiting, workers, device, local=head is not None,
                              inputs=inputs, unreadable=unreadable, digests=digests)
