@@ -31,6 +31,7 @@ import importlib
 import logging
 import os
 import signal
+import threading
 import time
 
 from ..cluster import require_ray, start_ray
@@ -147,8 +148,16 @@ class LocalHead:
             options["num_gpus"] = int(gpus)
         self.process = subprocess.Popen([sys.executable, "-c", _HEAD, json.dumps(options)], stdin=subprocess.PIPE,
                                         stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+        self._said: list[str] = []  # the child's one line, read on a thread of its own (pipes cannot be polled
+        self._ready = threading.Event()  # on every system)
+        threading.Thread(target=self._read, daemon=True).start()
         self._address = None
         self.auth_mode = ""  # the cluster's RAY_AUTH_MODE, once it is up
+
+    def _read(self) -> None:
+        with contextlib.suppress(Exception):  # a pipe closed under it: the child ended, as wait() says
+            self._said.append(self.process.stdout.readline())
+        self._ready.set()
 
     def address(self, wait: float | None = 0.0) -> str | None:
         """The cluster's address once it is up, else None (after ``wait`` seconds; None: until it is).
@@ -158,10 +167,8 @@ class LocalHead:
         WarpStokesError
             When the child could not start the cluster.
         """
-        import select
-
-        if self._address is None and select.select([self.process.stdout], [], [], wait)[0]:
-            line = self.process.stdout.readline().split(maxsplit=1)
+        if self._address is None and self._ready.wait(wait):
+            line = (self._said or [""])[0].split(maxsplit=1)
             if len(line) == 2 and line[0] == "address":
                 self._address, *mode = line[1].split()
                 self.auth_mode = mode[0] if mode else ""
@@ -175,8 +182,11 @@ class LocalHead:
         processes stop gracefully, which takes that long). The batch does not wait for it."""
         with contextlib.suppress(OSError):
             self.process.stdin.close()
-            self.process.stdout.close()
-        _ENDING[:] = [p for p in _ENDING if p.poll() is None] + [self.process]  # reaped here, later
+        # (its output is closed once it has ended: the reading thread may still be waiting on it)
+        for ended in [p for p in _ENDING if p.poll() is not None]:
+            ended.stdout.close()
+            _ENDING.remove(ended)
+        _ENDING.append(self.process)
 
 
 #: local clusters' child processes still shutting down after their batch (kept to be reaped, not warned of)
