@@ -112,7 +112,8 @@ def test_without_ray_workers_is_one_line_and_exit_2(tmp_path, monkeypatch):
 def test_a_local_cluster_is_a_new_one_and_nothing_to_do_starts_none(tmp_path, monkeypatch):
     """``--workers`` starts a new local cluster in a child process (``address="local"``: ``ray.init()`` alone joins a
     cluster that happens to run on the machine, whose slots and shutdown are not the batch's), and ends it whatever
-    happens; a cluster that cannot start is one error; a batch whose assets are all up to date starts none."""
+    happens; when it cannot start, the assets left fail saying why; a batch whose assets are all up to date starts
+    none."""
     import warp_stokes.batch.distributed as distributed
 
     assert 'ray.init(address="local"' in distributed._HEAD
@@ -130,8 +131,10 @@ def test_a_local_cluster_is_a_new_one_and_nothing_to_do_starts_none(tmp_path, mo
 
     monkeypatch.setattr(distributed, "LocalHead", Head)
     path = manifest(tmp_path, broken=False)
-    with pytest.raises(ws.WarpStokesError, match="not started"):
-        ws.run_batch(path, tmp_path / "out", device="cpu", workers=2, progress=None)
+    # the assets not bound yet fail saying why; what was done stays (none here), the summary is written
+    results = ws.run_batch(path, tmp_path / "out", device="cpu", workers=2, progress=None)
+    assert [(r.status, r.error) for r in results] == [("failed", "not started in this test")] * 2
+    assert summary(tmp_path / "out")["arm_a"]["error"] == "not started in this test"
     assert heads == [{"cpus": 2, "gpus": 0, "closed": True}]
     assert [r.status for r in ws.run_batch(path, tmp_path / "out", device="cpu", progress=None)] == ["ok", "ok"]
     again = ws.run_batch(path, tmp_path / "out", device="cpu", workers=2, progress=None)
@@ -171,9 +174,9 @@ def test_the_batch_binds_while_its_cluster_starts(tmp_path):
     assert [r["status"] for r in results] == ["ok"] * 3, run.stderr
     assert [r["pid"] == here for r in results] == [True, True, False], run.stderr
     serial = ws.run_batch(path, tmp_path / "serial", device="cpu", progress=None)
-    for r, s in zip(results, serial):
+    for r, s in zip(results, serial):  # (a worker's BLAS runs on one thread: not bit for bit on every machine)
         a = ws.load_binding(r["outputs"][0], device="cpu")
         b = ws.load_binding(s.outputs[0], device="cpu")
-        np.testing.assert_array_equal(a.weights, b.weights)
+        np.testing.assert_allclose(a.weights, b.weights, atol=1e-6)
     assert f"arm_a: started ({results[0]['host']} pid {here})" in run.stderr
     assert f"arm_c: started ({results[2]['host']} pid {results[2]['pid']})" in run.stderr

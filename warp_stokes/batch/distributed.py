@@ -10,15 +10,16 @@ a dozen batches on 2 cores, when this process started Ray on a thread of its own
 
 The driver reads the manifest, skips up-to-date assets and holds the folder's lock. Each worker is a Ray actor
 (:class:`BindWorker`) made at the start: it imports, starts Warp on its device and loads the kernels once, while the
-others do the same, then takes assets as it frees up (the driver keeps :data:`QUEUED` assets handed to each, so that
-none waits between two). It binds one asset with :func:`warp_stokes.batch.asset.bind_one`, which writes the asset's
-outputs under temporary names in the output folder and renames them together (outputs go to a filesystem that the
-workers share with the driver), and returns its :class:`Result` with the host, process and device.
+others do the same, then binds one asset at a time, the next handed to it as soon as it is done. It binds with
+:func:`warp_stokes.batch.asset.bind_one`, which writes the asset's outputs under temporary names in the output folder
+and renames them together (outputs go to a filesystem that the workers share with the driver), and returns its
+:class:`Result` with the host, process and device.
 
-Failures stay per asset: an error in a bind is that asset's result; a worker that dies (killed, out of memory) is
-started again by Ray and its asset bound again (:data:`TASK_RETRIES` times), and then reported as failed. Progress
-goes to stderr, one line per asset as it starts (the worker says so on a Ray queue) and as it finishes, with the
-counts done / running / failed.
+Failures stay per asset: an error in a bind is that asset's result. A worker whose process dies (killed, out of
+memory, its node lost) is started again by Ray where there is room, and gets assets again once it answers; the asset
+it was binding goes back to the front of the queue, for any worker, and fails after dying with its worker
+:data:`TASK_RETRIES` + 1 times. Progress goes to stderr, one line per asset as it starts (the worker says so on a Ray
+queue) and as it finishes, with the counts done / running / failed.
 
 Ray is an optional extra: ``pip install "warp-stokes[ray]"``.
 """
@@ -40,12 +41,10 @@ from ..threads import cpu_threads
 from ..io.outputs import remove_temporaries_of
 from .asset import Result, bind_one, digest_now, earlier_records, outputs_of, skipped, warn_for
 
-__all__ = ["run_on_ray", "require_ray", "BindWorker", "TASK_RETRIES", "QUEUED", "KILL_ONCE_VARIABLE"]
+__all__ = ["run_on_ray", "require_ray", "BindWorker", "TASK_RETRIES", "KILL_ONCE_VARIABLE"]
 
-#: times Ray binds an asset again after its worker process died
+#: times an asset is bound again after its worker process died while binding it
 TASK_RETRIES = 2
-#: calls handed to a worker at a time: the asset it binds and the next, so that it never waits for the driver
-QUEUED = 2
 #: for fault-tolerance tests: a path in this environment variable makes the first asset's call that finds the file there
 #: remove it and kill its own worker process (SIGKILL), as a crash would
 KILL_ONCE_VARIABLE = "WARP_STOKES_KILL_WORKER_ONCE"
@@ -54,8 +53,8 @@ KILL_ONCE_VARIABLE = "WARP_STOKES_KILL_WORKER_ONCE"
 class BindWorker:
     """One worker slot of a batch on Ray, as a Ray actor: a process started once per slot that warms up as soon as it
     is made (imports the bind's modules, starts Warp on its device, loads a bind's kernels), then binds the assets it
-    is handed one after another. Ray restarts it when its process dies (then the call it was running and the one
-    waiting run again, up to :data:`TASK_RETRIES` times each).
+    is handed one after another. Ray starts it again when its process dies; the batch hands its asset to another
+    worker (see the module docstring).
 
     Parameters
     ----------
@@ -236,18 +235,15 @@ def _line(stream, done: int, total: int, running: int, failed: int, result: Resu
           flush=True)
 
 
-def _result(ray, ref, asset) -> Result:
-    """A finished call's Result; a failed one when it could not run (its worker died every time, or it failed to
-    start)."""
-    try:
-        return ray.get(ref)
-    except Exception as exc:
-        reason = " ".join(str(exc).split())[:300]
-        died = isinstance(exc, (ray.exceptions.WorkerCrashedError, ray.exceptions.NodeDiedError,
-                                ray.exceptions.RayActorError))
-        what = f"its worker died ({TASK_RETRIES + 1} tries)" if died else "the Ray task failed"
-        return Result(asset.name, "failed", resolution=asset.resolution, outputs=[],
-                      error=f"{what}: {type(exc).__name__}: {reason}")
+def _died(ray, exc: Exception) -> bool:
+    """Whether a call failed because its worker's process or node died (or is being started again)."""
+    kinds = tuple(getattr(ray.exceptions, name) for name in ("WorkerCrashedError", "NodeDiedError", "RayActorError",
+                                                             "ActorUnavailableError") if hasattr(ray.exceptions, name))
+    return isinstance(exc, kinds)
+
+
+def _failed(asset, why: str) -> Result:
+    return Result(asset.name, "failed", resolution=asset.resolution, outputs=[], error=why)
 
 
 def _started_queue(ray, progress):
@@ -344,34 +340,44 @@ def run_on_ray(assets, outdir: str, manifest, force: bool, device, progress, wor
         return results
     said = _Progress(assets, results, progress)
     waiting = collections.deque(todo)
-    here = (socket.gethostname(), os.getpid())
+    me = (socket.gethostname(), os.getpid())
     ours, head = not ray.is_initialized(), None  # else: a cluster this process is connected to, left as it is
     try:
         if ours and address is not None:
             start_ray(ray, address=address, **_options())
         elif ours:
+            from ..binding.spread import spread_devices
+
             slots, gpus = _local_slots(workers, device)
             head = LocalHead(slots, gpus)
-            # until the cluster is up, this process binds, as one of its workers would
-            on_cpu = gpus == 0 or not _has_cuda()
-            here_device = (device or "cpu") if on_cpu else (device or "cuda:0")
-            threads = max(1, cpu_threads() // slots) if on_cpu else None
-            while waiting and head.address() is None:
-                k = waiting.popleft()
-                said.say([(k, (*here, time.time()))])
-                said.say([(k, bind_one(assets[k], outdir, here_device, threads=threads,
-                                       inputs=inputs.get(assets[k].name), unreadable=unreadable.get(assets[k].name),
-                                       digest=digests[k]))])
-            if waiting:
-                up = head.address(wait=None)
-                _use_auth_mode(head.auth_mode)
-                start_ray(ray, address=up, **_options())
+            # until the cluster is up, this process binds, as one of its workers would (not a bind spread over
+            # several devices: that would start Ray here)
+            binds_here = spread_devices(device) is None
+            if binds_here:
+                on_cpu = gpus == 0 or not _has_cuda()
+                here_device = (device or "cpu") if on_cpu else (device or "cuda:0")
+                threads = max(1, cpu_threads() // slots) if on_cpu else None
+            try:
+                while binds_here and waiting and head.address() is None:
+                    k = waiting.popleft()
+                    said.say([(k, (*me, time.time()))])
+                    said.say([(k, bind_one(assets[k], outdir, here_device, threads=threads,
+                                           inputs=inputs.get(assets[k].name),
+                                           unreadable=unreadable.get(assets[k].name), digest=digests[k]))])
+                if waiting:
+                    up = head.address(wait=None)
+                    _use_auth_mode(head.auth_mode)
+                    start_ray(ray, address=up, **_options())
+            except WarpStokesError as exc:  # no cluster: what is bound stays, the rest fails saying why
+                while waiting:
+                    k = waiting.popleft()
+                    said.say([(k, _failed(assets[k], str(exc)))])
         if waiting:
             _bind_on_workers(ray, assets, outdir, said, waiting, workers, device, local=head is not None,
                              inputs=inputs, unreadable=unreadable, digests=digests)
         # no worker binds any more and the folder is locked: what this batch's workers left (a worker killed
         # mid-write, on any host) is removed; nothing of anyone else's
-        remove_temporaries_of(outdir, said.workers_seen - {here})
+        remove_temporaries_of(outdir, said.workers_seen - {me})
         return results
     finally:
         if ours and ray.is_initialized():
@@ -394,32 +400,33 @@ def _bind_on_workers(ray, assets, outdir: str, said: _Progress, waiting, workers
     count, options, worker_device, threads = _slots(ray, workers, device, local=local)
     harmonic = any(assets[k].method == "harmonic" for k in waiting)
     folder = os.path.abspath(outdir)  # a worker's working folder is not this process's (another host's, even)
-    worker = ray.remote(BindWorker).options(max_restarts=-1, max_task_retries=TASK_RETRIES, **options)
+    # Ray starts a dead worker again, but does not run its call again: the asset goes to whichever worker is free
+    # (a call queued behind one that kills its worker would otherwise be charged that death too, and a worker
+    # waiting for a slot to start again in would hold its asset for ever)
+    worker = ray.remote(BindWorker).options(max_restarts=-1, max_task_retries=0, **options)
     pool = [worker.remote(worker_device, threads, harmonic) for _ in range(min(count, len(waiting)))]
     started = _started_queue(ray, said.stream)
+    deaths = collections.Counter()  # asset -> times its worker died while binding it
     try:
-        # an asset goes to a worker once it has answered (is up and warm: a worker a joined cluster has no room for
-        # gets none), then as its calls finish
+        # a worker gets an asset once it has answered (is up and warm: a worker a joined cluster has no room for
+        # gets none; one started again answers again), then each time it is done with one
         greetings = {w.where.remote(): i for i, w in enumerate(pool)}
-        load = [0] * len(pool)
+        free: collections.deque[int] = collections.deque()
         pending = {}  # call -> (asset, worker)
 
-        def hand(i: int) -> None:
-            # a second asset only while there are more than workers to take them: a short batch is spread out
-            while waiting and load[i] < (QUEUED if len(waiting) > len(pool) else 1):
-                k = waiting.popleft()
+        def hand() -> None:
+            while waiting and free:
+                i, k = free.popleft(), waiting.popleft()
                 call = pool[i].bind.remote(assets[k], folder, started, k, inputs.get(assets[k].name),
                                            unreadable.get(assets[k].name), digests[k])
                 pending[call] = (k, i)
-                load[i] += 1
 
         while pending or (waiting and greetings):
             calls = list(pending) + list(greetings)
-            # with progress, every half second what started and finished meanwhile
-            if started is None:
-                finished, _ = ray.wait(calls, num_returns=1)
-            else:
-                finished, _ = ray.wait(calls, num_returns=len(calls), timeout=0.5)
+            # with progress, at least every half second what started and finished meanwhile
+            finished, rest = ray.wait(calls, num_returns=1, timeout=None if started is None else 0.5)
+            if finished and rest:  # and all else that is done by now
+                finished += ray.wait(rest, num_returns=len(rest), timeout=0)[0]
             events = [(k, (host, pid, when)) for k, host, pid, when in _drain(started)]
             for call in finished:
                 if call in greetings:
@@ -428,20 +435,34 @@ def _bind_on_workers(ray, assets, outdir: str, said: _Progress, waiting, workers
                         said.workers_seen.add(tuple(ray.get(call)))
                     except Exception:  # it could not start: the assets go to the others
                         continue
-                    hand(i)
+                    free.append(i)
                     continue
                 k, i = pending.pop(call)
-                load[i] -= 1
-                hand(i)  # its next asset before this one's result is looked at: the worker never waits
-                result = _result(ray, call, assets[k])
+                try:
+                    result = ray.get(call)
+                except Exception as exc:
+                    if not _died(ray, exc):
+                        reason = " ".join(str(exc).split())[:300]
+                        events.append((k, _failed(assets[k], f"the Ray call failed: {type(exc).__name__}: {reason}")))
+                        free.append(i)
+                        continue
+                    # it gets assets again once Ray has started it again (a call to it meanwhile would fail)
+                    greetings[pool[i].where.options(max_task_retries=-1).remote()] = i
+                    deaths[k] += 1
+                    if deaths[k] > TASK_RETRIES:
+                        events.append((k, _failed(assets[k], f"its worker died ({deaths[k]} tries)")))
+                    else:
+                        waiting.appendleft(k)
+                    continue
                 if result.outputs:  # as this process names them
                     result.outputs = outputs_of(assets[k], outdir)
                 events.append((k, result))
+                free.append(i)
+            hand()
             said.say(events)
         while waiting:  # no worker ever started
             k = waiting.popleft()
-            said.say([(k, Result(assets[k].name, "failed", resolution=assets[k].resolution, outputs=[],
-                                 error="no Ray worker could start"))])
+            said.say([(k, _failed(assets[k], "no Ray worker could start"))])
     finally:
         for actor in pool:
             with contextlib.suppress(Exception):
@@ -449,3 +470,5 @@ def _bind_on_workers(ray, assets, outdir: str, said: _Progress, waiting, workers
         if started is not None:
             with contextlib.suppress(Exception):
                 started.shutdown()
+
+

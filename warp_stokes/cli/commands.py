@@ -521,15 +521,19 @@ def _check_listen(host: str, port: int) -> None:
 
 def process_started() -> float:
     """When this process started, in seconds since the epoch (Linux's ``/proc``: the command's start, Python's
-    included); elsewhere when this module was imported."""
+    included); elsewhere, or where ``/proc`` gives a time that cannot be this process's start, when this module was
+    imported."""
     try:
         with open("/proc/self/stat", encoding="ascii") as fh:
             ticks = int(fh.read().rsplit(")", 1)[1].split()[19])  # field 22, starttime: clock ticks after boot
         with open("/proc/uptime", encoding="ascii") as fh:  # seconds after boot, to the hundredth (btime: whole ones)
             now, uptime = time.time(), float(fh.read().split()[0])
-        return now - uptime + ticks / os.sysconf("SC_CLK_TCK")
+        started = now - uptime + ticks / os.sysconf("SC_CLK_TCK")
     except (OSError, ValueError, IndexError):
         return _IMPORTED
+    # a container may show its own uptime beside the host's start ticks: a start after this module's import, or
+    # long before, is not this process's
+    return started if _IMPORTED - 600 <= started <= _IMPORTED else _IMPORTED
 
 
 _IMPORTED = time.time()
