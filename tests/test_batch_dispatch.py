@@ -145,3 +145,15 @@ def test_every_asset_gets_one_result_whatever_the_workers_do(data, n_assets, cpu
             assert result.outputs == [os.path.join("out", f"asset_{k}.npz")]
             assert ray.handed[k] == deaths.get(k, 0) + 1
     assert said.done == n_assets and said.failed == sum(r.status == "failed" for r in results)
+
+
+@given(gpus=st.integers(1, 8), workers=st.one_of(st.none(), st.integers(1, 40)))
+def test_gpu_workers_all_fit_on_the_gpus(gpus, workers):
+    """Each GPU worker's share of a GPU is such that all of them fit, each on one GPU (Ray places a fractional share
+    on one GPU, counting in ten-thousandths): 3 workers on 2 GPUs, or 6 on one, all start."""
+    count, options, device, threads = distributed._slots(FakeRay(None, 4, gpus, [True], {}), workers, None, local=True)
+    assert count == (gpus if workers is None else workers) and device == "cuda:0" and threads is None
+    share = options["num_gpus"]
+    assert 0 < share <= 1 and share == round(share, 4)
+    per_gpu = int(1 / share + 1e-9)  # workers that fit on one GPU
+    assert per_gpu * gpus >= count

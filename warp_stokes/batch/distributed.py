@@ -30,6 +30,7 @@ import collections
 import contextlib
 import importlib
 import logging
+import math
 import os
 import signal
 import threading
@@ -217,7 +218,10 @@ def _slots(ray, workers: int | None, device, local: bool) -> tuple[int, dict, st
     gpus = float(resources.get("GPU", 0))
     if gpus > 0 and not (device is not None and str(device).startswith("cpu")):
         count = int(gpus) if workers is None else max(1, int(workers))
-        share = min(1.0, gpus / count)
+        # a share must fit on one GPU with the others there: 3 workers on 2 GPUs take half of one each (two on one,
+        # one on the other), not two thirds (one a GPU, the third never placed); Ray counts in ten-thousandths, so
+        # the share is rounded down (six sixths rounded up would not fit on one)
+        share = 1.0 if count <= gpus else math.floor(10_000 / math.ceil(count / gpus)) / 10_000
         return count, {"num_gpus": share, "num_cpus": 1}, "cuda:0", None  # CUDA_VISIBLE_DEVICES leaves one: cuda:0
     slots = max(1, int(resources.get("CPU", 1)))
     threads = max(1, cpu_threads() // slots) if local else 1
