@@ -25,4 +25,3 @@ def start_ray(ray, **options) -> None:
         where = f"join the Ray cluster at {options['address']}" if options.get("address") else "start Ray"
         text = " ".join(str(exc).split())[:200] or type(exc).__name__
         raise WarpStokesError(f"could not {where} ({text})") from None
-

@@ -18,7 +18,7 @@ from ..io.inputs import InputSet, inputs_of
 from ..io.outputs import writing
 from .manifest import MADE_CAGE, Asset
 
-__all__ = ["Result", "asset_inputs", "inputs_digest", "digest_now", "outputs_of", "earlier_records", "skipped",
+__all__ = ["Result", "asset_inputs", "inputs_digest", "digest_now", "outputs_of", "earlier_records", "skipped", "up_to_date",
            "bind_one", "warn_for", "progress_line"]
 
 
@@ -134,6 +134,15 @@ def skipped(asset: Asset, outdir: str, force: bool, digest: str | None, earlier:
         if record.get(key) is not None:  # (the resolution "auto" chose, too)
             setattr(result, key, record[key])
     return result
+
+
+def up_to_date(assets: list[Asset], outdir: str, force: bool, inputs: dict) -> tuple[list, list]:
+    """Each asset's :func:`digest_now` (hashed once: the skip and the binding's record both use it) and its
+    :func:`skipped` Result where its outputs are up to date, else None. ``inputs``: asset name -> InputSet (an asset
+    missing there could not be read: never skipped)."""
+    earlier = earlier_records(outdir)
+    digests = [digest_now(asset, inputs.get(asset.name)) for asset in assets]
+    return digests, [skipped(asset, outdir, force, digest, earlier) for asset, digest in zip(assets, digests)]
 
 
 def _grid_resolution(asset: Asset) -> int | None:

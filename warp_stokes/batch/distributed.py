@@ -40,7 +40,7 @@ from ..cluster import require_ray, start_ray
 from ..errors import WarpStokesError
 from ..threads import cpu_threads
 from ..io.outputs import remove_temporaries_of
-from .asset import Result, bind_one, digest_now, earlier_records, outputs_of, skipped, warn_for
+from .asset import Result, bind_one, outputs_of, up_to_date, warn_for
 
 __all__ = ["run_on_ray", "require_ray", "BindWorker", "TASK_RETRIES", "KILL_ONCE_VARIABLE"]
 
@@ -216,7 +216,7 @@ def _slots(ray, workers: int | None, device, local: bool) -> tuple[int, dict, st
     cluster one thread per worker, as its slot says."""
     resources = ray.cluster_resources()
     gpus = float(resources.get("GPU", 0))
-    if gpus > 0 and not (device is not None and str(device).startswith("cpu")):
+    if gpus > 0 and not _on_cpu(device):
         count = int(gpus) if workers is None else max(1, int(workers))
         # a share must fit on one GPU with the others there: 3 workers on 2 GPUs take half of one each (two on one,
         # one on the other), not two thirds (one a GPU, the third never placed); Ray counts in ten-thousandths, so
@@ -251,17 +251,18 @@ def _failed(asset, why: str) -> Result:
 
 
 def _started_queue(ray, progress):
-    """A queue the tasks put (asset index, host, pid, time) on as they start, when progress is shown; else None."""
+    """A queue the workers put (asset index, host, pid, time) on as they start an asset, when progress is shown;
+    else None."""
     if not progress:
         return None
     from ray.util.queue import Queue
 
-    # it takes no CPU slot: the tasks have them all
+    # it takes no CPU slot: the workers have them all
     return Queue(actor_options={"num_cpus": 0})
 
 
 def _drain(queue) -> list:
-    """What the tasks said since the last call (nothing when there is no queue or it is gone)."""
+    """What the workers said since the last call (nothing when there is no queue or it is gone)."""
     if queue is None:
         return []
     try:
@@ -273,12 +274,17 @@ def _drain(queue) -> list:
 def _local_slots(workers: int | None, device) -> tuple[int, int | None]:
     """A new local cluster's workers (on a GPU host, default one per GPU; else one per core) and GPUs (None: as many
     as Ray finds; 0 for a CPU batch)."""
-    on_cpu = device is not None and str(device).startswith("cpu")
+    on_cpu = _on_cpu(device)
     if workers is None:
         from ..device import cuda_device_count
 
         workers = (0 if on_cpu else cuda_device_count()) or os.cpu_count() or 1
     return int(workers), 0 if on_cpu else None
+
+
+def _on_cpu(device) -> bool:
+    """Whether the batch was asked to bind on CPUs (default: the GPUs where there are some)."""
+    return device is not None and str(device).startswith("cpu")
 
 
 class _Progress:
@@ -307,9 +313,9 @@ class _Progress:
                 timed.append((self.began[k] + what.seconds if k in self.began else time.time(), 1, k, what))
         for _, _, k, what in sorted(timed, key=lambda e: e[:3]):
             if isinstance(what, tuple):  # started
-                if self.results[k] is not None:  # Ray ran a finished call again (to rebuild a lost result)
+                if self.results[k] is not None:  # a start said after the asset's end: nothing to say
                     continue
-                again = k in self.running  # Ray binds an asset again after its worker died
+                again = k in self.running  # bound again after its worker died
                 self.running.add(k)
                 if self.stream:
                     print(f"{self._counts()} {self.assets[k].name}: {'started again' if again else 'started'} "
@@ -333,12 +339,8 @@ def run_on_ray(assets, outdir: str, manifest, force: bool, device, progress, wor
     import socket
 
     ray = require_ray()
-    results: list[Result | None] = [None] * len(assets)
-    earlier = earlier_records(outdir)
     inputs, unreadable = inputs or {}, unreadable or {}
-    digests = [digest_now(asset, inputs.get(asset.name)) for asset in assets]  # hashed once: skip or record
-    for k, asset in enumerate(assets):
-        results[k] = skipped(asset, outdir, force, digests[k], earlier)
+    digests, results = up_to_date(assets, outdir, force, inputs)
     todo = [k for k, r in enumerate(results) if r is None]
     if not todo:  # everything up to date: no cluster to start or join
         return results

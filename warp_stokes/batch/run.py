@@ -11,7 +11,7 @@ from .. import __version__
 from ..errors import WarpStokesError
 from ..io.inputs import InputSet, inputs_of
 from ..io.outputs import atomic_output, check_output_target, output_folder, remove_stale_temporaries
-from .asset import (Result, asset_inputs, bind_one, digest_now, earlier_records, outputs_of, progress_line, skipped,
+from .asset import (Result, asset_inputs, bind_one, earlier_records, outputs_of, progress_line, skipped, up_to_date,
                     warn_for)
 from .distributed import require_ray, run_on_ray
 from .lock import folder_lock
@@ -106,10 +106,8 @@ def refuse_outputs_over_inputs(assets: list[Asset], outdir: str, manifest, input
 
 def _run_assets(assets, outdir, force, device, progress, inputs: dict, unreadable: dict) -> list[Result]:
     results = []
-    earlier = earlier_records(outdir)
-    digests = [digest_now(asset, inputs.get(asset.name)) for asset in assets]  # hashed once: skip or record
-    up_to_date = [skipped(asset, outdir, force, digest, earlier) for asset, digest in zip(assets, digests)]
-    todo = [asset for asset, done in zip(assets, up_to_date) if done is None]
+    digests, current = up_to_date(assets, outdir, force, inputs)
+    todo = [asset for asset, done in zip(assets, current) if done is None]
     if progress and todo:  # once the folder is ours (Ray workers compile in their own processes)
         from ..kernel_cache import BIND_MODULES, KERNEL_MODULES, announce_compilation  # (Warp: not for a Ray driver)
 
@@ -118,7 +116,7 @@ def _run_assets(assets, outdir, force, device, progress, inputs: dict, unreadabl
                              modules=KERNEL_MODULES if any(a.poses for a in todo) and getattr(device, "is_cuda", False)
                              else BIND_MODULES)
     for k, asset in enumerate(assets):
-        result = up_to_date[k]
+        result = current[k]
         if result is None:
             result = bind_one(asset, outdir, device, progress, k, len(assets), inputs=inputs.get(asset.name),
                               unreadable=unreadable.get(asset.name), digest=digests[k])
